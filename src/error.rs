@@ -1,0 +1,211 @@
+//! Errors with stable codes, shared by every layer.
+//!
+//! Errors fall into three classes (after lyon): **bad input** (the caller's data is wrong: a truncated file, a
+//! NaN coordinate, an index out of range), **resource limits** (the input is fine but exceeds a configured
+//! budget) and **internal bugs** (an invariant of ours broke). Each error carries a stable, dotted code such as
+//! `input.truncated` that scripts, the daemon's `error.json` and the D-Bus API may rely on; the message text is
+//! for people and may change.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// Result type of the library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Which side is at fault.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorClass {
+    /// The input data or the request is wrong; retrying with the same input fails the same way.
+    BadInput,
+    /// The input is acceptable but exceeds a configured limit (memory budget, size).
+    Resource,
+    /// A bug in scanstation: an invariant did not hold.
+    Internal,
+}
+
+/// Stable error codes. The string form (`ErrorCode::as_str`) never changes once released.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum ErrorCode {
+    /// The file does not exist or cannot be opened.
+    InputNotFound,
+    /// An operating-system read error other than a missing file.
+    InputIo,
+    /// The file is empty (or holds only whitespace/comments).
+    InputEmpty,
+    /// Neither the extension nor the content names a supported format.
+    InputUnknownFormat,
+    /// A header is malformed (PLY/OFF/PTS header, STL preamble).
+    InputBadHeader,
+    /// The data ends before the header's counts are satisfied.
+    InputTruncated,
+    /// A token is not a number of the expected type.
+    InputBadNumber,
+    /// A record has the wrong number of fields.
+    InputBadRecord,
+    /// A face refers to a vertex that does not exist.
+    InputBadIndex,
+    /// A face has fewer than three vertices.
+    InputBadFace,
+    /// A coordinate is NaN or infinite.
+    InputNonFinite,
+    /// A count cannot be right: more elements than the file's bytes can hold, or beyond the index range.
+    InputAbsurdCount,
+    /// The file holds no vertices, or a mesh was needed and the file has no faces.
+    InputNoGeometry,
+    /// An argument or option is out of its valid range.
+    InputBadArgument,
+    /// The operation would need more memory than its budget allows.
+    ResourceMemoryBudget,
+    /// Writing an output failed (disk full, permissions) or would overwrite an input.
+    ResourceOutput,
+    /// An internal invariant failed.
+    InternalBug,
+}
+
+impl ErrorCode {
+    /// The stable dotted code, e.g. `input.truncated`.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            ErrorCode::InputNotFound => "input.not-found",
+            ErrorCode::InputIo => "input.io",
+            ErrorCode::InputEmpty => "input.empty",
+            ErrorCode::InputUnknownFormat => "input.unknown-format",
+            ErrorCode::InputBadHeader => "input.bad-header",
+            ErrorCode::InputTruncated => "input.truncated",
+            ErrorCode::InputBadNumber => "input.bad-number",
+            ErrorCode::InputBadRecord => "input.bad-record",
+            ErrorCode::InputBadIndex => "input.bad-index",
+            ErrorCode::InputBadFace => "input.bad-face",
+            ErrorCode::InputNonFinite => "input.non-finite",
+            ErrorCode::InputAbsurdCount => "input.absurd-count",
+            ErrorCode::InputNoGeometry => "input.no-geometry",
+            ErrorCode::InputBadArgument => "input.bad-argument",
+            ErrorCode::ResourceMemoryBudget => "resource.memory-budget",
+            ErrorCode::ResourceOutput => "resource.output",
+            ErrorCode::InternalBug => "internal.bug",
+        }
+    }
+
+    /// The class this code belongs to.
+    pub const fn class(self) -> ErrorClass {
+        match self {
+            ErrorCode::ResourceMemoryBudget | ErrorCode::ResourceOutput => ErrorClass::Resource,
+            ErrorCode::InternalBug => ErrorClass::Internal,
+            _ => ErrorClass::BadInput,
+        }
+    }
+}
+
+impl fmt::Display for ErrorCode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl serde::Serialize for ErrorCode {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(self.as_str())
+    }
+}
+
+/// Where in a file an error was found.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Location {
+    /// 1-based line of a text file.
+    Line(u64),
+    /// 0-based byte offset into the (decompressed) data of a binary file.
+    Byte(u64),
+}
+
+impl fmt::Display for Location {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Location::Line(l) => write!(f, "line {l}"),
+            Location::Byte(b) => write!(f, "byte {b}"),
+        }
+    }
+}
+
+/// A scanstation error: a stable code, the file and place it concerns, and a message for people.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Error {
+    /// Stable code.
+    pub code: ErrorCode,
+    /// The file concerned, when there is one.
+    pub file: Option<PathBuf>,
+    /// Line or byte in `file`.
+    pub location: Option<Location>,
+    /// What went wrong, for people.
+    pub message: String,
+    /// What to do about it, when we know.
+    pub hint: Option<String>,
+}
+
+impl std::error::Error for Error {}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "[{}] ", self.code)?;
+        if let Some(file) = &self.file {
+            write!(f, "{}", file.display())?;
+            if let Some(loc) = &self.location {
+                write!(f, " ({loc})")?;
+            }
+            write!(f, ": ")?;
+        } else if let Some(loc) = &self.location {
+            write!(f, "{loc}: ")?;
+        }
+        write!(f, "{}", self.message)?;
+        if let Some(h) = &self.hint {
+            write!(f, " (hint: {h})")?;
+        }
+        Ok(())
+    }
+}
+
+impl Error {
+    /// A new error with a code and message, no file or location yet.
+    pub fn new(code: ErrorCode, message: impl Into<String>) -> Self {
+        Error {
+            code,
+            file: None,
+            location: None,
+            message: message.into(),
+            hint: None,
+        }
+    }
+
+    /// An internal-bug error.
+    pub fn internal(message: impl Into<String>) -> Self {
+        Error::new(ErrorCode::InternalBug, message)
+    }
+
+    /// Attach the file (kept if one is already set).
+    pub fn in_file(mut self, file: &Path) -> Self {
+        if self.file.is_none() {
+            self.file = Some(file.to_path_buf());
+        }
+        self
+    }
+
+    /// Attach a location (kept if one is already set).
+    pub fn at(mut self, loc: Location) -> Self {
+        if self.location.is_none() {
+            self.location = Some(loc);
+        }
+        self
+    }
+
+    /// Attach a hint.
+    pub fn with_hint(mut self, hint: impl Into<String>) -> Self {
+        self.hint = Some(hint.into());
+        self
+    }
+
+    /// The class of this error.
+    pub fn class(&self) -> ErrorClass {
+        self.code.class()
+    }
+}

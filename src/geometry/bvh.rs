@@ -1,0 +1,377 @@
+//! Bounding-volume hierarchies for closest-point queries on triangles and points.
+//!
+//! The tree is built top-down by median split on the axis of largest centroid spread (O(n log n), depth
+//! ≤ 2·log₂ n), with up to [`LEAF_SIZE`] primitives per leaf. Primitives are copied into leaf order so a leaf's
+//! primitives are contiguous in memory. Boxes are f32 (exact for f32 vertex data); distances are f64.
+//! A query descends the nearer child first and prunes boxes farther than the best distance found: about
+//! O(log n) for points near the surface.
+
+use crate::geometry::mesh::{PointCloud, TriMesh};
+use crate::geometry::vec3::{self, V3, wide};
+
+/// Most primitives per leaf.
+pub const LEAF_SIZE: usize = 4;
+
+#[derive(Copy, Clone, Debug)]
+struct Node {
+    min: [f32; 3],
+    max: [f32; 3],
+    /// Leaf: first primitive (in leaf order). Inner: index of the left child (the right one follows it).
+    start: u32,
+    /// Leaf: number of primitives (> 0). Inner: 0.
+    count: u32,
+}
+
+/// Squared distance from `p` to the box of `n` (0 inside).
+#[inline]
+fn box_dist2(n: &Node, p: V3) -> f64 {
+    let mut d2 = 0.0;
+    for k in 0..3 {
+        let lo = n.min[k] as f64;
+        let hi = n.max[k] as f64;
+        let d = if p[k] < lo {
+            lo - p[k]
+        } else if p[k] > hi {
+            p[k] - hi
+        } else {
+            0.0
+        };
+        d2 += d * d;
+    }
+    d2
+}
+
+/// The tree over abstract primitives, each given by its f32 bounding box.
+#[derive(Clone, Debug)]
+struct Tree {
+    nodes: Vec<Node>,
+    /// Original primitive id of each leaf-order slot.
+    order: Vec<u32>,
+}
+
+impl Tree {
+    fn build(boxes: &[([f32; 3], [f32; 3])]) -> Tree {
+        let n = boxes.len();
+        let mut order: Vec<u32> = (0..n as u32).collect();
+        let centroid = |i: u32, k: usize| boxes[i as usize].0[k] + boxes[i as usize].1[k];
+        let mut nodes = vec![Node {
+            min: [0.0; 3],
+            max: [0.0; 3],
+            start: 0,
+            count: 0,
+        }];
+        if n == 0 {
+            return Tree { nodes, order };
+        }
+        // (node index, range start, range end)
+        let mut work = vec![(0usize, 0usize, n)];
+        while let Some((ni, s, e)) = work.pop() {
+            let mut min = [f32::INFINITY; 3];
+            let mut max = [f32::NEG_INFINITY; 3];
+            let mut cmin = [f32::INFINITY; 3];
+            let mut cmax = [f32::NEG_INFINITY; 3];
+            for &i in &order[s..e] {
+                let (bmin, bmax) = boxes[i as usize];
+                for k in 0..3 {
+                    min[k] = min[k].min(bmin[k]);
+                    max[k] = max[k].max(bmax[k]);
+                    let c = centroid(i, k);
+                    cmin[k] = cmin[k].min(c);
+                    cmax[k] = cmax[k].max(c);
+                }
+            }
+            let axis = (0..3)
+                .max_by(|&a, &b| (cmax[a] - cmin[a]).total_cmp(&(cmax[b] - cmin[b])))
+                .unwrap();
+            if e - s <= LEAF_SIZE || cmax[axis] <= cmin[axis] && e - s <= 4 * LEAF_SIZE {
+                nodes[ni] = Node {
+                    min,
+                    max,
+                    start: s as u32,
+                    count: (e - s) as u32,
+                };
+                continue;
+            }
+            let mid = s + (e - s) / 2;
+            order[s..e].select_nth_unstable_by(mid - s, |&a, &b| {
+                centroid(a, axis)
+                    .total_cmp(&centroid(b, axis))
+                    .then(a.cmp(&b))
+            });
+            let left = nodes.len();
+            nodes.push(Node {
+                min,
+                max,
+                start: 0,
+                count: 0,
+            });
+            nodes.push(Node {
+                min,
+                max,
+                start: 0,
+                count: 0,
+            });
+            nodes[ni] = Node {
+                min,
+                max,
+                start: left as u32,
+                count: 0,
+            };
+            work.push((left + 1, mid, e));
+            work.push((left, s, mid));
+        }
+        Tree { nodes, order }
+    }
+
+    /// Nearest primitive to `p` whose squared distance (from `dist2(slot)`, slot in leaf order) is below
+    /// `bound2`. Returns (slot, squared distance).
+    #[inline]
+    fn nearest(
+        &self,
+        p: V3,
+        bound2: f64,
+        mut dist2: impl FnMut(usize) -> f64,
+    ) -> Option<(usize, f64)> {
+        if self.order.is_empty() {
+            return None;
+        }
+        let mut best = bound2;
+        let mut hit = None;
+        let mut stack: [(u32, f64); 64] = [(0, 0.0); 64];
+        let mut sp = 0;
+        stack[sp] = (0, box_dist2(&self.nodes[0], p));
+        sp += 1;
+        while sp > 0 {
+            sp -= 1;
+            let (ni, d2) = stack[sp];
+            if d2 >= best {
+                continue;
+            }
+            let node = &self.nodes[ni as usize];
+            if node.count > 0 {
+                let s = node.start as usize;
+                for slot in s..s + node.count as usize {
+                    let d = dist2(slot);
+                    if d < best {
+                        best = d;
+                        hit = Some((slot, d));
+                    }
+                }
+            } else {
+                let l = node.start;
+                let (dl, dr) = (
+                    box_dist2(&self.nodes[l as usize], p),
+                    box_dist2(&self.nodes[l as usize + 1], p),
+                );
+                let (near, dn, far, df) = if dl <= dr {
+                    (l, dl, l + 1, dr)
+                } else {
+                    (l + 1, dr, l, dl)
+                };
+                if df < best {
+                    stack[sp] = (far, df);
+                    sp += 1;
+                }
+                if dn < best {
+                    stack[sp] = (near, dn);
+                    sp += 1;
+                }
+            }
+        }
+        hit
+    }
+}
+
+/// Closest point to `p` on triangle (a, b, c), by Voronoi regions (Ericson, *Real-Time Collision Detection*,
+/// §5.1.5). Exact up to floating-point rounding, robust for degenerate triangles. Returns the point.
+#[inline]
+pub fn closest_point_on_triangle(p: V3, a: V3, b: V3, c: V3) -> V3 {
+    use vec3::{add, dot, scale, sub};
+    let ab = sub(b, a);
+    let ac = sub(c, a);
+    let ap = sub(p, a);
+    let d1 = dot(ab, ap);
+    let d2 = dot(ac, ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = sub(p, b);
+    let d3 = dot(ab, bp);
+    let d4 = dot(ac, bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return add(a, scale(ab, v));
+    }
+    let cp = sub(p, c);
+    let d5 = dot(ab, cp);
+    let d6 = dot(ac, cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return add(a, scale(ac, w));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return add(b, scale(sub(c, b), w));
+    }
+    let denom = va + vb + vc;
+    if !(denom.abs() > 0.0) {
+        // Degenerate (collinear) triangle that escaped the edge tests: fall back to the nearest corner.
+        let da = vec3::norm2(sub(p, a));
+        let db = vec3::norm2(sub(p, b));
+        let dc = vec3::norm2(sub(p, c));
+        return if da <= db && da <= dc {
+            a
+        } else if db <= dc {
+            b
+        } else {
+            c
+        };
+    }
+    let v = vb / denom;
+    let w = vc / denom;
+    add(a, add(scale(ab, v), scale(ac, w)))
+}
+
+/// Result of a closest-point query.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Closest {
+    /// Index of the triangle (or point) in the source.
+    pub index: u32,
+    /// The closest point.
+    pub point: V3,
+    /// Euclidean distance.
+    pub distance: f64,
+}
+
+/// BVH over the triangles of a mesh.
+#[derive(Clone, Debug)]
+pub struct TriangleBvh {
+    tree: Tree,
+    /// Triangle corners in leaf order.
+    tris: Vec<[[f32; 3]; 3]>,
+}
+
+impl TriangleBvh {
+    /// Build over all triangles of `mesh`. Cost: O(F log F) time, ≈ 36·F + 32·(2F/LEAF_SIZE) bytes.
+    pub fn new(mesh: &TriMesh) -> Self {
+        let corners = |t: &[u32; 3]| t.map(|i| mesh.positions[i as usize]);
+        let boxes: Vec<_> = mesh
+            .triangles
+            .iter()
+            .map(|t| {
+                let c = corners(t);
+                let mut lo = c[0];
+                let mut hi = c[0];
+                for p in &c[1..] {
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(p[k]);
+                        hi[k] = hi[k].max(p[k]);
+                    }
+                }
+                (lo, hi)
+            })
+            .collect();
+        let tree = Tree::build(&boxes);
+        let tris = tree
+            .order
+            .iter()
+            .map(|&t| corners(&mesh.triangles[t as usize]))
+            .collect();
+        TriangleBvh { tree, tris }
+    }
+
+    /// Approximate heap bytes used.
+    pub fn memory_bytes(&self) -> usize {
+        self.tree.nodes.len() * std::mem::size_of::<Node>()
+            + self.tree.order.len() * 4
+            + self.tris.len() * 36
+    }
+
+    /// The closest point on the mesh to `p`, or `None` for a mesh without triangles.
+    pub fn closest(&self, p: V3) -> Option<Closest> {
+        let (slot, d2) = self
+            .tree
+            .nearest(p, f64::INFINITY, |slot| self.dist2(slot, p))?;
+        let [a, b, c] = self.tris[slot].map(wide);
+        let point = closest_point_on_triangle(p, a, b, c);
+        Some(Closest {
+            index: self.tree.order[slot],
+            point,
+            distance: d2.sqrt(),
+        })
+    }
+
+    #[inline]
+    fn dist2(&self, slot: usize, p: V3) -> f64 {
+        let [a, b, c] = self.tris[slot].map(wide);
+        vec3::norm2(vec3::sub(p, closest_point_on_triangle(p, a, b, c)))
+    }
+
+    /// Distance from `p` to the mesh (infinite for a mesh without triangles).
+    #[inline]
+    pub fn distance(&self, p: V3) -> f64 {
+        self.tree
+            .nearest(p, f64::INFINITY, |slot| self.dist2(slot, p))
+            .map_or(f64::INFINITY, |(_, d2)| d2.sqrt())
+    }
+}
+
+/// BVH over the points of a cloud, for nearest-neighbour queries.
+#[derive(Clone, Debug)]
+pub struct PointBvh {
+    tree: Tree,
+    points: Vec<[f32; 3]>,
+}
+
+impl PointBvh {
+    /// Build over `points`. Cost: O(n log n).
+    pub fn new(points: &[[f32; 3]]) -> Self {
+        let boxes: Vec<_> = points.iter().map(|&p| (p, p)).collect();
+        let tree = Tree::build(&boxes);
+        let points = tree.order.iter().map(|&i| points[i as usize]).collect();
+        PointBvh { tree, points }
+    }
+
+    /// Build over a cloud's points.
+    pub fn from_cloud(cloud: &PointCloud) -> Self {
+        Self::new(&cloud.positions)
+    }
+
+    /// Approximate heap bytes used.
+    pub fn memory_bytes(&self) -> usize {
+        self.tree.nodes.len() * std::mem::size_of::<Node>()
+            + self.tree.order.len() * 4
+            + self.points.len() * 12
+    }
+
+    /// Nearest point to `p`.
+    pub fn closest(&self, p: V3) -> Option<Closest> {
+        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |s| {
+            vec3::norm2(vec3::sub(p, wide(self.points[s])))
+        })?;
+        Some(Closest {
+            index: self.tree.order[slot],
+            point: wide(self.points[slot]),
+            distance: d2.sqrt(),
+        })
+    }
+
+    /// Distance from `p` to the nearest point (infinite for an empty cloud).
+    #[inline]
+    pub fn distance(&self, p: V3) -> f64 {
+        self.tree
+            .nearest(p, f64::INFINITY, |s| {
+                vec3::norm2(vec3::sub(p, wide(self.points[s])))
+            })
+            .map_or(f64::INFINITY, |(_, d2)| d2.sqrt())
+    }
+}

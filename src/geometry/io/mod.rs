@@ -1,0 +1,286 @@
+//! Readers and writers for the mesh and point-cloud formats of scanners and CAD tools.
+//!
+//! Readers stream from a buffered file (gzip is decompressed on the fly) and never trust a count from a
+//! header: before any allocation a declared count is checked against the number of bytes the input can still
+//! hold (for gzip, the deflate limit of 1032 output bytes per input byte) and against the memory budget.
+//! Every error names the file and the line (text formats) or byte offset (binary formats).
+
+mod obj;
+mod off;
+mod ply;
+mod stl;
+mod text;
+mod write;
+mod xyz;
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read};
+use std::path::Path;
+
+pub use write::{VertexAttributes, ensure_not_input, write_obj, write_ply, write_ply_cloud};
+
+use crate::error::{Error, ErrorCode, Location, Result};
+use crate::geometry::mesh::{Geometry, PolyMesh};
+
+/// Supported input formats.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// Stanford PLY, ascii or binary (either endianness).
+    Ply,
+    /// Wavefront OBJ (polygons kept).
+    Obj,
+    /// STL, ascii or binary.
+    Stl,
+    /// Object File Format (OFF, COFF, NOFF, …).
+    Off,
+    /// Text point cloud: `x y z [nx ny nz]` per line (`.xyz`, `.pts`, `.txt`).
+    Xyz,
+}
+
+/// Options common to all readers.
+#[derive(Copy, Clone, Debug)]
+pub struct ReadOptions {
+    /// The most memory (bytes) a reader may allocate for the data it returns.
+    pub memory_budget: u64,
+}
+
+impl Default for ReadOptions {
+    fn default() -> Self {
+        ReadOptions {
+            memory_budget: 8 << 30,
+        }
+    }
+}
+
+/// Deflate cannot expand one input byte into more than 1032 output bytes.
+const GZIP_MAX_RATIO: u64 = 1032;
+
+/// An open, decompressed input stream and what we know about its size.
+pub(crate) struct Input<'a> {
+    pub reader: Box<dyn BufRead + 'a>,
+    /// An upper bound of the bytes the stream can still deliver.
+    pub max_bytes: u64,
+    pub options: ReadOptions,
+}
+
+impl Input<'_> {
+    /// Check a declared element count before allocating for it: `count` elements of at least `min_bytes`
+    /// each must fit in the `left` bytes the input can still hold, and `count × mem_bytes` must fit the
+    /// memory budget.
+    pub fn check_count(
+        &self,
+        left: u64,
+        count: u64,
+        min_bytes: u64,
+        mem_bytes: u64,
+        what: &str,
+    ) -> Result<usize> {
+        let need = count.saturating_mul(min_bytes.max(1));
+        if need > left {
+            return Err(Error::new(
+                ErrorCode::InputAbsurdCount,
+                format!(
+                    "{count} {what} declared, but the data left ({} bytes at most) cannot hold more than {}",
+                    left,
+                    left / min_bytes.max(1)
+                ),
+            ));
+        }
+        self.check_memory(count.saturating_mul(mem_bytes), what)?;
+        usize::try_from(count)
+            .map_err(|_| Error::new(ErrorCode::InputAbsurdCount, format!("{count} {what}")))
+    }
+
+    /// Fail with `resource.memory-budget` when `bytes` exceed the budget.
+    pub fn check_memory(&self, bytes: u64, what: &str) -> Result<()> {
+        if bytes > self.options.memory_budget {
+            return Err(Error::new(
+                ErrorCode::ResourceMemoryBudget,
+                format!(
+                    "{what} need {bytes} bytes; the memory budget is {} bytes",
+                    self.options.memory_budget
+                ),
+            )
+            .with_hint("raise the memory budget or decimate the input first"));
+        }
+        Ok(())
+    }
+}
+
+/// Decide the format from the file name (ignoring a `.gz` suffix) or, failing that, from the first bytes.
+pub fn detect_format(path: &Path, head: &[u8]) -> Result<Format> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let name = name.strip_suffix(".gz").unwrap_or(&name);
+    let ext = name.rsplit_once('.').map(|(_, e)| e).unwrap_or("");
+    match ext {
+        "ply" => return Ok(Format::Ply),
+        "obj" => return Ok(Format::Obj),
+        "stl" => return Ok(Format::Stl),
+        "off" => return Ok(Format::Off),
+        "xyz" | "xyzn" | "pts" => return Ok(Format::Xyz),
+        _ => {}
+    }
+    sniff_format(head).ok_or_else(|| {
+        Error::new(
+            ErrorCode::InputUnknownFormat,
+            "neither the extension nor the content names a supported format",
+        )
+        .with_hint("supported: .ply .obj .stl .off .xyz .pts (optionally .gz)")
+    })
+}
+
+fn sniff_format(head: &[u8]) -> Option<Format> {
+    let text = String::from_utf8_lossy(&head[..head.len().min(512)]);
+    let first = text
+        .lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty() && !l.starts_with('#'))
+        .unwrap_or("");
+    if head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n") {
+        Some(Format::Ply)
+    } else if first.ends_with("OFF") && first.len() <= 6 || first.starts_with("OFF ") {
+        Some(Format::Off)
+    } else if head.starts_with(b"solid") && text.contains("facet") {
+        Some(Format::Stl)
+    } else if text
+        .lines()
+        .any(|l| l.starts_with("v ") || l.starts_with("f "))
+    {
+        Some(Format::Obj)
+    } else if !first.is_empty() && first.split_whitespace().all(|t| t.parse::<f64>().is_ok()) {
+        Some(Format::Xyz)
+    } else {
+        None
+    }
+}
+
+/// Read a mesh or point cloud from `path`, any supported format, optionally gzip-compressed.
+///
+/// # Errors
+/// Stable codes `input.*` for bad data (naming the file and line/byte), `resource.memory-budget` when the
+/// declared data exceeds `options.memory_budget`. Cost: one pass over the file; memory ≈ the returned data.
+pub fn read_geometry(path: &Path, options: &ReadOptions) -> Result<Geometry> {
+    read_inner(path, options).map_err(|e| e.in_file(path))
+}
+
+/// Read a file that must be a mesh (have faces).
+///
+/// # Errors
+/// As [`read_geometry`]; `input.no-geometry` for a point cloud.
+pub fn read_mesh(path: &Path, options: &ReadOptions) -> Result<PolyMesh> {
+    match read_geometry(path, options)? {
+        Geometry::Mesh(m) => Ok(m),
+        Geometry::Cloud(_) => Err(Error::new(
+            ErrorCode::InputNoGeometry,
+            "the file has points but no faces",
+        )
+        .in_file(path)
+        .with_hint("this step needs a surface mesh; reconstruct one from the cloud first")),
+    }
+}
+
+fn read_inner(path: &Path, options: &ReadOptions) -> Result<Geometry> {
+    let file = File::open(path).map_err(|e| {
+        let code = if e.kind() == std::io::ErrorKind::NotFound {
+            ErrorCode::InputNotFound
+        } else {
+            ErrorCode::InputIo
+        };
+        Error::new(code, format!("cannot open: {e}"))
+    })?;
+    let meta = file
+        .metadata()
+        .map_err(|e| Error::new(ErrorCode::InputIo, e.to_string()))?;
+    if meta.is_dir() {
+        return Err(Error::new(ErrorCode::InputIo, "is a directory"));
+    }
+    let size = meta.len();
+    if size == 0 {
+        return Err(Error::new(ErrorCode::InputEmpty, "the file is empty"));
+    }
+    let mut raw = BufReader::with_capacity(1 << 16, file);
+    let gz = raw.fill_buf().map_err(io_err)?.starts_with(&[0x1f, 0x8b]);
+    let (mut reader, max_bytes): (Box<dyn BufRead>, u64) = if gz {
+        let dec = flate2::bufread::MultiGzDecoder::new(raw);
+        (
+            Box::new(BufReader::with_capacity(1 << 16, dec)),
+            size.saturating_mul(GZIP_MAX_RATIO),
+        )
+    } else {
+        (Box::new(raw), size)
+    };
+    let head = reader
+        .fill_buf()
+        .map_err(|e| io_err(e).at(Location::Byte(0)))?
+        .to_vec();
+    if head.iter().all(|b| b.is_ascii_whitespace()) {
+        return Err(Error::new(ErrorCode::InputEmpty, "the file holds no data"));
+    }
+    let format = detect_format(path, &head)?;
+    let mut input = Input {
+        reader,
+        max_bytes,
+        options: *options,
+    };
+    let geometry = match format {
+        Format::Ply => ply::read(&mut input),
+        Format::Obj => obj::read(&mut input),
+        Format::Stl => stl::read(&mut input, if gz { None } else { Some(size) }),
+        Format::Off => off::read(&mut input),
+        Format::Xyz => xyz::read(&mut input),
+    }?;
+    if geometry.positions().is_empty() {
+        return Err(Error::new(
+            ErrorCode::InputNoGeometry,
+            "the file holds no vertices",
+        ));
+    }
+    tracing::debug!(file = %path.display(), ?format, kind = geometry.kind(), vertices = geometry.positions().len(), "read");
+    Ok(geometry)
+}
+
+/// Map an I/O error while reading: an unexpected end is `input.truncated`, invalid gzip data is
+/// `input.truncated` too when the stream ends early, anything else `input.io`.
+pub(crate) fn io_err(e: std::io::Error) -> Error {
+    match e.kind() {
+        std::io::ErrorKind::UnexpectedEof => {
+            Error::new(ErrorCode::InputTruncated, "the data ends early")
+        }
+        std::io::ErrorKind::InvalidData | std::io::ErrorKind::InvalidInput => Error::new(
+            ErrorCode::InputTruncated,
+            format!("corrupt or truncated compressed data: {e}"),
+        ),
+        _ => Error::new(ErrorCode::InputIo, format!("read error: {e}")),
+    }
+}
+
+/// Read exactly `buf.len()` bytes at byte offset `*pos`, advancing it.
+#[inline]
+pub(crate) fn read_exact_at(r: &mut dyn Read, buf: &mut [u8], pos: &mut u64) -> Result<()> {
+    r.read_exact(buf)
+        .map_err(|e| io_err(e).at(Location::Byte(*pos)))?;
+    *pos += buf.len() as u64;
+    Ok(())
+}
+
+/// Finite-coordinate check used by every reader, with location.
+#[inline]
+pub(crate) fn finite_point(
+    p: [f32; 3],
+    what: impl FnOnce() -> String,
+    loc: Location,
+) -> Result<[f32; 3]> {
+    if p.iter().all(|c| c.is_finite()) {
+        Ok(p)
+    } else {
+        Err(Error::new(
+            ErrorCode::InputNonFinite,
+            format!("{} has a non-finite coordinate {p:?}", what()),
+        )
+        .at(loc))
+    }
+}

@@ -1,0 +1,13 @@
+//! **Geometry core** — the bottom layer: mesh and point-cloud types, adjacency, spatial indices, sampling,
+//! synthetic shapes and file formats. Pure computation: no async runtime, no D-Bus, no global state.
+
+pub mod bvh;
+pub mod io;
+pub mod mesh;
+pub mod sampling;
+pub mod shapes;
+pub mod tolerance;
+pub mod topology;
+pub mod vec3;
+
+pub use mesh::{Geometry, PointCloud, PolyMesh, TriMesh};

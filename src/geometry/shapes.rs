@@ -1,0 +1,114 @@
+//! Synthetic shapes with known answers, for tests, examples and benchmarks.
+
+use std::collections::HashMap;
+
+use crate::geometry::mesh::TriMesh;
+
+/// An icosphere: the icosahedron subdivided `level` times, vertices projected onto the sphere of `radius`
+/// around `center`. Outward-oriented, closed, genus 0; `10·4^level + 2` vertices, `20·4^level` triangles.
+pub fn icosphere(radius: f64, level: u32, center: [f64; 3]) -> TriMesh {
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut v: Vec<[f64; 3]> = vec![
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ];
+    let mut f: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    let unit = |p: [f64; 3]| {
+        let n = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        [p[0] / n, p[1] / n, p[2] / n]
+    };
+    v.iter_mut().for_each(|p| *p = unit(*p));
+    for _ in 0..level {
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut next = Vec::with_capacity(f.len() * 4);
+        let mut midpoint = |a: u32, b: u32, v: &mut Vec<[f64; 3]>| {
+            let key = (a.min(b), a.max(b));
+            *mid.entry(key).or_insert_with(|| {
+                let (p, q) = (v[a as usize], v[b as usize]);
+                v.push(unit([
+                    (p[0] + q[0]) / 2.0,
+                    (p[1] + q[1]) / 2.0,
+                    (p[2] + q[2]) / 2.0,
+                ]));
+                (v.len() - 1) as u32
+            })
+        };
+        for &[a, b, c] in &f {
+            let ab = midpoint(a, b, &mut v);
+            let bc = midpoint(b, c, &mut v);
+            let ca = midpoint(c, a, &mut v);
+            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        f = next;
+    }
+    let positions = v
+        .iter()
+        .map(|p| [0, 1, 2].map(|k| (center[k] + radius * p[k]) as f32))
+        .collect();
+    TriMesh {
+        positions,
+        triangles: f,
+    }
+}
+
+/// An axis-aligned box from `min` to `max`, 12 outward triangles.
+pub fn cuboid(min: [f64; 3], max: [f64; 3]) -> TriMesh {
+    let c = |i: usize| {
+        [
+            if i & 1 == 0 { min[0] } else { max[0] },
+            if i & 2 == 0 { min[1] } else { max[1] },
+            if i & 4 == 0 { min[2] } else { max[2] },
+        ]
+        .map(|x| x as f32)
+    };
+    let positions = (0..8).map(c).collect();
+    let triangles = vec![
+        [0, 2, 1],
+        [1, 2, 3],
+        [4, 5, 6],
+        [5, 7, 6], // z- , z+
+        [0, 1, 4],
+        [1, 5, 4],
+        [2, 6, 3],
+        [3, 6, 7], // y- , y+
+        [0, 4, 2],
+        [2, 4, 6],
+        [1, 3, 5],
+        [3, 7, 5], // x- , x+
+    ];
+    TriMesh {
+        positions,
+        triangles,
+    }
+}

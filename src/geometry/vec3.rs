@@ -1,0 +1,95 @@
+//! Minimal f64 3-vector arithmetic for the numeric kernels (positions are stored as f32, see
+//! [`crate::geometry::mesh`]; every computation widens to f64 first).
+
+/// A 3-vector of f64.
+pub type V3 = [f64; 3];
+
+/// Widen an f32 position to f64.
+#[inline]
+pub fn wide(p: [f32; 3]) -> V3 {
+    [p[0] as f64, p[1] as f64, p[2] as f64]
+}
+#[inline]
+pub fn sub(a: V3, b: V3) -> V3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline]
+pub fn add(a: V3, b: V3) -> V3 {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+#[inline]
+pub fn scale(a: V3, s: f64) -> V3 {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+#[inline]
+pub fn dot(a: V3, b: V3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+#[inline]
+pub fn cross(a: V3, b: V3) -> V3 {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+#[inline]
+pub fn norm2(a: V3) -> f64 {
+    dot(a, a)
+}
+#[inline]
+pub fn norm(a: V3) -> f64 {
+    dot(a, a).sqrt()
+}
+
+/// An axis-aligned box in f64. An empty box has `min > max`.
+#[derive(Copy, Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Aabb {
+    pub min: V3,
+    pub max: V3,
+}
+
+impl Aabb {
+    /// The empty box (grows to fit the first point added).
+    pub const EMPTY: Aabb = Aabb {
+        min: [f64::INFINITY; 3],
+        max: [f64::NEG_INFINITY; 3],
+    };
+
+    /// Grow to contain `p`.
+    #[inline]
+    pub fn add(&mut self, p: V3) {
+        for k in 0..3 {
+            self.min[k] = self.min[k].min(p[k]);
+            self.max[k] = self.max[k].max(p[k]);
+        }
+    }
+
+    /// Bounding box of f32 points; `EMPTY` for none.
+    pub fn of_points(points: &[[f32; 3]]) -> Aabb {
+        let mut b = Aabb::EMPTY;
+        for &p in points {
+            b.add(wide(p));
+        }
+        b
+    }
+
+    /// True when no point was added.
+    pub fn is_empty(&self) -> bool {
+        self.min[0] > self.max[0]
+    }
+
+    /// Edge lengths (zero for an empty box).
+    pub fn extent(&self) -> V3 {
+        if self.is_empty() {
+            [0.0; 3]
+        } else {
+            sub(self.max, self.min)
+        }
+    }
+
+    /// Length of the diagonal (zero for an empty box).
+    pub fn diagonal(&self) -> f64 {
+        norm(self.extent())
+    }
+}

@@ -1,0 +1,18 @@
+//! # scanstation
+//!
+//! Turns 3D scans (point clouds and triangle meshes) into CAD solids with a metric quality report.
+//!
+//! The crate is layered, bottom up; a lower layer never imports a higher one:
+//! * [`geometry`] — **geometry core**: mesh/cloud types, adjacency, spatial indices, sampling, file formats.
+//! * [`stages`] — the pipeline stages as plain functions (so far: [`stages::quality`]).
+//! * [`pipeline`] — runs stages on a file and assembles reports.
+//! * daemon / devices — arrive with their own issue (tokio, zbus, watch folders, serial/CAN drivers).
+//!
+//! Errors everywhere are [`Error`] values with a stable [`ErrorCode`].
+
+pub mod error;
+pub mod geometry;
+pub mod pipeline;
+pub mod stages;
+
+pub use error::{Error, ErrorClass, ErrorCode, Location, Result};

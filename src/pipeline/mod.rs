@@ -1,0 +1,181 @@
+//! **Pipeline** — runs stages on files and assembles their reports and artifacts. This is the layer the
+//! CLI (and later the daemon) calls; it owns file handling, timing and the shape of the reports.
+//!
+//! So far: ingest + inspection ([`inspect_file`]) and the quality comparison of two files ([`compare_files`]).
+//! The conversion chain (repair → remesh → surface → B-rep → STEP → FEA) is added here stage by stage.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::error::Result;
+use crate::geometry::io::{ReadOptions, ensure_not_input, read_geometry};
+use crate::geometry::mesh::Geometry;
+use crate::geometry::topology::TopologyReport;
+use crate::geometry::vec3::Aabb;
+use crate::stages::Progress;
+use crate::stages::quality::{CompareOptions, DistanceReport, compare, write_error_map};
+
+/// Summary of a point cloud (the mesh counterpart is [`TopologyReport`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct CloudSummary {
+    /// Points.
+    pub vertices: usize,
+    /// Always 0.
+    pub faces: usize,
+    /// The file carries normals.
+    pub has_normals: bool,
+    /// The file carries colours.
+    pub has_colors: bool,
+    /// Bounding box.
+    pub bbox: Aabb,
+    /// Its diagonal.
+    pub bbox_diagonal: f64,
+}
+
+/// What `scanstation inspect` reports: the file, its kind, and the mesh topology or cloud summary (their
+/// keys appear at the top level of the JSON).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct InspectReport {
+    /// The file read.
+    pub file: PathBuf,
+    /// `mesh` or `point_cloud`.
+    pub kind: &'static str,
+    /// Mesh figures.
+    #[serde(flatten)]
+    pub mesh: Option<TopologyReport>,
+    /// Cloud figures.
+    #[serde(flatten)]
+    pub cloud: Option<CloudSummary>,
+    /// Seconds to read the file.
+    pub read_seconds: f64,
+    /// Seconds to analyse it.
+    pub analyse_seconds: f64,
+}
+
+/// Describe a geometry.
+pub fn inspect(geometry: &Geometry) -> (Option<TopologyReport>, Option<CloudSummary>) {
+    match geometry {
+        Geometry::Mesh(m) => (Some(TopologyReport::compute(m)), None),
+        Geometry::Cloud(c) => {
+            let bbox = c.bbox();
+            (
+                None,
+                Some(CloudSummary {
+                    vertices: c.positions.len(),
+                    faces: 0,
+                    has_normals: c.normals.is_some(),
+                    has_colors: c.colors.is_some(),
+                    bbox,
+                    bbox_diagonal: bbox.diagonal(),
+                }),
+            )
+        }
+    }
+}
+
+/// Read `path` and inspect it.
+///
+/// # Errors
+/// Any reader error (`input.*`, `resource.memory-budget`).
+pub fn inspect_file(path: &Path, options: &ReadOptions) -> Result<InspectReport> {
+    let t0 = Instant::now();
+    let g = read_geometry(path, options)?;
+    let read_seconds = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let (mesh, cloud) = inspect(&g);
+    Ok(InspectReport {
+        file: path.to_path_buf(),
+        kind: g.kind(),
+        mesh,
+        cloud,
+        read_seconds,
+        analyse_seconds: t1.elapsed().as_secs_f64(),
+    })
+}
+
+/// One input of a comparison.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct InputSummary {
+    /// Path.
+    pub file: PathBuf,
+    /// `mesh` or `point_cloud`.
+    pub kind: &'static str,
+    /// Vertices or points.
+    pub vertices: usize,
+    /// Faces (0 for a cloud).
+    pub faces: usize,
+}
+
+impl InputSummary {
+    fn of(path: &Path, g: &Geometry) -> Self {
+        let faces = match g {
+            Geometry::Mesh(m) => m.face_count(),
+            Geometry::Cloud(_) => 0,
+        };
+        InputSummary {
+            file: path.to_path_buf(),
+            kind: g.kind(),
+            vertices: g.positions().len(),
+            faces,
+        }
+    }
+}
+
+/// What `scanstation compare` reports.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct CompareReport {
+    /// The measured surface.
+    pub test: InputSummary,
+    /// The surface measured against.
+    pub reference: InputSummary,
+    /// The distances.
+    #[serde(flatten)]
+    pub distance: DistanceReport,
+    /// The error map written, if asked for.
+    pub error_map: Option<PathBuf>,
+    /// Top of the error map's colour scale (input units).
+    pub error_map_scale: Option<f64>,
+    /// Seconds to read both inputs.
+    pub read_seconds: f64,
+    /// Seconds to compare (and write the error map).
+    pub compare_seconds: f64,
+}
+
+/// Read two files and measure their two-sided distance; optionally write an error map of TEST.
+///
+/// # Errors
+/// Reader errors, [`compare`]'s errors, `resource.output` when the error map cannot be written or would
+/// overwrite an input.
+pub fn compare_files(
+    test: &Path,
+    reference: &Path,
+    read: &ReadOptions,
+    opts: &CompareOptions,
+    error_map: Option<&Path>,
+    progress: &dyn Progress,
+) -> Result<CompareReport> {
+    if let Some(out) = error_map {
+        ensure_not_input(out, &[test, reference])?;
+    }
+    let t0 = Instant::now();
+    let (a, b) = rayon::join(
+        || read_geometry(test, read),
+        || read_geometry(reference, read),
+    );
+    let (a, b) = (a?, b?);
+    let read_seconds = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let distance = compare(&a, &b, opts, progress)?;
+    let scale = error_map
+        .map(|out| write_error_map(out, &a, &b))
+        .transpose()?;
+    Ok(CompareReport {
+        test: InputSummary::of(test, &a),
+        reference: InputSummary::of(reference, &b),
+        distance,
+        error_map: error_map.map(Path::to_path_buf),
+        error_map_scale: scale,
+        read_seconds,
+        compare_seconds: t1.elapsed().as_secs_f64(),
+    })
+}

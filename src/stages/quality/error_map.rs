@@ -1,0 +1,60 @@
+//! Error maps: the TEST surface with each vertex's distance to the REFERENCE as a scalar and a colour.
+
+use std::path::Path;
+
+use crate::error::Result;
+use crate::geometry::io::{VertexAttributes, write_ply, write_ply_cloud};
+use crate::geometry::mesh::Geometry;
+use crate::stages::quality::{percentile, vertex_distances};
+
+/// Colour ramp blue → cyan → green → yellow → red for `t` in [0, 1] (clamped; NaN is magenta).
+pub fn color_ramp(t: f64) -> [u8; 3] {
+    if t.is_nan() {
+        return [255, 0, 255];
+    }
+    const STOPS: [[f64; 3]; 5] = [
+        [0.0, 0.0, 255.0],
+        [0.0, 255.0, 255.0],
+        [0.0, 255.0, 0.0],
+        [255.0, 255.0, 0.0],
+        [255.0, 0.0, 0.0],
+    ];
+    let x = t.clamp(0.0, 1.0) * 4.0;
+    let i = (x.floor() as usize).min(3);
+    let f = x - i as f64;
+    [0, 1, 2].map(|k| (STOPS[i][k] + (STOPS[i + 1][k] - STOPS[i][k]) * f).round() as u8)
+}
+
+/// Write `test` as a binary PLY with per-vertex `distance` (to `reference`, in input units) and a colour
+/// ramp from 0 (blue) to the 99th percentile of the vertex distances (red; larger values clamp to red).
+/// Returns the colour-scale top.
+///
+/// # Errors
+/// As [`vertex_distances`]; `resource.output` when the file cannot be written.
+pub fn write_error_map(path: &Path, test: &Geometry, reference: &Geometry) -> Result<f64> {
+    let d = vertex_distances(test, reference)?;
+    let mut tmp = d.clone();
+    let top = percentile(&mut tmp, 0.99).max(f64::MIN_POSITIVE);
+    let colors: Vec<[u8; 3]> = d.iter().map(|&x| color_ramp(x / top)).collect();
+    let scalar: Vec<f32> = d.iter().map(|&x| x as f32).collect();
+    let comment = format!(
+        "scanstation error map: distance to reference; colour scale 0 (blue) .. {top:.6e} (red)"
+    );
+    let attrs = VertexAttributes {
+        colors: Some(&colors),
+        scalar: Some(("distance", &scalar)),
+        normals: None,
+    };
+    match test {
+        Geometry::Mesh(m) => write_ply(path, m, &attrs, &[&comment])?,
+        Geometry::Cloud(c) => {
+            let bare = crate::geometry::mesh::PointCloud {
+                positions: c.positions.clone(),
+                normals: c.normals.clone(),
+                colors: None,
+            };
+            write_ply_cloud(path, &bare, &attrs, &[&comment])?
+        }
+    }
+    Ok(top)
+}

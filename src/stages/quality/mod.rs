@@ -1,0 +1,361 @@
+//! **Quality** — the two-sided surface distance between a result and the scan it came from; the one
+//! instrument every stage reports with.
+//!
+//! Protocol (Metro-style, see `design/algorithms.md` §7):
+//! * each surface is sampled **area-uniformly** (stratified) with `samples` points; a point cloud's samples are
+//!   its points;
+//! * each sample's distance to the other surface is the exact point–triangle distance to its nearest triangle
+//!   (BVH query), or the nearest-neighbour distance to a cloud;
+//! * `max` (the one-sided Hausdorff distance) also evaluates every referenced vertex of the sampled mesh, so
+//!   sharp tips are not missed;
+//! * RMS, mean, median and p95 use the area samples; percentiles interpolate linearly (as numpy does);
+//! * the symmetric figures pool both directions' samples; its max is the two-sided Hausdorff distance;
+//! * every figure is also given as a percentage of the **reference's** bounding-box diagonal and as "1 part
+//!   in N" (diagonal ÷ value).
+//!
+//! Each side's samples are drawn from a generator seeded by `seed` and the side's own content, so the result
+//! is deterministic, and swapping TEST and REFERENCE swaps the two one-sided results exactly.
+
+mod error_map;
+
+pub use error_map::{color_ramp, write_error_map};
+
+use rayon::prelude::*;
+
+use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::bvh::{PointBvh, TriangleBvh};
+use crate::geometry::mesh::{Geometry, TriMesh};
+use crate::geometry::sampling::{Rng, fnv1a, sample_area_uniform};
+use crate::geometry::vec3::{V3, wide};
+use crate::stages::Progress;
+
+/// Settings of a comparison.
+#[derive(Copy, Clone, Debug)]
+pub struct CompareOptions {
+    /// Area samples per side (a cloud uses all its points).
+    pub samples: usize,
+    /// Seed of the sampling.
+    pub seed: u64,
+    /// Also evaluate every referenced vertex for `max`.
+    pub include_vertices: bool,
+    /// Most bytes the comparison may allocate.
+    pub memory_budget: u64,
+}
+
+impl Default for CompareOptions {
+    fn default() -> Self {
+        CompareOptions {
+            samples: 200_000,
+            seed: 0,
+            include_vertices: true,
+            memory_budget: 8 << 30,
+        }
+    }
+}
+
+/// A length with its relative forms.
+#[derive(Copy, Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Measure {
+    /// In the input's units.
+    pub value: f64,
+    /// Percent of the reference's bounding-box diagonal.
+    pub pct_of_diagonal: f64,
+    /// Diagonal ÷ value ("1 part in N"); `null` when the value is 0.
+    pub one_part_in: Option<f64>,
+}
+
+impl Measure {
+    fn new(value: f64, diagonal: f64) -> Self {
+        let pct = if diagonal > 0.0 {
+            100.0 * value / diagonal
+        } else {
+            0.0
+        };
+        let one_part_in = (value > 0.0 && diagonal > 0.0).then(|| diagonal / value);
+        Measure {
+            value,
+            pct_of_diagonal: pct,
+            one_part_in,
+        }
+    }
+}
+
+/// Statistics of one set of distances.
+#[derive(Copy, Clone, Debug, PartialEq, serde::Serialize)]
+pub struct DistanceStats {
+    /// Area samples evaluated.
+    pub samples: usize,
+    /// Root mean square.
+    pub rms: Measure,
+    /// Mean.
+    pub mean: Measure,
+    /// Median.
+    pub median: Measure,
+    /// 95th percentile.
+    pub p95: Measure,
+    /// Maximum over samples and vertices (sampled Hausdorff distance).
+    pub max: Measure,
+}
+
+/// The result of [`compare`].
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct DistanceReport {
+    /// From samples of TEST to REFERENCE.
+    pub test_to_reference: DistanceStats,
+    /// From samples of REFERENCE to TEST.
+    pub reference_to_test: DistanceStats,
+    /// Both directions pooled; max = two-sided Hausdorff distance.
+    pub symmetric: DistanceStats,
+    /// The diagonal that percentages refer to (REFERENCE's bounding box).
+    pub reference_bbox_diagonal: f64,
+    /// Requested area samples per side.
+    pub samples_per_side: usize,
+    /// Sampling seed.
+    pub seed: u64,
+}
+
+/// One surface prepared for comparison: its samples and its distance query.
+enum Prepared<'a> {
+    Mesh {
+        mesh: &'a TriMesh,
+        bvh: TriangleBvh,
+    },
+    Cloud {
+        points: &'a [[f32; 3]],
+        bvh: PointBvh,
+    },
+}
+
+impl Prepared<'_> {
+    fn distance(&self, p: V3) -> f64 {
+        match self {
+            Prepared::Mesh { bvh, .. } => bvh.distance(p),
+            Prepared::Cloud { bvh, .. } => bvh.distance(p),
+        }
+    }
+
+    fn content_hash(&self, seed: u64) -> u64 {
+        let points: &[[f32; 3]] = match self {
+            Prepared::Mesh { mesh, .. } => &mesh.positions,
+            Prepared::Cloud { points, .. } => points,
+        };
+        let h = fnv1a(
+            points
+                .iter()
+                .flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes())),
+            seed,
+        );
+        match self {
+            Prepared::Mesh { mesh, .. } => fnv1a(
+                mesh.triangles
+                    .iter()
+                    .flat_map(|t| t.iter().flat_map(|i| i.to_le_bytes())),
+                h,
+            ),
+            Prepared::Cloud { .. } => h,
+        }
+    }
+
+    /// Sample points and (when a mesh) its referenced vertices.
+    fn samples(&self, opts: &CompareOptions) -> (Vec<V3>, Vec<V3>) {
+        match self {
+            Prepared::Mesh { mesh, .. } => {
+                let mut rng = Rng::new(self.content_hash(opts.seed));
+                let s = sample_area_uniform(mesh, opts.samples, &mut rng)
+                    .into_iter()
+                    .map(|s| s.point)
+                    .collect();
+                let verts = if opts.include_vertices {
+                    let mut used = vec![false; mesh.positions.len()];
+                    mesh.triangles
+                        .iter()
+                        .flatten()
+                        .for_each(|&i| used[i as usize] = true);
+                    mesh.positions
+                        .iter()
+                        .zip(&used)
+                        .filter(|(_, u)| **u)
+                        .map(|(p, _)| wide(*p))
+                        .collect()
+                } else {
+                    Vec::new()
+                };
+                (s, verts)
+            }
+            Prepared::Cloud { points, .. } => {
+                (points.iter().map(|&p| wide(p)).collect(), Vec::new())
+            }
+        }
+    }
+}
+
+fn prepare(g: &Geometry, tri: &mut Option<TriMesh>) -> Result<()> {
+    if let Geometry::Mesh(m) = g {
+        let (t, _) = m.triangulate();
+        if t.area() <= 0.0 {
+            return Err(Error::new(
+                ErrorCode::InputNoGeometry,
+                "the mesh has zero area",
+            ));
+        }
+        *tri = Some(t);
+    }
+    Ok(())
+}
+
+fn build<'a>(g: &'a Geometry, tri: &'a Option<TriMesh>) -> Prepared<'a> {
+    match (g, tri) {
+        (Geometry::Mesh(_), Some(t)) => Prepared::Mesh {
+            mesh: t,
+            bvh: TriangleBvh::new(t),
+        },
+        (Geometry::Cloud(c), _) => Prepared::Cloud {
+            points: &c.positions,
+            bvh: PointBvh::new(&c.positions),
+        },
+        (Geometry::Mesh(_), None) => unreachable!("prepare() triangulates every mesh"),
+    }
+}
+
+/// Linear-interpolated percentile (numpy's default) of `v`, `q` in [0, 1]. Reorders `v`. O(n).
+pub fn percentile(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let pos = q.clamp(0.0, 1.0) * (v.len() - 1) as f64;
+    let lo = pos.floor() as usize;
+    let (_, &mut a, rest) = v.select_nth_unstable_by(lo, f64::total_cmp);
+    let frac = pos - lo as f64;
+    if frac == 0.0 || rest.is_empty() {
+        return a;
+    }
+    let b = rest.iter().copied().fold(f64::INFINITY, f64::min);
+    a + (b - a) * frac
+}
+
+/// Statistics of sample distances `d` (reordered) plus extra maxima candidates `vertex_max`.
+pub fn stats(d: &mut [f64], vertex_max: f64, diagonal: f64) -> DistanceStats {
+    let n = d.len();
+    let (sum, sum2, dmax) = d.iter().fold((0.0, 0.0, 0.0f64), |(s, s2, m), &x| {
+        (s + x, s2 + x * x, m.max(x))
+    });
+    let nf = n.max(1) as f64;
+    let rms = (sum2 / nf).sqrt();
+    let mean = sum / nf;
+    let p95 = percentile(d, 0.95);
+    let median = percentile(d, 0.5);
+    let m = |v: f64| Measure::new(v, diagonal);
+    DistanceStats {
+        samples: n,
+        rms: m(rms),
+        mean: m(mean),
+        median: m(median),
+        p95: m(p95),
+        max: m(dmax.max(vertex_max)),
+    }
+}
+
+fn distances(points: &[V3], to: &Prepared) -> Vec<f64> {
+    let mut out = Vec::new();
+    points
+        .par_iter()
+        .map(|&p| to.distance(p))
+        .collect_into_vec(&mut out);
+    out
+}
+
+/// Per-vertex distance of `from`'s vertices to `to` (for error maps).
+///
+/// # Errors
+/// `input.no-geometry` for an empty or zero-area `to`.
+pub fn vertex_distances(from: &Geometry, to: &Geometry) -> Result<Vec<f64>> {
+    let mut tri = None;
+    prepare(to, &mut tri)?;
+    let target = build(to, &tri);
+    let pts: Vec<V3> = from.positions().iter().map(|&p| wide(p)).collect();
+    Ok(distances(&pts, &target))
+}
+
+/// Two-sided surface distance between `test` and `reference` (meshes or clouds).
+///
+/// # Errors
+/// `input.no-geometry` when a mesh has zero area or a cloud no points; `input.bad-argument` for
+/// `samples == 0` with a mesh; `resource.memory-budget` when the estimate exceeds `opts.memory_budget`.
+///
+/// Cost: O((F_t + F_r) log F + S log F) time for S samples, memory ≈ 40 bytes per triangle + 32 per sample.
+pub fn compare(
+    test: &Geometry,
+    reference: &Geometry,
+    opts: &CompareOptions,
+    progress: &dyn Progress,
+) -> Result<DistanceReport> {
+    let is_mesh = |g: &Geometry| matches!(g, Geometry::Mesh(_));
+    if opts.samples == 0 && (is_mesh(test) || is_mesh(reference)) {
+        return Err(Error::new(
+            ErrorCode::InputBadArgument,
+            "samples must be at least 1",
+        ));
+    }
+    for g in [test, reference] {
+        if g.positions().is_empty() {
+            return Err(Error::new(
+                ErrorCode::InputNoGeometry,
+                "nothing to compare: no points",
+            ));
+        }
+    }
+    let estimate = |g: &Geometry| -> u64 {
+        match g {
+            Geometry::Mesh(m) => {
+                60 * (m.corner_count() as u64)
+                    + 32 * opts.samples as u64
+                    + 24 * m.positions.len() as u64
+            }
+            Geometry::Cloud(c) => 60 * c.positions.len() as u64,
+        }
+    };
+    let need = estimate(test) + estimate(reference);
+    if need > opts.memory_budget {
+        return Err(Error::new(
+            ErrorCode::ResourceMemoryBudget,
+            format!(
+                "the comparison needs about {need} bytes; the budget is {}",
+                opts.memory_budget
+            ),
+        )
+        .with_hint("lower --samples or raise the memory budget"));
+    }
+    let diagonal = reference.bbox().diagonal();
+    progress.report(0.0, "index");
+    let (mut ta, mut tb) = (None, None);
+    prepare(test, &mut ta)?;
+    prepare(reference, &mut tb)?;
+    let (a, b) = rayon::join(|| build(test, &ta), || build(reference, &tb));
+    progress.report(0.1, "sample");
+
+    let one_side = |from: &Prepared, to: &Prepared| -> (Vec<f64>, f64) {
+        let (samples, verts) = from.samples(opts);
+        let d = distances(&samples, to);
+        let vmax = distances(&verts, to).into_iter().fold(0.0, f64::max);
+        (d, vmax)
+    };
+    let (mut d_ab, vmax_ab) = one_side(&a, &b);
+    progress.report(0.55, "measure");
+    let (mut d_ba, vmax_ba) = one_side(&b, &a);
+    progress.report(0.95, "statistics");
+
+    let test_to_reference = stats(&mut d_ab, vmax_ab, diagonal);
+    let reference_to_test = stats(&mut d_ba, vmax_ba, diagonal);
+    let mut pooled = d_ab;
+    pooled.extend_from_slice(&d_ba);
+    let symmetric = stats(&mut pooled, vmax_ab.max(vmax_ba), diagonal);
+    progress.report(1.0, "done");
+    Ok(DistanceReport {
+        test_to_reference,
+        reference_to_test,
+        symmetric,
+        reference_bbox_diagonal: diagonal,
+        samples_per_side: opts.samples,
+        seed: opts.seed,
+    })
+}
