@@ -168,13 +168,7 @@ impl fmt::Display for Error {
 impl Error {
     /// A new error with a code and message, no file or location yet.
     pub fn new(code: ErrorCode, message: impl Into<String>) -> Self {
-        Error {
-            code,
-            file: None,
-            location: None,
-            message: message.into(),
-            hint: None,
-        }
+        Error { code, file: None, location: None, message: message.into(), hint: None }
     }
 
     /// An internal-bug error.

@@ -16,3 +16,4 @@ pub mod pipeline;
 pub mod stages;
 
 pub use error::{Error, ErrorClass, ErrorCode, Location, Result};
+pub use geometry::mesh::{Geometry, PointCloud, PolyMesh, TriMesh};

@@ -13,11 +13,7 @@ use scanstation::stages::quality::{CompareOptions, DistanceStats, Measure};
 use scanstation::{Error, ErrorClass};
 
 #[derive(Parser)]
-#[command(
-    name = "scanstation",
-    version,
-    about = "3D scan to CAD solid: inspect, compare (more stages to come)"
-)]
+#[command(name = "scanstation", version, about = "3D scan to CAD solid: inspect, compare (more stages to come)")]
 struct Cli {
     /// Print the report as JSON on stdout (errors too, as {"ok": false, "error": {...}}).
     #[arg(long, global = true)]
@@ -65,10 +61,7 @@ fn parse_bytes(s: &str) -> Result<u64, String> {
         Some('G') => (&s[..s.len() - 1], 1 << 30),
         _ => (s, 1),
     };
-    num.parse::<u64>()
-        .ok()
-        .and_then(|n| n.checked_mul(mult))
-        .ok_or_else(|| format!("not a size: {s:?}"))
+    num.parse::<u64>().ok().and_then(|n| n.checked_mul(mult)).ok_or_else(|| format!("not a size: {s:?}"))
 }
 
 fn main() -> ExitCode {
@@ -78,49 +71,21 @@ fn main() -> ExitCode {
         1 => tracing::Level::INFO,
         _ => tracing::Level::DEBUG,
     };
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_max_level(level)
-        .init();
-    let read = ReadOptions {
-        memory_budget: cli.memory_budget,
-    };
+    tracing_subscriber::fmt().with_writer(std::io::stderr).with_max_level(level).init();
+    let read = ReadOptions { memory_budget: cli.memory_budget };
     let result = match &cli.command {
-        Command::Inspect { file } => pipeline::inspect_file(file, &read).map(|r| {
-            if cli.json {
-                print_json(&r)
-            } else {
-                print_inspect(&r)
-            }
-        }),
-        Command::Compare {
-            test,
-            reference,
-            samples,
-            seed,
-            error_map,
-        } => {
+        Command::Inspect { file } => {
+            pipeline::inspect_file(file, &read).map(|r| if cli.json { print_json(&r) } else { print_inspect(&r) })
+        }
+        Command::Compare { test, reference, samples, seed, error_map } => {
             let opts = CompareOptions {
                 samples: *samples,
                 seed: *seed,
                 memory_budget: cli.memory_budget,
                 ..Default::default()
             };
-            pipeline::compare_files(
-                test,
-                reference,
-                &read,
-                &opts,
-                error_map.as_deref(),
-                &NoProgress,
-            )
-            .map(|r| {
-                if cli.json {
-                    print_json(&r)
-                } else {
-                    print_compare(&r)
-                }
-            })
+            pipeline::compare_files(test, reference, &read, &opts, error_map.as_deref(), &NoProgress)
+                .map(|r| if cli.json { print_json(&r) } else { print_compare(&r) })
         }
     };
     match result {
@@ -134,19 +99,13 @@ fn print_json<T: serde::Serialize>(v: &T) {
     if let serde_json::Value::Object(m) = &mut value {
         m.insert("ok".into(), true.into());
     }
-    println!(
-        "{}",
-        serde_json::to_string_pretty(&value).expect("reports serialise")
-    );
+    println!("{}", serde_json::to_string_pretty(&value).expect("reports serialise"));
 }
 
 /// Exit codes: 2 bad input, 3 resource limit, 70 internal error (EX_SOFTWARE).
 fn report_error(e: &Error, json: bool) -> ExitCode {
     if json {
-        println!(
-            "{}",
-            serde_json::json!({ "ok": false, "error": e, "error_code": e.code.as_str() })
-        );
+        println!("{}", serde_json::json!({ "ok": false, "error": e, "error_code": e.code.as_str() }));
     }
     eprintln!("scanstation: error: {e}");
     ExitCode::from(match e.class() {
@@ -161,36 +120,19 @@ fn print_inspect(r: &InspectReport) {
     println!("kind:                  {}", r.kind);
     if let Some(c) = &r.cloud {
         println!("points:                {}", c.vertices);
-        println!(
-            "normals / colors:      {} / {}",
-            c.has_normals, c.has_colors
-        );
-        println!(
-            "bbox:                  {:?} .. {:?}",
-            c.bbox.min, c.bbox.max
-        );
+        println!("normals / colors:      {} / {}", c.has_normals, c.has_colors);
+        println!("bbox:                  {:?} .. {:?}", c.bbox.min, c.bbox.max);
         println!("bbox diagonal:         {:.6}", c.bbox_diagonal);
     }
     if let Some(m) = &r.mesh {
-        let degrees: Vec<String> = m
-            .faces_by_degree
-            .iter()
-            .map(|(d, n)| format!("{n} × {d}-gon"))
-            .collect();
+        let degrees: Vec<String> = m.faces_by_degree.iter().map(|(d, n)| format!("{n} × {d}-gon")).collect();
         println!(
             "vertices:              {} ({} referenced, {} unreferenced)",
             m.vertices, m.referenced_vertices, m.unreferenced_vertices
         );
-        println!(
-            "faces:                 {} ({})",
-            m.faces,
-            degrees.join(", ")
-        );
+        println!("faces:                 {} ({})", m.faces, degrees.join(", "));
         println!("edges:                 {}", m.edges);
-        println!(
-            "bbox:                  {:?} .. {:?}",
-            m.bbox.min, m.bbox.max
-        );
+        println!("bbox:                  {:?} .. {:?}", m.bbox.min, m.bbox.max);
         println!("bbox diagonal:         {:.6}", m.bbox_diagonal);
         println!("area:                  {:.6}", m.area);
         match m.volume {
@@ -198,24 +140,14 @@ fn print_inspect(r: &InspectReport) {
             None => println!("volume:                - (not closed)"),
         }
         println!("closed:                {}", m.closed);
-        println!(
-            "boundary loops:        {} ({} boundary edges)",
-            m.boundary_loops, m.boundary_edges
-        );
-        println!(
-            "non-manifold:          {} edges, {} vertices",
-            m.nonmanifold_edges, m.nonmanifold_vertices
-        );
+        println!("boundary loops:        {} ({} boundary edges)", m.boundary_loops, m.boundary_edges);
+        println!("non-manifold:          {} edges, {} vertices", m.nonmanifold_edges, m.nonmanifold_vertices);
         println!("components:            {}", m.components);
         println!("degenerate faces:      {}", m.degenerate_faces);
         println!("coincident vertices:   {}", m.coincident_vertices);
         println!(
             "orientation:           {} ({} conflicting directed edges)",
-            if m.consistently_oriented {
-                "consistent"
-            } else {
-                "inconsistent"
-            },
+            if m.consistently_oriented { "consistent" } else { "inconsistent" },
             m.orientation_conflicts
         );
         println!("euler characteristic:  {}", m.euler_characteristic);
@@ -224,20 +156,12 @@ fn print_inspect(r: &InspectReport) {
             None => println!("genus:                 - (not an orientable manifold)"),
         }
     }
-    println!(
-        "read / analyse:        {:.3} s / {:.3} s",
-        r.read_seconds, r.analyse_seconds
-    );
+    println!("read / analyse:        {:.3} s / {:.3} s", r.read_seconds, r.analyse_seconds);
 }
 
 fn fmt_measure(m: &Measure) -> String {
-    let part = m
-        .one_part_in
-        .map_or("-".to_string(), |n| format!("1:{n:.0}"));
-    format!(
-        "{:>12.6e} {:>9.4}% {:>10}",
-        m.value, m.pct_of_diagonal, part
-    )
+    let part = m.one_part_in.map_or("-".to_string(), |n| format!("1:{n:.0}"));
+    format!("{:>12.6e} {:>9.4}% {:>10}", m.value, m.pct_of_diagonal, part)
 }
 
 fn print_compare(r: &CompareReport) {
@@ -260,35 +184,19 @@ fn print_compare(r: &CompareReport) {
         "reference bbox diagonal {:.6}; {} samples per side, seed {}",
         d.reference_bbox_diagonal, d.samples_per_side, d.seed
     );
-    println!(
-        "{:<18} {:<8} {:>12} {:>10} {:>10}",
-        "direction", "figure", "value", "% diag", "1 part in"
-    );
+    println!("{:<18} {:<8} {:>12} {:>10} {:>10}", "direction", "figure", "value", "% diag", "1 part in");
     let rows: [(&str, &DistanceStats); 3] = [
         ("test→reference", &d.test_to_reference),
         ("reference→test", &d.reference_to_test),
         ("symmetric", &d.symmetric),
     ];
     for (name, s) in rows {
-        for (fig, m) in [
-            ("rms", &s.rms),
-            ("mean", &s.mean),
-            ("median", &s.median),
-            ("p95", &s.p95),
-            ("max", &s.max),
-        ] {
+        for (fig, m) in [("rms", &s.rms), ("mean", &s.mean), ("median", &s.median), ("p95", &s.p95), ("max", &s.max)] {
             println!("{name:<18} {fig:<8} {}", fmt_measure(m));
         }
     }
     if let Some(p) = &r.error_map {
-        println!(
-            "error map: {} (colour scale 0 .. {:.6e})",
-            p.display(),
-            r.error_map_scale.unwrap_or(0.0)
-        );
+        println!("error map: {} (colour scale 0 .. {:.6e})", p.display(), r.error_map_scale.unwrap_or(0.0));
     }
-    println!(
-        "read / compare: {:.3} s / {:.3} s",
-        r.read_seconds, r.compare_seconds
-    );
+    println!("read / compare: {:.3} s / {:.3} s", r.read_seconds, r.compare_seconds);
 }

@@ -54,12 +54,7 @@ impl Tree {
         let n = boxes.len();
         let mut order: Vec<u32> = (0..n as u32).collect();
         let centroid = |i: u32, k: usize| boxes[i as usize].0[k] + boxes[i as usize].1[k];
-        let mut nodes = vec![Node {
-            min: [0.0; 3],
-            max: [0.0; 3],
-            start: 0,
-            count: 0,
-        }];
+        let mut nodes = vec![Node { min: [0.0; 3], max: [0.0; 3], start: 0, count: 0 }];
         if n == 0 {
             return Tree { nodes, order };
         }
@@ -80,43 +75,19 @@ impl Tree {
                     cmax[k] = cmax[k].max(c);
                 }
             }
-            let axis = (0..3)
-                .max_by(|&a, &b| (cmax[a] - cmin[a]).total_cmp(&(cmax[b] - cmin[b])))
-                .unwrap();
+            let axis = (0..3).max_by(|&a, &b| (cmax[a] - cmin[a]).total_cmp(&(cmax[b] - cmin[b]))).unwrap();
             if e - s <= LEAF_SIZE || cmax[axis] <= cmin[axis] && e - s <= 4 * LEAF_SIZE {
-                nodes[ni] = Node {
-                    min,
-                    max,
-                    start: s as u32,
-                    count: (e - s) as u32,
-                };
+                nodes[ni] = Node { min, max, start: s as u32, count: (e - s) as u32 };
                 continue;
             }
             let mid = s + (e - s) / 2;
             order[s..e].select_nth_unstable_by(mid - s, |&a, &b| {
-                centroid(a, axis)
-                    .total_cmp(&centroid(b, axis))
-                    .then(a.cmp(&b))
+                centroid(a, axis).total_cmp(&centroid(b, axis)).then(a.cmp(&b))
             });
             let left = nodes.len();
-            nodes.push(Node {
-                min,
-                max,
-                start: 0,
-                count: 0,
-            });
-            nodes.push(Node {
-                min,
-                max,
-                start: 0,
-                count: 0,
-            });
-            nodes[ni] = Node {
-                min,
-                max,
-                start: left as u32,
-                count: 0,
-            };
+            nodes.push(Node { min, max, start: 0, count: 0 });
+            nodes.push(Node { min, max, start: 0, count: 0 });
+            nodes[ni] = Node { min, max, start: left as u32, count: 0 };
             work.push((left + 1, mid, e));
             work.push((left, s, mid));
         }
@@ -126,12 +97,7 @@ impl Tree {
     /// Nearest primitive to `p` whose squared distance (from `dist2(slot)`, slot in leaf order) is below
     /// `bound2`. Returns (slot, squared distance).
     #[inline]
-    fn nearest(
-        &self,
-        p: V3,
-        bound2: f64,
-        mut dist2: impl FnMut(usize) -> f64,
-    ) -> Option<(usize, f64)> {
+    fn nearest(&self, p: V3, bound2: f64, mut dist2: impl FnMut(usize) -> f64) -> Option<(usize, f64)> {
         if self.order.is_empty() {
             return None;
         }
@@ -159,15 +125,8 @@ impl Tree {
                 }
             } else {
                 let l = node.start;
-                let (dl, dr) = (
-                    box_dist2(&self.nodes[l as usize], p),
-                    box_dist2(&self.nodes[l as usize + 1], p),
-                );
-                let (near, dn, far, df) = if dl <= dr {
-                    (l, dl, l + 1, dr)
-                } else {
-                    (l + 1, dr, l, dl)
-                };
+                let (dl, dr) = (box_dist2(&self.nodes[l as usize], p), box_dist2(&self.nodes[l as usize + 1], p));
+                let (near, dn, far, df) = if dl <= dr { (l, dl, l + 1, dr) } else { (l + 1, dr, l, dl) };
                 if df < best {
                     stack[sp] = (far, df);
                     sp += 1;
@@ -281,33 +240,21 @@ impl TriangleBvh {
             })
             .collect();
         let tree = Tree::build(&boxes);
-        let tris = tree
-            .order
-            .iter()
-            .map(|&t| corners(&mesh.triangles[t as usize]))
-            .collect();
+        let tris = tree.order.iter().map(|&t| corners(&mesh.triangles[t as usize])).collect();
         TriangleBvh { tree, tris }
     }
 
     /// Approximate heap bytes used.
     pub fn memory_bytes(&self) -> usize {
-        self.tree.nodes.len() * std::mem::size_of::<Node>()
-            + self.tree.order.len() * 4
-            + self.tris.len() * 36
+        self.tree.nodes.len() * std::mem::size_of::<Node>() + self.tree.order.len() * 4 + self.tris.len() * 36
     }
 
     /// The closest point on the mesh to `p`, or `None` for a mesh without triangles.
     pub fn closest(&self, p: V3) -> Option<Closest> {
-        let (slot, d2) = self
-            .tree
-            .nearest(p, f64::INFINITY, |slot| self.dist2(slot, p))?;
+        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |slot| self.dist2(slot, p))?;
         let [a, b, c] = self.tris[slot].map(wide);
         let point = closest_point_on_triangle(p, a, b, c);
-        Some(Closest {
-            index: self.tree.order[slot],
-            point,
-            distance: d2.sqrt(),
-        })
+        Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
     }
 
     #[inline]
@@ -319,9 +266,7 @@ impl TriangleBvh {
     /// Distance from `p` to the mesh (infinite for a mesh without triangles).
     #[inline]
     pub fn distance(&self, p: V3) -> f64 {
-        self.tree
-            .nearest(p, f64::INFINITY, |slot| self.dist2(slot, p))
-            .map_or(f64::INFINITY, |(_, d2)| d2.sqrt())
+        self.tree.nearest(p, f64::INFINITY, |slot| self.dist2(slot, p)).map_or(f64::INFINITY, |(_, d2)| d2.sqrt())
     }
 }
 
@@ -348,30 +293,20 @@ impl PointBvh {
 
     /// Approximate heap bytes used.
     pub fn memory_bytes(&self) -> usize {
-        self.tree.nodes.len() * std::mem::size_of::<Node>()
-            + self.tree.order.len() * 4
-            + self.points.len() * 12
+        self.tree.nodes.len() * std::mem::size_of::<Node>() + self.tree.order.len() * 4 + self.points.len() * 12
     }
 
     /// Nearest point to `p`.
     pub fn closest(&self, p: V3) -> Option<Closest> {
-        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |s| {
-            vec3::norm2(vec3::sub(p, wide(self.points[s])))
-        })?;
-        Some(Closest {
-            index: self.tree.order[slot],
-            point: wide(self.points[slot]),
-            distance: d2.sqrt(),
-        })
+        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |s| vec3::norm2(vec3::sub(p, wide(self.points[s]))))?;
+        Some(Closest { index: self.tree.order[slot], point: wide(self.points[slot]), distance: d2.sqrt() })
     }
 
     /// Distance from `p` to the nearest point (infinite for an empty cloud).
     #[inline]
     pub fn distance(&self, p: V3) -> f64 {
         self.tree
-            .nearest(p, f64::INFINITY, |s| {
-                vec3::norm2(vec3::sub(p, wide(self.points[s])))
-            })
+            .nearest(p, f64::INFINITY, |s| vec3::norm2(vec3::sub(p, wide(self.points[s]))))
             .map_or(f64::INFINITY, |(_, d2)| d2.sqrt())
     }
 }

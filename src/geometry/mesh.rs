@@ -15,10 +15,7 @@ use crate::geometry::vec3::{self, Aabb, V3, wide};
 
 /// Checks shared by the constructors: finite positions, indices in range.
 fn validate(positions: &[[f32; 3]], indices: &[u32]) -> Result<()> {
-    if let Some(i) = positions
-        .iter()
-        .position(|p| !p.iter().all(|c| c.is_finite()))
-    {
+    if let Some(i) = positions.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
         return Err(Error::new(
             ErrorCode::InputNonFinite,
             format!("vertex {i} has a non-finite coordinate {:?}", positions[i]),
@@ -26,10 +23,7 @@ fn validate(positions: &[[f32; 3]], indices: &[u32]) -> Result<()> {
     }
     let n = positions.len();
     if let Some(&bad) = indices.iter().find(|&&i| i as usize >= n) {
-        return Err(Error::new(
-            ErrorCode::InputBadIndex,
-            format!("vertex index {bad} out of range (0..{n})"),
-        ));
+        return Err(Error::new(ErrorCode::InputBadIndex, format!("vertex index {bad} out of range (0..{n})")));
     }
     Ok(())
 }
@@ -50,21 +44,14 @@ impl TriMesh {
     /// `input.non-finite`, `input.bad-index`. Cost: O(V + F).
     pub fn new(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Result<Self> {
         validate(&positions, triangles.as_flattened())?;
-        Ok(TriMesh {
-            positions,
-            triangles,
-        })
+        Ok(TriMesh { positions, triangles })
     }
 
     /// Corner positions of triangle `t`, widened to f64.
     #[inline]
     pub fn corners(&self, t: usize) -> [V3; 3] {
         let [a, b, c] = self.triangles[t];
-        [
-            wide(self.positions[a as usize]),
-            wide(self.positions[b as usize]),
-            wide(self.positions[c as usize]),
-        ]
+        [wide(self.positions[a as usize]), wide(self.positions[b as usize]), wide(self.positions[c as usize])]
     }
 
     /// Area of triangle `t`.
@@ -81,9 +68,7 @@ impl TriMesh {
 
     /// Total surface area. Cost: O(F).
     pub fn area(&self) -> f64 {
-        (0..self.triangles.len())
-            .map(|t| self.triangle_area(t))
-            .sum()
+        (0..self.triangles.len()).map(|t| self.triangle_area(t)).sum()
     }
 
     /// Signed enclosed volume (divergence theorem; meaningful for closed meshes, positive when outward).
@@ -91,11 +76,7 @@ impl TriMesh {
         // Relative to the bbox centre to reduce cancellation for objects far from the origin.
         let c = {
             let b = self.bbox();
-            if b.is_empty() {
-                [0.0; 3]
-            } else {
-                vec3::scale(vec3::add(b.min, b.max), 0.5)
-            }
+            if b.is_empty() { [0.0; 3] } else { vec3::scale(vec3::add(b.min, b.max), 0.5) }
         };
         (0..self.triangles.len())
             .map(|t| {
@@ -121,11 +102,7 @@ pub struct PolyMesh {
 
 impl Default for PolyMesh {
     fn default() -> Self {
-        PolyMesh {
-            positions: Vec::new(),
-            offsets: vec![0],
-            indices: Vec::new(),
-        }
+        PolyMesh { positions: Vec::new(), offsets: vec![0], indices: Vec::new() }
     }
 }
 
@@ -135,10 +112,7 @@ impl PolyMesh {
     /// # Errors
     /// `input.non-finite`, `input.bad-index`, `input.bad-face`. Cost: O(V + corners).
     pub fn new(positions: Vec<[f32; 3]>, faces: &[Vec<u32>]) -> Result<Self> {
-        let mut m = PolyMesh {
-            positions,
-            ..Default::default()
-        };
+        let mut m = PolyMesh { positions, ..Default::default() };
         for f in faces {
             m.push_face_unchecked(f)?;
         }
@@ -150,37 +124,22 @@ impl PolyMesh {
     ///
     /// # Errors
     /// As [`PolyMesh::new`]; also `input.bad-face` for malformed offsets.
-    pub fn from_parts(
-        positions: Vec<[f32; 3]>,
-        offsets: Vec<u32>,
-        indices: Vec<u32>,
-    ) -> Result<Self> {
+    pub fn from_parts(positions: Vec<[f32; 3]>, offsets: Vec<u32>, indices: Vec<u32>) -> Result<Self> {
         if offsets.first() != Some(&0)
             || *offsets.last().unwrap_or(&1) as usize != indices.len()
             || offsets.windows(2).any(|w| w[1] < w[0] + 3)
         {
-            return Err(Error::new(
-                ErrorCode::InputBadFace,
-                "face offsets malformed or a face has < 3 vertices",
-            ));
+            return Err(Error::new(ErrorCode::InputBadFace, "face offsets malformed or a face has < 3 vertices"));
         }
         validate(&positions, &indices)?;
-        Ok(PolyMesh {
-            positions,
-            offsets,
-            indices,
-        })
+        Ok(PolyMesh { positions, offsets, indices })
     }
 
     /// Start an empty mesh with capacity hints (caller-checked; never pass untrusted counts unclamped).
     pub(crate) fn with_capacity(vertices: usize, faces: usize, corners: usize) -> Self {
         let mut offsets = Vec::with_capacity(faces + 1);
         offsets.push(0);
-        PolyMesh {
-            positions: Vec::with_capacity(vertices),
-            offsets,
-            indices: Vec::with_capacity(corners),
-        }
+        PolyMesh { positions: Vec::with_capacity(vertices), offsets, indices: Vec::with_capacity(corners) }
     }
 
     /// Append a face without range checks (readers validate all indices once at the end).
@@ -188,11 +147,7 @@ impl PolyMesh {
         if face.len() < 3 {
             return Err(Error::new(
                 ErrorCode::InputBadFace,
-                format!(
-                    "face {} has {} vertices; at least 3 are needed",
-                    self.face_count(),
-                    face.len()
-                ),
+                format!("face {} has {} vertices; at least 3 are needed", self.face_count(), face.len()),
             ));
         }
         self.indices.extend_from_slice(face);
@@ -233,9 +188,7 @@ impl PolyMesh {
 
     /// Iterate over faces.
     pub fn faces(&self) -> impl ExactSizeIterator<Item = &[u32]> + '_ {
-        self.offsets
-            .windows(2)
-            .map(move |w| &self.indices[w[0] as usize..w[1] as usize])
+        self.offsets.windows(2).map(move |w| &self.indices[w[0] as usize..w[1] as usize])
     }
 
     /// All corner indices, face after face.
@@ -260,13 +213,7 @@ impl PolyMesh {
                 origin.push(f as u32);
             }
         }
-        (
-            TriMesh {
-                positions: self.positions.clone(),
-                triangles,
-            },
-            origin,
-        )
+        (TriMesh { positions: self.positions.clone(), triangles }, origin)
     }
 
     /// Bounding box of all vertices.
@@ -279,11 +226,7 @@ impl From<TriMesh> for PolyMesh {
     fn from(t: TriMesh) -> Self {
         let n = t.triangles.len();
         let offsets = (0..=n as u32).map(|i| 3 * i).collect();
-        PolyMesh {
-            positions: t.positions,
-            offsets,
-            indices: t.triangles.into_flattened(),
-        }
+        PolyMesh { positions: t.positions, offsets, indices: t.triangles.into_flattened() }
     }
 }
 
@@ -303,26 +246,13 @@ impl PointCloud {
     ///
     /// # Errors
     /// `input.non-finite`, `input.bad-record` (attribute length mismatch).
-    pub fn new(
-        positions: Vec<[f32; 3]>,
-        normals: Option<Vec<[f32; 3]>>,
-        colors: Option<Vec<[u8; 3]>>,
-    ) -> Result<Self> {
+    pub fn new(positions: Vec<[f32; 3]>, normals: Option<Vec<[f32; 3]>>, colors: Option<Vec<[u8; 3]>>) -> Result<Self> {
         validate(&positions, &[])?;
         let n = positions.len();
-        if normals.as_ref().is_some_and(|v| v.len() != n)
-            || colors.as_ref().is_some_and(|v| v.len() != n)
-        {
-            return Err(Error::new(
-                ErrorCode::InputBadRecord,
-                "normals/colors do not match the point count",
-            ));
+        if normals.as_ref().is_some_and(|v| v.len() != n) || colors.as_ref().is_some_and(|v| v.len() != n) {
+            return Err(Error::new(ErrorCode::InputBadRecord, "normals/colors do not match the point count"));
         }
-        Ok(PointCloud {
-            positions,
-            normals,
-            colors,
-        })
+        Ok(PointCloud { positions, normals, colors })
     }
 
     /// Bounding box.

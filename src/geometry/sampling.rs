@@ -55,9 +55,7 @@ pub struct SurfaceSample {
 ///
 /// Returns an empty vector when the mesh has no area. Cost: O(F + n).
 pub fn sample_area_uniform(mesh: &TriMesh, n: usize, rng: &mut Rng) -> Vec<SurfaceSample> {
-    let areas: Vec<f64> = (0..mesh.triangles.len())
-        .map(|t| mesh.triangle_area(t))
-        .collect();
+    let areas: Vec<f64> = (0..mesh.triangles.len()).map(|t| mesh.triangle_area(t)).collect();
     let total: f64 = areas.iter().sum();
     if !(total > 0.0) || n == 0 {
         return Vec::new();
@@ -79,14 +77,8 @@ pub fn sample_area_uniform(mesh: &TriMesh, n: usize, rng: &mut Rng) -> Vec<Surfa
         let [a, b, c] = mesh.corners(t);
         let r1 = rng.next_f64().sqrt();
         let r2 = rng.next_f64();
-        let p = add(
-            add(scale(a, 1.0 - r1), scale(b, r1 * (1.0 - r2))),
-            scale(c, r1 * r2),
-        );
-        out.push(SurfaceSample {
-            point: p,
-            triangle: t as u32,
-        });
+        let p = add(add(scale(a, 1.0 - r1), scale(b, r1 * (1.0 - r2))), scale(c, r1 * r2));
+        out.push(SurfaceSample { point: p, triangle: t as u32 });
     }
     out
 }

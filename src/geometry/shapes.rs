@@ -56,11 +56,7 @@ pub fn icosphere(radius: f64, level: u32, center: [f64; 3]) -> TriMesh {
             let key = (a.min(b), a.max(b));
             *mid.entry(key).or_insert_with(|| {
                 let (p, q) = (v[a as usize], v[b as usize]);
-                v.push(unit([
-                    (p[0] + q[0]) / 2.0,
-                    (p[1] + q[1]) / 2.0,
-                    (p[2] + q[2]) / 2.0,
-                ]));
+                v.push(unit([(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0, (p[2] + q[2]) / 2.0]));
                 (v.len() - 1) as u32
             })
         };
@@ -72,14 +68,8 @@ pub fn icosphere(radius: f64, level: u32, center: [f64; 3]) -> TriMesh {
         }
         f = next;
     }
-    let positions = v
-        .iter()
-        .map(|p| [0, 1, 2].map(|k| (center[k] + radius * p[k]) as f32))
-        .collect();
-    TriMesh {
-        positions,
-        triangles: f,
-    }
+    let positions = v.iter().map(|p| [0, 1, 2].map(|k| (center[k] + radius * p[k]) as f32)).collect();
+    TriMesh { positions, triangles: f }
 }
 
 /// An axis-aligned box from `min` to `max`, 12 outward triangles.
@@ -107,8 +97,5 @@ pub fn cuboid(min: [f64; 3], max: [f64; 3]) -> TriMesh {
         [1, 3, 5],
         [3, 7, 5], // x- , x+
     ];
-    TriMesh {
-        positions,
-        triangles,
-    }
+    TriMesh { positions, triangles }
 }

@@ -21,9 +21,7 @@ pub struct UnionFind {
 impl UnionFind {
     /// `n` singleton sets.
     pub fn new(n: usize) -> Self {
-        UnionFind {
-            parent: (0..n as u32).collect(),
-        }
+        UnionFind { parent: (0..n as u32).collect() }
     }
     /// Representative of `x`'s set.
     pub fn find(&mut self, mut x: u32) -> u32 {
@@ -98,14 +96,7 @@ impl MeshTopology {
             edge_he.push(h);
         }
         edge_he_start.push(edge_he.len() as u32);
-        MeshTopology {
-            edges,
-            edge_he_start,
-            edge_he,
-            halfedge_edge,
-            corner_face,
-            corner_next,
-        }
+        MeshTopology { edges, edge_he_start, edge_he, halfedge_edge, corner_face, corner_next }
     }
 
     /// Half-edges (corners) that lie on edge `e`, in ascending order.
@@ -211,11 +202,7 @@ impl TopologyReport {
         let mut area = 0.0;
         let mut degenerate_faces = 0;
         let mut six_volume = 0.0;
-        let centre = if bbox.is_empty() {
-            [0.0; 3]
-        } else {
-            vec3::scale(vec3::add(bbox.min, bbox.max), 0.5)
-        };
+        let centre = if bbox.is_empty() { [0.0; 3] } else { vec3::scale(vec3::add(bbox.min, bbox.max), 0.5) };
         for face in mesh.faces() {
             let p0 = vec3::sub(wide(mesh.positions[face[0] as usize]), centre);
             let mut face_area = 0.0;
@@ -290,14 +277,8 @@ impl TopologyReport {
         for f in 0..nf as u32 {
             comp_root.push(face_uf.find(f));
         }
-        let components = comp_root
-            .iter()
-            .enumerate()
-            .filter(|&(f, &r)| r as usize == f)
-            .count();
-        let boundary_loops = (0..nv as u32)
-            .filter(|&v| on_boundary[v as usize] && boundary_uf.find(v) == v)
-            .count();
+        let components = comp_root.iter().enumerate().filter(|&(f, &r)| r as usize == f).count();
+        let boundary_loops = (0..nv as u32).filter(|&v| on_boundary[v as usize] && boundary_uf.find(v) == v).count();
 
         let coincident_vertices = {
             let mut keys: Vec<[u32; 3]> = (0..nv)
@@ -311,13 +292,12 @@ impl TopologyReport {
 
         let closed = nf > 0 && boundary_edges == 0 && nonmanifold_edges == 0;
         let euler_characteristic = referenced_vertices as i64 - topo.edges.len() as i64 + nf as i64;
-        let genus =
-            if nonmanifold_edges == 0 && nonmanifold_vertices == 0 && orientation_conflicts == 0 {
-                let twice = 2 * components as i64 - euler_characteristic - boundary_loops as i64;
-                (twice >= 0 && twice % 2 == 0).then_some(twice / 2)
-            } else {
-                None
-            };
+        let genus = if nonmanifold_edges == 0 && nonmanifold_vertices == 0 && orientation_conflicts == 0 {
+            let twice = 2 * components as i64 - euler_characteristic - boundary_loops as i64;
+            (twice >= 0 && twice % 2 == 0).then_some(twice / 2)
+        } else {
+            None
+        };
 
         TopologyReport {
             vertices: nv,

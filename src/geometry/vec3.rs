@@ -27,11 +27,7 @@ pub fn dot(a: V3, b: V3) -> f64 {
 }
 #[inline]
 pub fn cross(a: V3, b: V3) -> V3 {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 #[inline]
 pub fn norm2(a: V3) -> f64 {
@@ -51,10 +47,7 @@ pub struct Aabb {
 
 impl Aabb {
     /// The empty box (grows to fit the first point added).
-    pub const EMPTY: Aabb = Aabb {
-        min: [f64::INFINITY; 3],
-        max: [f64::NEG_INFINITY; 3],
-    };
+    pub const EMPTY: Aabb = Aabb { min: [f64::INFINITY; 3], max: [f64::NEG_INFINITY; 3] };
 
     /// Grow to contain `p`.
     #[inline]
@@ -81,11 +74,7 @@ impl Aabb {
 
     /// Edge lengths (zero for an empty box).
     pub fn extent(&self) -> V3 {
-        if self.is_empty() {
-            [0.0; 3]
-        } else {
-            sub(self.max, self.min)
-        }
+        if self.is_empty() { [0.0; 3] } else { sub(self.max, self.min) }
     }
 
     /// Length of the diagonal (zero for an empty box).

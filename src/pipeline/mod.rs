@@ -112,12 +112,7 @@ impl InputSummary {
             Geometry::Mesh(m) => m.face_count(),
             Geometry::Cloud(_) => 0,
         };
-        InputSummary {
-            file: path.to_path_buf(),
-            kind: g.kind(),
-            vertices: g.positions().len(),
-            faces,
-        }
+        InputSummary { file: path.to_path_buf(), kind: g.kind(), vertices: g.positions().len(), faces }
     }
 }
 
@@ -158,17 +153,12 @@ pub fn compare_files(
         ensure_not_input(out, &[test, reference])?;
     }
     let t0 = Instant::now();
-    let (a, b) = rayon::join(
-        || read_geometry(test, read),
-        || read_geometry(reference, read),
-    );
+    let (a, b) = rayon::join(|| read_geometry(test, read), || read_geometry(reference, read));
     let (a, b) = (a?, b?);
     let read_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let distance = compare(&a, &b, opts, progress)?;
-    let scale = error_map
-        .map(|out| write_error_map(out, &a, &b))
-        .transpose()?;
+    let scale = error_map.map(|out| write_error_map(out, &a, &b)).transpose()?;
     Ok(CompareReport {
         test: InputSummary::of(test, &a),
         reference: InputSummary::of(reference, &b),

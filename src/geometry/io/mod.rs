@@ -47,9 +47,7 @@ pub struct ReadOptions {
 
 impl Default for ReadOptions {
     fn default() -> Self {
-        ReadOptions {
-            memory_budget: 8 << 30,
-        }
+        ReadOptions { memory_budget: 8 << 30 }
     }
 }
 
@@ -65,31 +63,22 @@ pub(crate) struct Input<'a> {
 }
 
 impl Input<'_> {
-    /// Check a declared element count before allocating for it: `count` elements of at least `min_bytes`
-    /// each must fit in the `left` bytes the input can still hold, and `count × mem_bytes` must fit the
-    /// memory budget.
-    pub fn check_count(
-        &self,
-        left: u64,
-        count: u64,
-        min_bytes: u64,
-        mem_bytes: u64,
-        what: &str,
-    ) -> Result<usize> {
-        let need = count.saturating_mul(min_bytes.max(1));
-        if need > left {
+    /// Check a declared element count before allocating for it, and return how many elements may be
+    /// reserved up front.
+    ///
+    /// A count larger than the number of bytes left (`left`) cannot be true for any format and is
+    /// `input.absurd-count`; `count × mem_bytes` beyond the budget is `resource.memory-budget`. A count that
+    /// is merely more than `left / min_bytes` may be a truncated file: the reservation is capped there and
+    /// the reader reports `input.truncated` where the data actually ends.
+    pub fn check_count(&self, left: u64, count: u64, min_bytes: u64, mem_bytes: u64, what: &str) -> Result<usize> {
+        if count > left || count > u32::MAX as u64 {
             return Err(Error::new(
                 ErrorCode::InputAbsurdCount,
-                format!(
-                    "{count} {what} declared, but the data left ({} bytes at most) cannot hold more than {}",
-                    left,
-                    left / min_bytes.max(1)
-                ),
+                format!("{count} {what} declared, but only {left} bytes of data can follow"),
             ));
         }
         self.check_memory(count.saturating_mul(mem_bytes), what)?;
-        usize::try_from(count)
-            .map_err(|_| Error::new(ErrorCode::InputAbsurdCount, format!("{count} {what}")))
+        Ok(count.min(left / min_bytes.max(1)) as usize)
     }
 
     /// Fail with `resource.memory-budget` when `bytes` exceed the budget.
@@ -97,10 +86,7 @@ impl Input<'_> {
         if bytes > self.options.memory_budget {
             return Err(Error::new(
                 ErrorCode::ResourceMemoryBudget,
-                format!(
-                    "{what} need {bytes} bytes; the memory budget is {} bytes",
-                    self.options.memory_budget
-                ),
+                format!("{what} need {bytes} bytes; the memory budget is {} bytes", self.options.memory_budget),
             )
             .with_hint("raise the memory budget or decimate the input first"));
         }
@@ -110,10 +96,7 @@ impl Input<'_> {
 
 /// Decide the format from the file name (ignoring a `.gz` suffix) or, failing that, from the first bytes.
 pub fn detect_format(path: &Path, head: &[u8]) -> Result<Format> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
+    let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
     let name = name.strip_suffix(".gz").unwrap_or(&name);
     let ext = name.rsplit_once('.').map(|(_, e)| e).unwrap_or("");
     match ext {
@@ -125,31 +108,21 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<Format> {
         _ => {}
     }
     sniff_format(head).ok_or_else(|| {
-        Error::new(
-            ErrorCode::InputUnknownFormat,
-            "neither the extension nor the content names a supported format",
-        )
-        .with_hint("supported: .ply .obj .stl .off .xyz .pts (optionally .gz)")
+        Error::new(ErrorCode::InputUnknownFormat, "neither the extension nor the content names a supported format")
+            .with_hint("supported: .ply .obj .stl .off .xyz .pts (optionally .gz)")
     })
 }
 
 fn sniff_format(head: &[u8]) -> Option<Format> {
     let text = String::from_utf8_lossy(&head[..head.len().min(512)]);
-    let first = text
-        .lines()
-        .map(str::trim)
-        .find(|l| !l.is_empty() && !l.starts_with('#'))
-        .unwrap_or("");
+    let first = text.lines().map(str::trim).find(|l| !l.is_empty() && !l.starts_with('#')).unwrap_or("");
     if head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n") {
         Some(Format::Ply)
     } else if first.ends_with("OFF") && first.len() <= 6 || first.starts_with("OFF ") {
         Some(Format::Off)
     } else if head.starts_with(b"solid") && text.contains("facet") {
         Some(Format::Stl)
-    } else if text
-        .lines()
-        .any(|l| l.starts_with("v ") || l.starts_with("f "))
-    {
+    } else if text.lines().any(|l| l.starts_with("v ") || l.starts_with("f ")) {
         Some(Format::Obj)
     } else if !first.is_empty() && first.split_whitespace().all(|t| t.parse::<f64>().is_ok()) {
         Some(Format::Xyz)
@@ -174,27 +147,18 @@ pub fn read_geometry(path: &Path, options: &ReadOptions) -> Result<Geometry> {
 pub fn read_mesh(path: &Path, options: &ReadOptions) -> Result<PolyMesh> {
     match read_geometry(path, options)? {
         Geometry::Mesh(m) => Ok(m),
-        Geometry::Cloud(_) => Err(Error::new(
-            ErrorCode::InputNoGeometry,
-            "the file has points but no faces",
-        )
-        .in_file(path)
-        .with_hint("this step needs a surface mesh; reconstruct one from the cloud first")),
+        Geometry::Cloud(_) => Err(Error::new(ErrorCode::InputNoGeometry, "the file has points but no faces")
+            .in_file(path)
+            .with_hint("this step needs a surface mesh; reconstruct one from the cloud first")),
     }
 }
 
 fn read_inner(path: &Path, options: &ReadOptions) -> Result<Geometry> {
     let file = File::open(path).map_err(|e| {
-        let code = if e.kind() == std::io::ErrorKind::NotFound {
-            ErrorCode::InputNotFound
-        } else {
-            ErrorCode::InputIo
-        };
+        let code = if e.kind() == std::io::ErrorKind::NotFound { ErrorCode::InputNotFound } else { ErrorCode::InputIo };
         Error::new(code, format!("cannot open: {e}"))
     })?;
-    let meta = file
-        .metadata()
-        .map_err(|e| Error::new(ErrorCode::InputIo, e.to_string()))?;
+    let meta = file.metadata().map_err(|e| Error::new(ErrorCode::InputIo, e.to_string()))?;
     if meta.is_dir() {
         return Err(Error::new(ErrorCode::InputIo, "is a directory"));
     }
@@ -206,26 +170,16 @@ fn read_inner(path: &Path, options: &ReadOptions) -> Result<Geometry> {
     let gz = raw.fill_buf().map_err(io_err)?.starts_with(&[0x1f, 0x8b]);
     let (mut reader, max_bytes): (Box<dyn BufRead>, u64) = if gz {
         let dec = flate2::bufread::MultiGzDecoder::new(raw);
-        (
-            Box::new(BufReader::with_capacity(1 << 16, dec)),
-            size.saturating_mul(GZIP_MAX_RATIO),
-        )
+        (Box::new(BufReader::with_capacity(1 << 16, dec)), size.saturating_mul(GZIP_MAX_RATIO))
     } else {
         (Box::new(raw), size)
     };
-    let head = reader
-        .fill_buf()
-        .map_err(|e| io_err(e).at(Location::Byte(0)))?
-        .to_vec();
+    let head = reader.fill_buf().map_err(|e| io_err(e).at(Location::Byte(0)))?.to_vec();
     if head.iter().all(|b| b.is_ascii_whitespace()) {
         return Err(Error::new(ErrorCode::InputEmpty, "the file holds no data"));
     }
     let format = detect_format(path, &head)?;
-    let mut input = Input {
-        reader,
-        max_bytes,
-        options: *options,
-    };
+    let mut input = Input { reader, max_bytes, options: *options };
     let geometry = match format {
         Format::Ply => ply::read(&mut input),
         Format::Obj => obj::read(&mut input),
@@ -234,10 +188,7 @@ fn read_inner(path: &Path, options: &ReadOptions) -> Result<Geometry> {
         Format::Xyz => xyz::read(&mut input),
     }?;
     if geometry.positions().is_empty() {
-        return Err(Error::new(
-            ErrorCode::InputNoGeometry,
-            "the file holds no vertices",
-        ));
+        return Err(Error::new(ErrorCode::InputNoGeometry, "the file holds no vertices"));
     }
     tracing::debug!(file = %path.display(), ?format, kind = geometry.kind(), vertices = geometry.positions().len(), "read");
     Ok(geometry)
@@ -247,13 +198,10 @@ fn read_inner(path: &Path, options: &ReadOptions) -> Result<Geometry> {
 /// `input.truncated` too when the stream ends early, anything else `input.io`.
 pub(crate) fn io_err(e: std::io::Error) -> Error {
     match e.kind() {
-        std::io::ErrorKind::UnexpectedEof => {
-            Error::new(ErrorCode::InputTruncated, "the data ends early")
+        std::io::ErrorKind::UnexpectedEof => Error::new(ErrorCode::InputTruncated, "the data ends early"),
+        std::io::ErrorKind::InvalidData | std::io::ErrorKind::InvalidInput => {
+            Error::new(ErrorCode::InputTruncated, format!("corrupt or truncated compressed data: {e}"))
         }
-        std::io::ErrorKind::InvalidData | std::io::ErrorKind::InvalidInput => Error::new(
-            ErrorCode::InputTruncated,
-            format!("corrupt or truncated compressed data: {e}"),
-        ),
         _ => Error::new(ErrorCode::InputIo, format!("read error: {e}")),
     }
 }
@@ -261,26 +209,17 @@ pub(crate) fn io_err(e: std::io::Error) -> Error {
 /// Read exactly `buf.len()` bytes at byte offset `*pos`, advancing it.
 #[inline]
 pub(crate) fn read_exact_at(r: &mut dyn Read, buf: &mut [u8], pos: &mut u64) -> Result<()> {
-    r.read_exact(buf)
-        .map_err(|e| io_err(e).at(Location::Byte(*pos)))?;
+    r.read_exact(buf).map_err(|e| io_err(e).at(Location::Byte(*pos)))?;
     *pos += buf.len() as u64;
     Ok(())
 }
 
 /// Finite-coordinate check used by every reader, with location.
 #[inline]
-pub(crate) fn finite_point(
-    p: [f32; 3],
-    what: impl FnOnce() -> String,
-    loc: Location,
-) -> Result<[f32; 3]> {
+pub(crate) fn finite_point(p: [f32; 3], what: impl FnOnce() -> String, loc: Location) -> Result<[f32; 3]> {
     if p.iter().all(|c| c.is_finite()) {
         Ok(p)
     } else {
-        Err(Error::new(
-            ErrorCode::InputNonFinite,
-            format!("{} has a non-finite coordinate {p:?}", what()),
-        )
-        .at(loc))
+        Err(Error::new(ErrorCode::InputNonFinite, format!("{} has a non-finite coordinate {p:?}", what())).at(loc))
     }
 }

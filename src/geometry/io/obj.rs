@@ -18,12 +18,8 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
     let mut records = 0usize;
     let mut reader = std::mem::replace(&mut input.reader, Box::new(std::io::empty()));
     let mut lines = Lines::new(&mut *reader);
-    let check = |v: usize, c: usize| {
-        input.check_memory(
-            12 * v as u64 + 4 * c as u64,
-            "the vertices and faces read so far",
-        )
-    };
+    let check =
+        |v: usize, c: usize| input.check_memory(12 * v as u64 + 4 * c as u64, "the vertices and faces read so far");
     while let Some((line, loc)) = lines.next_line()? {
         let mut toks = line.split_whitespace();
         match toks.next() {

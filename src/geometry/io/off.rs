@@ -17,10 +17,7 @@ fn content<'l>(lines: &'l mut Lines) -> Result<Option<(&'l str, Location)>> {
         }
     }
     let loc = Location::Line(lines.line);
-    Ok(Some((
-        lines.current().split('#').next().unwrap_or("").trim(),
-        loc,
-    )))
+    Ok(Some((lines.current().split('#').next().unwrap_or("").trim(), loc)))
 }
 
 pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
@@ -33,11 +30,7 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
     let mut toks = first.split_whitespace();
     let keyword = toks.next().unwrap_or("");
     if !keyword.ends_with("OFF") {
-        return Err(Error::new(
-            ErrorCode::InputBadHeader,
-            format!("expected OFF, found {keyword:?}"),
-        )
-        .at(loc));
+        return Err(Error::new(ErrorCode::InputBadHeader, format!("expected OFF, found {keyword:?}")).at(loc));
     }
     let mut counts: Vec<&str> = toks.collect();
     let mut count_loc = loc;
@@ -49,29 +42,18 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
         count_loc = loc;
     }
     if counts.len() < 2 {
-        return Err(Error::new(
-            ErrorCode::InputBadHeader,
-            "counts line needs vertex and face counts",
-        )
-        .at(count_loc));
+        return Err(Error::new(ErrorCode::InputBadHeader, "counts line needs vertex and face counts").at(count_loc));
     }
     let nv: u64 = parse_num(counts[0], "vertex count", count_loc)?;
     let nf: u64 = parse_num(counts[1], "face count", count_loc)?;
     let left = max_bytes.saturating_sub(lines.bytes);
-    let nv = input
-        .check_count(left, nv, 6, 12, "vertices")
-        .map_err(|e| e.at(count_loc))?;
-    let nf = input
-        .check_count(left.saturating_sub(6 * nv as u64), nf, 8, 16, "faces")
-        .map_err(|e| e.at(count_loc))?;
-    let mut positions = Vec::with_capacity(nv);
+    let nv_cap = input.check_count(left, nv, 6, 12, "vertices").map_err(|e| e.at(count_loc))?;
+    let nf_cap = input.check_count(left, nf, 8, 16, "faces").map_err(|e| e.at(count_loc))?;
+    let mut positions = Vec::with_capacity(nv_cap);
     for i in 0..nv {
         let Some((l, loc)) = content(&mut lines)? else {
-            return Err(Error::new(
-                ErrorCode::InputTruncated,
-                format!("only {i} of {nv} vertices"),
-            )
-            .at(Location::Line(lines.line + 1)));
+            return Err(Error::new(ErrorCode::InputTruncated, format!("only {i} of {nv} vertices"))
+                .at(Location::Line(lines.line + 1)));
         };
         let p = parse_xyz(&mut l.split_whitespace(), "vertex", loc)?;
         positions.push(finite_point(p, || format!("vertex {i}"), loc)?);
@@ -79,33 +61,23 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
     if nf == 0 {
         return Ok(Geometry::Cloud(PointCloud::new(positions, None, None)?));
     }
-    let mut mesh = PolyMesh::with_capacity(0, nf, 3 * nf);
+    let mut mesh = PolyMesh::with_capacity(0, nf_cap, 3 * nf_cap);
     let mut face = Vec::new();
     for i in 0..nf {
         let Some((l, loc)) = content(&mut lines)? else {
-            return Err(
-                Error::new(ErrorCode::InputTruncated, format!("only {i} of {nf} faces"))
-                    .at(Location::Line(lines.line + 1)),
-            );
+            return Err(Error::new(ErrorCode::InputTruncated, format!("only {i} of {nf} faces"))
+                .at(Location::Line(lines.line + 1)));
         };
         let mut toks = l.split_whitespace();
         let n: usize = parse_num(toks.next().unwrap_or(""), "face size", loc)?;
         face.clear();
         for _ in 0..n {
             let tok = toks.next().ok_or_else(|| {
-                Error::new(
-                    ErrorCode::InputBadRecord,
-                    format!("face {i} declares {n} vertices but lists fewer"),
-                )
-                .at(loc)
+                Error::new(ErrorCode::InputBadRecord, format!("face {i} declares {n} vertices but lists fewer")).at(loc)
             })?;
             let v: i64 = parse_num(tok, "face index", loc)?;
-            if v < 0 || v as u64 >= nv as u64 {
-                return Err(Error::new(
-                    ErrorCode::InputBadIndex,
-                    format!("face {i}: index {v} not in 0..{nv}"),
-                )
-                .at(loc));
+            if v < 0 || v as u64 >= nv {
+                return Err(Error::new(ErrorCode::InputBadIndex, format!("face {i}: index {v} not in 0..{nv}")).at(loc));
             }
             face.push(v as u32);
         }

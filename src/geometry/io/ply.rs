@@ -57,11 +57,7 @@ impl Scalar {
         macro_rules! get {
             ($t:ty, $n:expr) => {{
                 let a: [u8; $n] = b[..$n].try_into().unwrap();
-                (if big {
-                    <$t>::from_be_bytes(a)
-                } else {
-                    <$t>::from_le_bytes(a)
-                }) as f64
+                (if big { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as f64
             }};
         }
         match self {
@@ -91,6 +87,8 @@ struct Property {
 
 #[derive(Clone, Debug)]
 struct Element {
+    /// Header line that declares it.
+    line: u64,
     name: String,
     count: u64,
     props: Vec<Property>,
@@ -98,9 +96,7 @@ struct Element {
 
 impl Element {
     fn prop(&self, names: &[&str]) -> Option<usize> {
-        self.props
-            .iter()
-            .position(|p| names.contains(&p.name.as_str()))
+        self.props.iter().position(|p| names.contains(&p.name.as_str()))
     }
     /// Minimum stored bytes per element (lists empty): binary sizes, or 2 characters per value in ascii.
     fn min_bytes(&self, ascii: bool) -> u64 {
@@ -138,28 +134,20 @@ fn read_header(lines: &mut Lines) -> Result<Header> {
     match lines.next_line()? {
         Some(("ply", _)) => {}
         _ => {
-            return Err(bad_header(
-                "the file does not start with the line \"ply\"",
-                1,
-            ));
+            return Err(bad_header("the file does not start with the line \"ply\"", 1));
         }
     }
     let mut encoding = None;
     let mut elements: Vec<Element> = Vec::new();
     loop {
         if lines.bytes > MAX_HEADER_BYTES {
-            return Err(bad_header(
-                "no end_header within the first 1 MiB",
-                lines.line,
-            ));
+            return Err(bad_header("no end_header within the first 1 MiB", lines.line));
         }
         let line_no = lines.line + 1;
         let Some((line, _)) = lines.next_line()? else {
-            return Err(Error::new(
-                ErrorCode::InputTruncated,
-                "the header ends without end_header",
-            )
-            .at(Location::Line(line_no)));
+            return Err(
+                Error::new(ErrorCode::InputTruncated, "the header ends without end_header").at(Location::Line(line_no))
+            );
         };
         let toks: Vec<&str> = line.split_whitespace().collect();
         match toks.as_slice() {
@@ -174,66 +162,34 @@ fn read_header(lines: &mut Lines) -> Result<Header> {
                 });
             }
             ["element", name, count] => {
-                let count: u64 = count.parse().map_err(|_| {
-                    bad_header(
-                        format!("element {name}: count {count:?} is not a count"),
-                        line_no,
-                    )
-                })?;
-                elements.push(Element {
-                    name: name.to_string(),
-                    count,
-                    props: Vec::new(),
-                });
+                let count: u64 = count
+                    .parse()
+                    .map_err(|_| bad_header(format!("element {name}: count {count:?} is not a count"), line_no))?;
+                elements.push(Element { line: line_no, name: name.to_string(), count, props: Vec::new() });
             }
             ["property", "list", ct, it, name] => {
-                let el = elements
-                    .last_mut()
-                    .ok_or_else(|| bad_header("property before any element", line_no))?;
+                let el = elements.last_mut().ok_or_else(|| bad_header("property before any element", line_no))?;
                 let (Some(count), Some(item)) = (Scalar::parse(ct), Scalar::parse(it)) else {
-                    return Err(bad_header(
-                        format!("unknown list types {ct:?} {it:?}"),
-                        line_no,
-                    ));
+                    return Err(bad_header(format!("unknown list types {ct:?} {it:?}"), line_no));
                 };
                 if !count.is_integer() {
-                    return Err(bad_header(
-                        format!("list count type {ct:?} is not an integer type"),
-                        line_no,
-                    ));
+                    return Err(bad_header(format!("list count type {ct:?} is not an integer type"), line_no));
                 }
-                el.props.push(Property {
-                    name: name.to_string(),
-                    ty: PropType::List { count, item },
-                });
+                el.props.push(Property { name: name.to_string(), ty: PropType::List { count, item } });
             }
             ["property", ty, name] => {
-                let el = elements
-                    .last_mut()
-                    .ok_or_else(|| bad_header("property before any element", line_no))?;
-                let s = Scalar::parse(ty)
-                    .ok_or_else(|| bad_header(format!("unknown type {ty:?}"), line_no))?;
-                el.props.push(Property {
-                    name: name.to_string(),
-                    ty: PropType::Scalar(s),
-                });
+                let el = elements.last_mut().ok_or_else(|| bad_header("property before any element", line_no))?;
+                let s = Scalar::parse(ty).ok_or_else(|| bad_header(format!("unknown type {ty:?}"), line_no))?;
+                el.props.push(Property { name: name.to_string(), ty: PropType::Scalar(s) });
             }
             ["end_header"] => break,
             _ => {
-                return Err(bad_header(
-                    format!("cannot read header line {line:?}"),
-                    line_no,
-                ));
+                return Err(bad_header(format!("cannot read header line {line:?}"), line_no));
             }
         }
     }
     let encoding = encoding.ok_or_else(|| bad_header("no format line", lines.line))?;
-    Ok(Header {
-        encoding,
-        elements,
-        bytes: lines.bytes,
-        lines: lines.line,
-    })
+    Ok(Header { encoding, elements, bytes: lines.bytes, lines: lines.line })
 }
 
 /// Where the kept properties of the vertex element are.
@@ -244,28 +200,18 @@ struct VertexLayout {
 }
 
 fn vertex_layout(el: &Element) -> Result<VertexLayout> {
-    let find = |n: &[&str]| {
-        el.prop(n)
-            .filter(|&i| matches!(el.props[i].ty, PropType::Scalar(_)))
-    };
+    let find = |n: &[&str]| el.prop(n).filter(|&i| matches!(el.props[i].ty, PropType::Scalar(_)));
     let xyz = match (find(&["x"]), find(&["y"]), find(&["z"])) {
         (Some(x), Some(y), Some(z)) => [x, y, z],
         _ => {
-            return Err(Error::new(
-                ErrorCode::InputBadHeader,
-                "element vertex lacks scalar x, y, z properties",
-            ));
+            return Err(Error::new(ErrorCode::InputBadHeader, "element vertex lacks scalar x, y, z properties"));
         }
     };
     let normal = match (find(&["nx"]), find(&["ny"]), find(&["nz"])) {
         (Some(x), Some(y), Some(z)) => Some([x, y, z]),
         _ => None,
     };
-    let color = match (
-        find(&["red", "r"]),
-        find(&["green", "g"]),
-        find(&["blue", "b"]),
-    ) {
+    let color = match (find(&["red", "r"]), find(&["green", "g"]), find(&["blue", "b"])) {
         (Some(x), Some(y), Some(z)) => Some([x, y, z]),
         _ => None,
     };
@@ -275,18 +221,10 @@ fn vertex_layout(el: &Element) -> Result<VertexLayout> {
 fn face_list(el: &Element) -> Result<usize> {
     let i = el
         .prop(&["vertex_indices", "vertex_index"])
-        .ok_or_else(|| {
-            Error::new(
-                ErrorCode::InputBadHeader,
-                "element face lacks a vertex_indices list",
-            )
-        })?;
+        .ok_or_else(|| Error::new(ErrorCode::InputBadHeader, "element face lacks a vertex_indices list"))?;
     match el.props[i].ty {
         PropType::List { item, .. } if item.is_integer() => Ok(i),
-        _ => Err(Error::new(
-            ErrorCode::InputBadHeader,
-            "face vertex_indices is not a list of integers",
-        )),
+        _ => Err(Error::new(ErrorCode::InputBadHeader, "face vertex_indices is not a list of integers")),
     }
 }
 
@@ -305,11 +243,7 @@ fn to_index(v: f64, loc: Location) -> Result<u32> {
     if v >= 0.0 && v <= u32::MAX as f64 && v.fract() == 0.0 {
         Ok(v as u32)
     } else {
-        Err(Error::new(
-            ErrorCode::InputBadIndex,
-            format!("face index {v} is negative or not an integer"),
-        )
-        .at(loc))
+        Err(Error::new(ErrorCode::InputBadIndex, format!("face index {v} is negative or not an integer")).at(loc))
     }
 }
 
@@ -327,26 +261,22 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
     };
     let ascii = header.encoding == Encoding::Ascii;
     // Check every declared count against the bytes that follow the header, before allocating anything.
-    let mut left = input.max_bytes.saturating_sub(header.bytes);
+    // (Each element alone is checked against all bytes left: a count that only the sum exceeds is left to
+    // the reader, which reports `input.truncated` where the data ends.)
+    let left = input.max_bytes.saturating_sub(header.bytes);
     let mut counts = Vec::with_capacity(header.elements.len());
     let mut vertex_count = 0usize;
     let mut face_count = 0usize;
     for el in &header.elements {
         let min = el.min_bytes(ascii);
         let mem = match el.name.as_str() {
-            "vertex" => {
-                12 + 12
-                    * vertex_layout(el)
-                        .map(|l| l.normal.is_some() as u64)
-                        .unwrap_or(0)
-            }
+            "vertex" => 12 + 12 * vertex_layout(el).map(|l| l.normal.is_some() as u64).unwrap_or(0),
             "face" => 4 * 4,
             _ => 0,
         };
         let n = input
             .check_count(left, el.count, min, mem, &format!("{} elements", el.name))
-            .map_err(|e| e.at(Location::Line(1)))?;
-        left = left.saturating_sub(el.count.saturating_mul(min));
+            .map_err(|e| e.at(Location::Line(el.line)))?;
         match el.name.as_str() {
             "vertex" => vertex_count = n,
             "face" => face_count = n,
@@ -355,29 +285,16 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
         counts.push(n);
     }
     if vertex_count > u32::MAX as usize {
-        return Err(Error::new(
-            ErrorCode::InputAbsurdCount,
-            "more than 2^32 vertices",
-        ));
+        return Err(Error::new(ErrorCode::InputAbsurdCount, "more than 2^32 vertices"));
     }
     let vertex_el = header.elements.iter().find(|e| e.name == "vertex");
     let layout = vertex_el.map(vertex_layout).transpose()?;
-    let has_faces = header
-        .elements
-        .iter()
-        .any(|e| e.name == "face" && e.count > 0);
+    let has_faces = header.elements.iter().any(|e| e.name == "face" && e.count > 0);
     let mut sink = Sink {
         positions: Vec::with_capacity(vertex_count),
-        normals: layout
-            .as_ref()
-            .and_then(|l| l.normal)
-            .map(|_| Vec::with_capacity(vertex_count)),
-        colors: layout
-            .as_ref()
-            .and_then(|l| l.color)
-            .map(|_| Vec::with_capacity(vertex_count)),
-        mesh: has_faces
-            .then(|| PolyMesh::with_capacity(0, face_count, 3 * face_count.min(left as usize))),
+        normals: layout.as_ref().and_then(|l| l.normal).map(|_| Vec::with_capacity(vertex_count)),
+        colors: layout.as_ref().and_then(|l| l.color).map(|_| Vec::with_capacity(vertex_count)),
+        mesh: has_faces.then(|| PolyMesh::with_capacity(0, face_count, 3 * face_count.min(left as usize))),
         face_buf: Vec::new(),
     };
     let mut pos = header.bytes;
@@ -386,14 +303,7 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
         Encoding::BinaryLe | Encoding::BinaryBe => {
             let big = header.encoding == Encoding::BinaryBe;
             for el in &header.elements {
-                read_binary_element(
-                    &mut *input.reader,
-                    el,
-                    big,
-                    layout.as_ref(),
-                    &mut sink,
-                    &mut pos,
-                )?;
+                read_binary_element(&mut *input.reader, el, big, layout.as_ref(), &mut sink, &mut pos)?;
             }
         }
     }
@@ -407,26 +317,15 @@ fn finish(sink: Sink) -> Result<Geometry> {
             mesh.validate()?;
             Ok(Geometry::Mesh(mesh))
         }
-        None => Ok(Geometry::Cloud(PointCloud::new(
-            sink.positions,
-            sink.normals,
-            sink.colors,
-        )?)),
+        None => Ok(Geometry::Cloud(PointCloud::new(sink.positions, sink.normals, sink.colors)?)),
     }
 }
 
 /// One vertex from decoded property values.
-fn push_vertex(
-    sink: &mut Sink,
-    el: &Element,
-    l: &VertexLayout,
-    vals: &[f64],
-    loc: Location,
-) -> Result<()> {
+fn push_vertex(sink: &mut Sink, el: &Element, l: &VertexLayout, vals: &[f64], loc: Location) -> Result<()> {
     let i = sink.positions.len();
     let p = l.xyz.map(|k| vals[k] as f32);
-    sink.positions
-        .push(finite_point(p, || format!("vertex {i}"), loc)?);
+    sink.positions.push(finite_point(p, || format!("vertex {i}"), loc)?);
     if let (Some(n), Some(out)) = (l.normal, sink.normals.as_mut()) {
         out.push(n.map(|k| vals[k] as f32));
     }
@@ -438,8 +337,7 @@ fn push_vertex(
 
 fn push_face(sink: &mut Sink, loc: Location) -> Result<()> {
     if let Some(mesh) = sink.mesh.as_mut() {
-        mesh.push_face_unchecked(&sink.face_buf)
-            .map_err(|e| e.at(loc))?;
+        mesh.push_face_unchecked(&sink.face_buf).map_err(|e| e.at(loc))?;
     }
     Ok(())
 }
@@ -453,11 +351,7 @@ fn read_binary_element(
     pos: &mut u64,
 ) -> Result<()> {
     let is_vertex = el.name == "vertex";
-    let face_prop = if el.name == "face" {
-        Some(face_list(el)?)
-    } else {
-        None
-    };
+    let face_prop = if el.name == "face" { Some(face_list(el)?) } else { None };
     let mut vals = vec![0f64; el.props.len()];
     let mut buf = [0u8; 8];
     let mut skip = Vec::new();
@@ -486,8 +380,7 @@ fn read_binary_element(
                         for _ in 0..n {
                             let at = *pos;
                             read_exact_at(r, &mut buf[..item.size()], pos)?;
-                            sink.face_buf
-                                .push(to_index(item.decode(&buf, big), Location::Byte(at))?);
+                            sink.face_buf.push(to_index(item.decode(&buf, big), Location::Byte(at))?);
                         }
                     } else {
                         skip.resize(n * item.size(), 0);
@@ -497,13 +390,7 @@ fn read_binary_element(
             }
         }
         if is_vertex {
-            push_vertex(
-                sink,
-                el,
-                layout.expect("vertex layout"),
-                &vals,
-                Location::Byte(start),
-            )?;
+            push_vertex(sink, el, layout.expect("vertex layout"), &vals, Location::Byte(start))?;
         } else if face_prop.is_some() {
             push_face(sink, Location::Byte(start))?;
         }
@@ -511,21 +398,12 @@ fn read_binary_element(
     Ok(())
 }
 
-fn read_ascii(
-    input: &mut Input,
-    header: &Header,
-    layout: Option<&VertexLayout>,
-    sink: &mut Sink,
-) -> Result<()> {
+fn read_ascii(input: &mut Input, header: &Header, layout: Option<&VertexLayout>, sink: &mut Sink) -> Result<()> {
     let mut lines = Lines::new(&mut *input.reader);
     lines.line = header.lines;
     for el in &header.elements {
         let is_vertex = el.name == "vertex";
-        let face_prop = if el.name == "face" {
-            Some(face_list(el)?)
-        } else {
-            None
-        };
+        let face_prop = if el.name == "face" { Some(face_list(el)?) } else { None };
         let mut vals = vec![0f64; el.props.len()];
         let mut read = 0u64;
         while read < el.count {
@@ -533,12 +411,7 @@ fn read_ascii(
             let Some((line, loc)) = lines.next_line()? else {
                 return Err(Error::new(
                     ErrorCode::InputTruncated,
-                    format!(
-                        "{} {} of {} declared are missing",
-                        el.count - read,
-                        el.name,
-                        el.count
-                    ),
+                    format!("{} {} of {} declared are missing", el.count - read, el.name, el.count),
                 )
                 .at(Location::Line(line_no)));
             };
@@ -549,17 +422,11 @@ fn read_ascii(
             for (k, p) in el.props.iter().enumerate() {
                 let mut next = |what: &str| {
                     toks.next().ok_or_else(|| {
-                        Error::new(
-                            ErrorCode::InputBadRecord,
-                            format!("{}: missing {what}", el.name),
-                        )
-                        .at(loc)
+                        Error::new(ErrorCode::InputBadRecord, format!("{}: missing {what}", el.name)).at(loc)
                     })
                 };
                 match p.ty {
-                    PropType::Scalar(_) => {
-                        vals[k] = parse_num::<f64>(next(&p.name)?, &p.name, loc)?
-                    }
+                    PropType::Scalar(_) => vals[k] = parse_num::<f64>(next(&p.name)?, &p.name, loc)?,
                     PropType::List { .. } => {
                         let n: u64 = parse_num(next(&p.name)?, &p.name, loc)?;
                         if n > MAX_FACE_DEGREE {
@@ -584,11 +451,9 @@ fn read_ascii(
                 }
             }
             if toks.next().is_some() {
-                return Err(Error::new(
-                    ErrorCode::InputBadRecord,
-                    format!("{}: more values than properties", el.name),
-                )
-                .at(loc));
+                return Err(
+                    Error::new(ErrorCode::InputBadRecord, format!("{}: more values than properties", el.name)).at(loc)
+                );
             }
             if is_vertex {
                 push_vertex(sink, el, layout.expect("vertex layout"), &vals, loc)?;

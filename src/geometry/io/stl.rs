@@ -33,19 +33,12 @@ impl Welder {
     fn finish(self) -> Result<Geometry> {
         let n = self.corners.len() / 3;
         let offsets = (0..=n as u32).map(|i| 3 * i).collect();
-        Ok(Geometry::Mesh(PolyMesh::from_parts(
-            self.positions,
-            offsets,
-            self.corners,
-        )?))
+        Ok(Geometry::Mesh(PolyMesh::from_parts(self.positions, offsets, self.corners)?))
     }
 }
 
 pub(crate) fn read(input: &mut Input, file_size: Option<u64>) -> Result<Geometry> {
-    let head = input
-        .reader
-        .fill_buf()
-        .map_err(crate::geometry::io::io_err)?;
+    let head = input.reader.fill_buf().map_err(crate::geometry::io::io_err)?;
     let looks_ascii = head.starts_with(b"solid") && {
         let text = String::from_utf8_lossy(&head[..head.len().min(1024)]);
         text.contains("facet") || text.contains("endsolid")
@@ -56,50 +49,29 @@ pub(crate) fn read(input: &mut Input, file_size: Option<u64>) -> Result<Geometry
             s == 84 + RECORD * n
         }
     });
-    if looks_ascii && !binary_size_matches {
-        read_ascii(input)
-    } else {
-        read_binary(input)
-    }
+    if looks_ascii && !binary_size_matches { read_ascii(input) } else { read_binary(input) }
 }
 
 fn read_binary(input: &mut Input) -> Result<Geometry> {
     let mut pos = 0u64;
     let mut header = [0u8; 84];
     read_exact_at(&mut *input.reader, &mut header, &mut pos).map_err(|e| {
-        Error::new(
-            ErrorCode::InputTruncated,
-            format!("binary STL shorter than its 84-byte header: {}", e.message),
-        )
-        .at(Location::Byte(0))
+        Error::new(ErrorCode::InputTruncated, format!("binary STL shorter than its 84-byte header: {}", e.message))
+            .at(Location::Byte(0))
     })?;
     let n = u32::from_le_bytes(header[80..84].try_into().unwrap()) as u64;
-    let n = input
-        .check_count(
-            input.max_bytes.saturating_sub(84),
-            n,
-            RECORD,
-            3 * 4 + 3 * 12,
-            "triangles",
-        )
+    let cap = input
+        .check_count(input.max_bytes.saturating_sub(84), n, RECORD, 3 * 4 + 3 * 12, "triangles")
         .map_err(|e| e.at(Location::Byte(80)))?;
-    let mut w = Welder {
-        corners: Vec::with_capacity(3 * n),
-        ..Default::default()
-    };
+    let mut w = Welder { corners: Vec::with_capacity(3 * cap), ..Default::default() };
     let mut rec = [0u8; RECORD as usize];
     for t in 0..n {
         let at = pos;
         read_exact_at(&mut *input.reader, &mut rec, &mut pos)?;
         for k in 0..3 {
             let o = 12 + 12 * k;
-            let c =
-                |j: usize| f32::from_le_bytes(rec[o + 4 * j..o + 4 * j + 4].try_into().unwrap());
-            w.push(finite_point(
-                [c(0), c(1), c(2)],
-                || format!("triangle {t}"),
-                Location::Byte(at),
-            )?);
+            let c = |j: usize| f32::from_le_bytes(rec[o + 4 * j..o + 4 * j + 4].try_into().unwrap());
+            w.push(finite_point([c(0), c(1), c(2)], || format!("triangle {t}"), Location::Byte(at))?);
         }
     }
     w.finish()
@@ -137,8 +109,7 @@ fn read_ascii(input: &mut Input) -> Result<Geometry> {
     }
     if w.corners.len() % 3 != 0 {
         return Err(
-            Error::new(ErrorCode::InputTruncated, "the last facet is incomplete")
-                .at(Location::Line(lines.line)),
+            Error::new(ErrorCode::InputTruncated, "the last facet is incomplete").at(Location::Line(lines.line))
         );
     }
     if w.corners.is_empty() {

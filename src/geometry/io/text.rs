@@ -17,21 +17,13 @@ pub(crate) struct Lines<'a, 'b> {
 
 impl<'a, 'b> Lines<'a, 'b> {
     pub fn new(reader: &'a mut (dyn BufRead + 'b)) -> Self {
-        Lines {
-            reader,
-            buf: Vec::with_capacity(256),
-            line: 0,
-            bytes: 0,
-        }
+        Lines { reader, buf: Vec::with_capacity(256), line: 0, bytes: 0 }
     }
 
     /// The next line without its line ending, and its location, or `None` at the end of the data.
     pub fn next_line(&mut self) -> Result<Option<(&str, Location)>> {
         self.buf.clear();
-        let n = self
-            .reader
-            .read_until(b'\n', &mut self.buf)
-            .map_err(|e| io_err(e).at(self.loc_next()))?;
+        let n = self.reader.read_until(b'\n', &mut self.buf).map_err(|e| io_err(e).at(self.loc_next()))?;
         if n == 0 {
             return Ok(None);
         }
@@ -43,10 +35,7 @@ impl<'a, 'b> Lines<'a, 'b> {
         let loc = Location::Line(self.line);
         std::str::from_utf8(&self.buf)
             .map(|l| Some((l, loc)))
-            .map_err(|_| {
-                Error::new(ErrorCode::InputBadRecord, "not valid text (UTF-8)")
-                    .at(Location::Line(self.line))
-            })
+            .map_err(|_| Error::new(ErrorCode::InputBadRecord, "not valid text (UTF-8)").at(Location::Line(self.line)))
     }
 
     /// The line last returned by [`Lines::next_line`] (empty before the first).
@@ -62,29 +51,16 @@ impl<'a, 'b> Lines<'a, 'b> {
 /// Parse a number token, with the line in the error.
 #[inline]
 pub(crate) fn parse_num<T: std::str::FromStr>(tok: &str, what: &str, loc: Location) -> Result<T> {
-    tok.parse::<T>().map_err(|_| {
-        Error::new(
-            ErrorCode::InputBadNumber,
-            format!("{what}: {tok:?} is not a number"),
-        )
-        .at(loc)
-    })
+    tok.parse::<T>()
+        .map_err(|_| Error::new(ErrorCode::InputBadNumber, format!("{what}: {tok:?} is not a number")).at(loc))
 }
 
 /// Parse three coordinates from an iterator of tokens.
-pub(crate) fn parse_xyz<'t>(
-    toks: &mut impl Iterator<Item = &'t str>,
-    what: &str,
-    loc: Location,
-) -> Result<[f32; 3]> {
+pub(crate) fn parse_xyz<'t>(toks: &mut impl Iterator<Item = &'t str>, what: &str, loc: Location) -> Result<[f32; 3]> {
     let mut p = [0f32; 3];
     for c in &mut p {
         let tok = toks.next().ok_or_else(|| {
-            Error::new(
-                ErrorCode::InputBadRecord,
-                format!("{what}: fewer than 3 coordinates"),
-            )
-            .at(loc)
+            Error::new(ErrorCode::InputBadRecord, format!("{what}: fewer than 3 coordinates")).at(loc)
         })?;
         *c = parse_num::<f32>(tok, what, loc)?;
     }

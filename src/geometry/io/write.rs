@@ -35,12 +35,9 @@ pub fn ensure_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
     if let Some(o) = canon(out) {
         for i in inputs {
             if canon(i).as_deref() == Some(o.as_path()) {
-                return Err(Error::new(
-                    ErrorCode::ResourceOutput,
-                    "refusing to overwrite an input file",
-                )
-                .in_file(out)
-                .with_hint("choose another output path"));
+                return Err(Error::new(ErrorCode::ResourceOutput, "refusing to overwrite an input file")
+                    .in_file(out)
+                    .with_hint("choose another output path"));
             }
         }
     }
@@ -48,17 +45,10 @@ pub fn ensure_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
 }
 
 /// Write through a temporary file in the same directory, fsync, then rename onto `path`.
-pub(crate) fn write_atomic(
-    path: &Path,
-    body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
-) -> Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .ok_or_else(|| Error::new(ErrorCode::InputBadArgument, "output path has no file name"))?;
+pub(crate) fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name =
+        path.file_name().ok_or_else(|| Error::new(ErrorCode::InputBadArgument, "output path has no file name"))?;
     let mut tmp_name = std::ffi::OsString::from(".");
     tmp_name.push(name);
     tmp_name.push(format!(".{}.tmp", std::process::id()));
@@ -79,10 +69,7 @@ pub(crate) fn write_atomic(
 
 fn check_len(what: &str, len: usize, n: usize) -> Result<()> {
     if len != n {
-        return Err(Error::new(
-            ErrorCode::InputBadArgument,
-            format!("{what}: {len} values for {n} vertices"),
-        ));
+        return Err(Error::new(ErrorCode::InputBadArgument, format!("{what}: {len} values for {n} vertices")));
     }
     Ok(())
 }
@@ -94,44 +81,27 @@ fn ply_header(
     faces: Option<usize>,
     comments: &[&str],
 ) -> std::io::Result<()> {
-    writeln!(
-        w,
-        "ply\nformat binary_little_endian 1.0\ncomment written by scanstation {}",
-        env!("CARGO_PKG_VERSION")
-    )?;
+    writeln!(w, "ply\nformat binary_little_endian 1.0\ncomment written by scanstation {}", env!("CARGO_PKG_VERSION"))?;
     for c in comments {
         writeln!(w, "comment {}", c.replace('\n', " "))?;
     }
-    writeln!(
-        w,
-        "element vertex {n}\nproperty float x\nproperty float y\nproperty float z"
-    )?;
+    writeln!(w, "element vertex {n}\nproperty float x\nproperty float y\nproperty float z")?;
     if attrs.normals.is_some() {
         writeln!(w, "property float nx\nproperty float ny\nproperty float nz")?;
     }
     if attrs.colors.is_some() {
-        writeln!(
-            w,
-            "property uchar red\nproperty uchar green\nproperty uchar blue"
-        )?;
+        writeln!(w, "property uchar red\nproperty uchar green\nproperty uchar blue")?;
     }
     if let Some((name, _)) = attrs.scalar {
         writeln!(w, "property float {name}")?;
     }
     if let Some(f) = faces {
-        writeln!(
-            w,
-            "element face {f}\nproperty list uchar int vertex_indices"
-        )?;
+        writeln!(w, "element face {f}\nproperty list uchar int vertex_indices")?;
     }
     writeln!(w, "end_header")
 }
 
-fn ply_vertices(
-    w: &mut impl Write,
-    positions: &[[f32; 3]],
-    attrs: &VertexAttributes,
-) -> std::io::Result<()> {
+fn ply_vertices(w: &mut impl Write, positions: &[[f32; 3]], attrs: &VertexAttributes) -> std::io::Result<()> {
     for (i, p) in positions.iter().enumerate() {
         for c in p {
             w.write_all(&c.to_le_bytes())?;
@@ -158,10 +128,7 @@ fn check_attrs(attrs: &VertexAttributes, n: usize) -> Result<()> {
     if let Some((name, s)) = attrs.scalar {
         check_len(name, s.len(), n)?;
         if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
-            return Err(Error::new(
-                ErrorCode::InputBadArgument,
-                format!("bad PLY property name {name:?}"),
-            ));
+            return Err(Error::new(ErrorCode::InputBadArgument, format!("bad PLY property name {name:?}")));
         }
     }
     if let Some(nr) = attrs.normals {
@@ -175,19 +142,11 @@ fn check_attrs(attrs: &VertexAttributes, n: usize) -> Result<()> {
 ///
 /// # Errors
 /// `input.bad-argument` (attribute length mismatch, face of more than 255 vertices), `resource.output`.
-pub fn write_ply(
-    path: &Path,
-    mesh: &PolyMesh,
-    attrs: &VertexAttributes,
-    comments: &[&str],
-) -> Result<()> {
+pub fn write_ply(path: &Path, mesh: &PolyMesh, attrs: &VertexAttributes, comments: &[&str]) -> Result<()> {
     let n = mesh.positions.len();
     check_attrs(attrs, n)?;
     if mesh.faces().any(|f| f.len() > 255) {
-        return Err(Error::new(
-            ErrorCode::InputBadArgument,
-            "a face has more than 255 vertices",
-        ));
+        return Err(Error::new(ErrorCode::InputBadArgument, "a face has more than 255 vertices"));
     }
     write_atomic(path, |w| {
         ply_header(w, n, attrs, Some(mesh.face_count()), comments)?;
@@ -206,12 +165,7 @@ pub fn write_ply(
 ///
 /// # Errors
 /// As [`write_ply`].
-pub fn write_ply_cloud(
-    path: &Path,
-    cloud: &PointCloud,
-    attrs: &VertexAttributes,
-    comments: &[&str],
-) -> Result<()> {
+pub fn write_ply_cloud(path: &Path, cloud: &PointCloud, attrs: &VertexAttributes, comments: &[&str]) -> Result<()> {
     let attrs = VertexAttributes {
         normals: attrs.normals.or(cloud.normals.as_deref()),
         colors: attrs.colors.or(cloud.colors.as_deref()),
@@ -232,12 +186,7 @@ pub fn write_ply_cloud(
 pub fn write_obj(path: &Path, mesh: &PolyMesh) -> Result<()> {
     write_atomic(path, |w| {
         writeln!(w, "# written by scanstation {}", env!("CARGO_PKG_VERSION"))?;
-        writeln!(
-            w,
-            "# {} vertices, {} faces",
-            mesh.positions.len(),
-            mesh.face_count()
-        )?;
+        writeln!(w, "# {} vertices, {} faces", mesh.positions.len(), mesh.face_count())?;
         for p in &mesh.positions {
             writeln!(w, "v {} {} {}", p[0], p[1], p[2])?;
         }

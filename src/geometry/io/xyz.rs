@@ -25,10 +25,8 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
         if line.is_empty() || line.starts_with('#') || line.starts_with("//") {
             continue;
         }
-        let toks: Vec<&str> = line
-            .split(|c: char| c.is_whitespace() || c == ',' || c == ';')
-            .filter(|t| !t.is_empty())
-            .collect();
+        let toks: Vec<&str> =
+            line.split(|c: char| c.is_whitespace() || c == ',' || c == ';').filter(|t| !t.is_empty()).collect();
         if columns == 0 && positions.is_empty() && declared.is_none() && toks.len() == 1 {
             declared = Some((parse_num(toks[0], "point count", loc)?, loc));
             continue;
@@ -53,11 +51,7 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
             *v = parse_num(t, "coordinate", loc)?;
         }
         let i = positions.len();
-        positions.push(finite_point(
-            [vals[0] as f32, vals[1] as f32, vals[2] as f32],
-            || format!("point {i}"),
-            loc,
-        )?);
+        positions.push(finite_point([vals[0] as f32, vals[1] as f32, vals[2] as f32], || format!("point {i}"), loc)?);
         match columns {
             6 => normals.push([vals[3] as f32, vals[4] as f32, vals[5] as f32]),
             7 => colors.push([vals[4], vals[5], vals[6]].map(|c| c.clamp(0.0, 255.0) as u8)),
@@ -69,24 +63,13 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
     }
     if let Some((n, loc)) = declared {
         if n != positions.len() as u64 {
-            let code = if n > positions.len() as u64 {
-                ErrorCode::InputTruncated
-            } else {
-                ErrorCode::InputBadHeader
-            };
-            return Err(Error::new(
-                code,
-                format!(
-                    "the header declares {n} points, the file has {}",
-                    positions.len()
-                ),
-            )
-            .at(loc));
+            let code = if n > positions.len() as u64 { ErrorCode::InputTruncated } else { ErrorCode::InputBadHeader };
+            return Err(
+                Error::new(code, format!("the header declares {n} points, the file has {}", positions.len())).at(loc)
+            );
         }
     }
     let normals = (columns == 6).then_some(normals);
     let colors = (columns == 7).then_some(colors);
-    Ok(Geometry::Cloud(PointCloud::new(
-        positions, normals, colors,
-    )?))
+    Ok(Geometry::Cloud(PointCloud::new(positions, normals, colors)?))
 }

@@ -12,13 +12,8 @@ pub fn color_ramp(t: f64) -> [u8; 3] {
     if t.is_nan() {
         return [255, 0, 255];
     }
-    const STOPS: [[f64; 3]; 5] = [
-        [0.0, 0.0, 255.0],
-        [0.0, 255.0, 255.0],
-        [0.0, 255.0, 0.0],
-        [255.0, 255.0, 0.0],
-        [255.0, 0.0, 0.0],
-    ];
+    const STOPS: [[f64; 3]; 5] =
+        [[0.0, 0.0, 255.0], [0.0, 255.0, 255.0], [0.0, 255.0, 0.0], [255.0, 255.0, 0.0], [255.0, 0.0, 0.0]];
     let x = t.clamp(0.0, 1.0) * 4.0;
     let i = (x.floor() as usize).min(3);
     let f = x - i as f64;
@@ -37,14 +32,8 @@ pub fn write_error_map(path: &Path, test: &Geometry, reference: &Geometry) -> Re
     let top = percentile(&mut tmp, 0.99).max(f64::MIN_POSITIVE);
     let colors: Vec<[u8; 3]> = d.iter().map(|&x| color_ramp(x / top)).collect();
     let scalar: Vec<f32> = d.iter().map(|&x| x as f32).collect();
-    let comment = format!(
-        "scanstation error map: distance to reference; colour scale 0 (blue) .. {top:.6e} (red)"
-    );
-    let attrs = VertexAttributes {
-        colors: Some(&colors),
-        scalar: Some(("distance", &scalar)),
-        normals: None,
-    };
+    let comment = format!("scanstation error map: distance to reference; colour scale 0 (blue) .. {top:.6e} (red)");
+    let attrs = VertexAttributes { colors: Some(&colors), scalar: Some(("distance", &scalar)), normals: None };
     match test {
         Geometry::Mesh(m) => write_ply(path, m, &attrs, &[&comment])?,
         Geometry::Cloud(c) => {

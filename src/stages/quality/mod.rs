@@ -26,6 +26,7 @@ use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::bvh::{PointBvh, TriangleBvh};
 use crate::geometry::mesh::{Geometry, TriMesh};
 use crate::geometry::sampling::{Rng, fnv1a, sample_area_uniform};
+use crate::geometry::tolerance::DISTANCE_ZERO_REL;
 use crate::geometry::vec3::{V3, wide};
 use crate::stages::Progress;
 
@@ -44,12 +45,7 @@ pub struct CompareOptions {
 
 impl Default for CompareOptions {
     fn default() -> Self {
-        CompareOptions {
-            samples: 200_000,
-            seed: 0,
-            include_vertices: true,
-            memory_budget: 8 << 30,
-        }
+        CompareOptions { samples: 200_000, seed: 0, include_vertices: true, memory_budget: 8 << 30 }
     }
 }
 
@@ -60,23 +56,16 @@ pub struct Measure {
     pub value: f64,
     /// Percent of the reference's bounding-box diagonal.
     pub pct_of_diagonal: f64,
-    /// Diagonal ÷ value ("1 part in N"); `null` when the value is 0.
+    /// Diagonal ÷ value ("1 part in N"); `null` when the value is at or below f32 noise
+    /// ([`DISTANCE_ZERO_REL`] of the diagonal).
     pub one_part_in: Option<f64>,
 }
 
 impl Measure {
     fn new(value: f64, diagonal: f64) -> Self {
-        let pct = if diagonal > 0.0 {
-            100.0 * value / diagonal
-        } else {
-            0.0
-        };
-        let one_part_in = (value > 0.0 && diagonal > 0.0).then(|| diagonal / value);
-        Measure {
-            value,
-            pct_of_diagonal: pct,
-            one_part_in,
-        }
+        let pct = if diagonal > 0.0 { 100.0 * value / diagonal } else { 0.0 };
+        let one_part_in = (value > DISTANCE_ZERO_REL * diagonal && diagonal > 0.0).then(|| diagonal / value);
+        Measure { value, pct_of_diagonal: pct, one_part_in }
     }
 }
 
@@ -116,14 +105,8 @@ pub struct DistanceReport {
 
 /// One surface prepared for comparison: its samples and its distance query.
 enum Prepared<'a> {
-    Mesh {
-        mesh: &'a TriMesh,
-        bvh: TriangleBvh,
-    },
-    Cloud {
-        points: &'a [[f32; 3]],
-        bvh: PointBvh,
-    },
+    Mesh { mesh: &'a TriMesh, bvh: TriangleBvh },
+    Cloud { points: &'a [[f32; 3]], bvh: PointBvh },
 }
 
 impl Prepared<'_> {
@@ -139,19 +122,11 @@ impl Prepared<'_> {
             Prepared::Mesh { mesh, .. } => &mesh.positions,
             Prepared::Cloud { points, .. } => points,
         };
-        let h = fnv1a(
-            points
-                .iter()
-                .flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes())),
-            seed,
-        );
+        let h = fnv1a(points.iter().flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes())), seed);
         match self {
-            Prepared::Mesh { mesh, .. } => fnv1a(
-                mesh.triangles
-                    .iter()
-                    .flat_map(|t| t.iter().flat_map(|i| i.to_le_bytes())),
-                h,
-            ),
+            Prepared::Mesh { mesh, .. } => {
+                fnv1a(mesh.triangles.iter().flat_map(|t| t.iter().flat_map(|i| i.to_le_bytes())), h)
+            }
             Prepared::Cloud { .. } => h,
         }
     }
@@ -161,30 +136,17 @@ impl Prepared<'_> {
         match self {
             Prepared::Mesh { mesh, .. } => {
                 let mut rng = Rng::new(self.content_hash(opts.seed));
-                let s = sample_area_uniform(mesh, opts.samples, &mut rng)
-                    .into_iter()
-                    .map(|s| s.point)
-                    .collect();
+                let s = sample_area_uniform(mesh, opts.samples, &mut rng).into_iter().map(|s| s.point).collect();
                 let verts = if opts.include_vertices {
                     let mut used = vec![false; mesh.positions.len()];
-                    mesh.triangles
-                        .iter()
-                        .flatten()
-                        .for_each(|&i| used[i as usize] = true);
-                    mesh.positions
-                        .iter()
-                        .zip(&used)
-                        .filter(|(_, u)| **u)
-                        .map(|(p, _)| wide(*p))
-                        .collect()
+                    mesh.triangles.iter().flatten().for_each(|&i| used[i as usize] = true);
+                    mesh.positions.iter().zip(&used).filter(|(_, u)| **u).map(|(p, _)| wide(*p)).collect()
                 } else {
                     Vec::new()
                 };
                 (s, verts)
             }
-            Prepared::Cloud { points, .. } => {
-                (points.iter().map(|&p| wide(p)).collect(), Vec::new())
-            }
+            Prepared::Cloud { points, .. } => (points.iter().map(|&p| wide(p)).collect(), Vec::new()),
         }
     }
 }
@@ -193,10 +155,7 @@ fn prepare(g: &Geometry, tri: &mut Option<TriMesh>) -> Result<()> {
     if let Geometry::Mesh(m) = g {
         let (t, _) = m.triangulate();
         if t.area() <= 0.0 {
-            return Err(Error::new(
-                ErrorCode::InputNoGeometry,
-                "the mesh has zero area",
-            ));
+            return Err(Error::new(ErrorCode::InputNoGeometry, "the mesh has zero area"));
         }
         *tri = Some(t);
     }
@@ -205,14 +164,8 @@ fn prepare(g: &Geometry, tri: &mut Option<TriMesh>) -> Result<()> {
 
 fn build<'a>(g: &'a Geometry, tri: &'a Option<TriMesh>) -> Prepared<'a> {
     match (g, tri) {
-        (Geometry::Mesh(_), Some(t)) => Prepared::Mesh {
-            mesh: t,
-            bvh: TriangleBvh::new(t),
-        },
-        (Geometry::Cloud(c), _) => Prepared::Cloud {
-            points: &c.positions,
-            bvh: PointBvh::new(&c.positions),
-        },
+        (Geometry::Mesh(_), Some(t)) => Prepared::Mesh { mesh: t, bvh: TriangleBvh::new(t) },
+        (Geometry::Cloud(c), _) => Prepared::Cloud { points: &c.positions, bvh: PointBvh::new(&c.positions) },
         (Geometry::Mesh(_), None) => unreachable!("prepare() triangulates every mesh"),
     }
 }
@@ -233,34 +186,50 @@ pub fn percentile(v: &mut [f64], q: f64) -> f64 {
     a + (b - a) * frac
 }
 
-/// Statistics of sample distances `d` (reordered) plus extra maxima candidates `vertex_max`.
-pub fn stats(d: &mut [f64], vertex_max: f64, diagonal: f64) -> DistanceStats {
-    let n = d.len();
-    let (sum, sum2, dmax) = d.iter().fold((0.0, 0.0, 0.0f64), |(s, s2, m), &x| {
-        (s + x, s2 + x * x, m.max(x))
-    });
-    let nf = n.max(1) as f64;
-    let rms = (sum2 / nf).sqrt();
-    let mean = sum / nf;
+/// Sums of a set of distances; adding two is commutative, so pooled figures do not depend on the order.
+#[derive(Copy, Clone, Debug, Default)]
+struct Sums {
+    n: usize,
+    sum: f64,
+    sum2: f64,
+    max: f64,
+}
+
+impl Sums {
+    fn of(d: &[f64], vertex_max: f64) -> Self {
+        let (sum, sum2, max) = d.iter().fold((0.0, 0.0, 0.0f64), |(s, s2, m), &x| (s + x, s2 + x * x, m.max(x)));
+        Sums { n: d.len(), sum, sum2, max: max.max(vertex_max) }
+    }
+    fn plus(self, o: Sums) -> Sums {
+        Sums { n: self.n + o.n, sum: self.sum + o.sum, sum2: self.sum2 + o.sum2, max: self.max.max(o.max) }
+    }
+}
+
+/// Statistics of sample distances `d` (reordered) whose sums are `s`.
+fn stats_with(d: &mut [f64], s: Sums, diagonal: f64) -> DistanceStats {
+    let nf = s.n.max(1) as f64;
+    let m = |v: f64| Measure::new(v, diagonal);
     let p95 = percentile(d, 0.95);
     let median = percentile(d, 0.5);
-    let m = |v: f64| Measure::new(v, diagonal);
     DistanceStats {
-        samples: n,
-        rms: m(rms),
-        mean: m(mean),
+        samples: s.n,
+        rms: m((s.sum2 / nf).sqrt()),
+        mean: m(s.sum / nf),
         median: m(median),
         p95: m(p95),
-        max: m(dmax.max(vertex_max)),
+        max: m(s.max),
     }
+}
+
+/// Statistics of sample distances `d` (reordered); `vertex_max` is a further candidate for the maximum.
+pub fn stats(d: &mut [f64], vertex_max: f64, diagonal: f64) -> DistanceStats {
+    let s = Sums::of(d, vertex_max);
+    stats_with(d, s, diagonal)
 }
 
 fn distances(points: &[V3], to: &Prepared) -> Vec<f64> {
     let mut out = Vec::new();
-    points
-        .par_iter()
-        .map(|&p| to.distance(p))
-        .collect_into_vec(&mut out);
+    points.par_iter().map(|&p| to.distance(p)).collect_into_vec(&mut out);
     out
 }
 
@@ -291,25 +260,17 @@ pub fn compare(
 ) -> Result<DistanceReport> {
     let is_mesh = |g: &Geometry| matches!(g, Geometry::Mesh(_));
     if opts.samples == 0 && (is_mesh(test) || is_mesh(reference)) {
-        return Err(Error::new(
-            ErrorCode::InputBadArgument,
-            "samples must be at least 1",
-        ));
+        return Err(Error::new(ErrorCode::InputBadArgument, "samples must be at least 1"));
     }
     for g in [test, reference] {
         if g.positions().is_empty() {
-            return Err(Error::new(
-                ErrorCode::InputNoGeometry,
-                "nothing to compare: no points",
-            ));
+            return Err(Error::new(ErrorCode::InputNoGeometry, "nothing to compare: no points"));
         }
     }
     let estimate = |g: &Geometry| -> u64 {
         match g {
             Geometry::Mesh(m) => {
-                60 * (m.corner_count() as u64)
-                    + 32 * opts.samples as u64
-                    + 24 * m.positions.len() as u64
+                60 * (m.corner_count() as u64) + 32 * opts.samples as u64 + 24 * m.positions.len() as u64
             }
             Geometry::Cloud(c) => 60 * c.positions.len() as u64,
         }
@@ -318,10 +279,7 @@ pub fn compare(
     if need > opts.memory_budget {
         return Err(Error::new(
             ErrorCode::ResourceMemoryBudget,
-            format!(
-                "the comparison needs about {need} bytes; the budget is {}",
-                opts.memory_budget
-            ),
+            format!("the comparison needs about {need} bytes; the budget is {}", opts.memory_budget),
         )
         .with_hint("lower --samples or raise the memory budget"));
     }
@@ -344,11 +302,12 @@ pub fn compare(
     let (mut d_ba, vmax_ba) = one_side(&b, &a);
     progress.report(0.95, "statistics");
 
-    let test_to_reference = stats(&mut d_ab, vmax_ab, diagonal);
-    let reference_to_test = stats(&mut d_ba, vmax_ba, diagonal);
+    let (s_ab, s_ba) = (Sums::of(&d_ab, vmax_ab), Sums::of(&d_ba, vmax_ba));
+    let test_to_reference = stats_with(&mut d_ab, s_ab, diagonal);
+    let reference_to_test = stats_with(&mut d_ba, s_ba, diagonal);
     let mut pooled = d_ab;
     pooled.extend_from_slice(&d_ba);
-    let symmetric = stats(&mut pooled, vmax_ab.max(vmax_ba), diagonal);
+    let symmetric = stats_with(&mut pooled, s_ab.plus(s_ba), diagonal);
     progress.report(1.0, "done");
     Ok(DistanceReport {
         test_to_reference,

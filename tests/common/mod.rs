@@ -1,0 +1,59 @@
+//! Fixture helpers shared by the integration tests: a tiny DSL to write literal files into a per-test
+//! scratch directory and to read them back.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use scanstation::geometry::io::{ReadOptions, read_geometry};
+use scanstation::{Error, Geometry};
+
+/// A scratch directory for one test, under cargo's target tmp dir, emptied on creation.
+pub fn scratch(test: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(test);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Write `bytes` as `name` in `dir` and return the path.
+pub fn file(dir: &Path, name: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+/// Gzip `bytes`.
+pub fn gz(bytes: &[u8]) -> Vec<u8> {
+    use std::io::Write;
+    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    e.write_all(bytes).unwrap();
+    e.finish().unwrap()
+}
+
+/// Read with default options.
+pub fn read(p: &Path) -> Result<Geometry, Error> {
+    read_geometry(p, &ReadOptions::default())
+}
+
+/// Read, expecting a mesh.
+pub fn read_mesh(p: &Path) -> scanstation::PolyMesh {
+    match read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())) {
+        Geometry::Mesh(m) => m,
+        Geometry::Cloud(_) => panic!("{}: read as a cloud, expected a mesh", p.display()),
+    }
+}
+
+/// Read, expecting a cloud.
+pub fn read_cloud(p: &Path) -> scanstation::PointCloud {
+    match read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())) {
+        Geometry::Cloud(c) => c,
+        Geometry::Mesh(_) => panic!("{}: read as a mesh, expected a cloud", p.display()),
+    }
+}
+
+/// Binary PLY header + body builder for literal test files.
+pub fn ply_binary(header: &str, body: &[u8]) -> Vec<u8> {
+    let mut v = header.as_bytes().to_vec();
+    v.extend_from_slice(body);
+    v
+}

@@ -1,0 +1,194 @@
+//! The quality stage (two-sided surface distance) against analytic oracles, and its invariants as
+//! property tests.
+
+mod common;
+
+use proptest::prelude::*;
+use scanstation::geometry::bvh::{TriangleBvh, closest_point_on_triangle};
+use scanstation::geometry::shapes::{cuboid, icosphere};
+use scanstation::geometry::vec3::{norm, sub};
+use scanstation::stages::NoProgress;
+use scanstation::stages::quality::{CompareOptions, compare, percentile};
+use scanstation::{ErrorCode, Geometry, PointCloud, PolyMesh, TriMesh, assert_near, assert_rel_near};
+
+fn mesh(t: TriMesh) -> Geometry {
+    Geometry::Mesh(PolyMesh::from(t))
+}
+
+fn opts(samples: usize) -> CompareOptions {
+    CompareOptions { samples, ..Default::default() }
+}
+
+#[test]
+fn concentric_spheres_report_the_radius_gap_both_ways() {
+    // Fine icospheres (level 6: 40,962 vertices); chord sag is ~1e-4 of the radius, far below 0.5 %.
+    let a = mesh(icosphere(1.0, 6, [0.0; 3]));
+    let b = mesh(icosphere(1.05, 6, [0.0; 3]));
+    let r = compare(&a, &b, &opts(200_000), &NoProgress).unwrap();
+    for (name, s) in [("a→b", &r.test_to_reference), ("b→a", &r.reference_to_test), ("sym", &r.symmetric)] {
+        for (fig, v) in [
+            ("rms", s.rms.value),
+            ("mean", s.mean.value),
+            ("median", s.median.value),
+            ("p95", s.p95.value),
+            ("max", s.max.value),
+        ] {
+            assert_rel_near!(v, 0.05, 0.005, "{name} {fig}");
+        }
+    }
+    // Percent of the reference diagonal (2·1.05·√3) and "1 part in N".
+    let diag = 2.0 * 1.05 * 3f64.sqrt();
+    assert_rel_near!(r.reference_bbox_diagonal, diag, 1e-3);
+    assert_rel_near!(r.symmetric.rms.pct_of_diagonal, 100.0 * 0.05 / diag, 0.006);
+    assert_rel_near!(r.symmetric.rms.one_part_in.unwrap(), diag / 0.05, 0.006);
+}
+
+#[test]
+fn offset_unit_spheres_match_the_closed_form() {
+    // Two unit spheres whose centres are d = 0.1 apart: the distance from a point at angle θ to the other
+    // sphere is ≈ d·|cos θ| for small d: max d, RMS d/√3, mean d/2.
+    let a = mesh(icosphere(1.0, 6, [0.0; 3]));
+    let b = mesh(icosphere(1.0, 6, [0.1, 0.0, 0.0]));
+    let r = compare(&a, &b, &opts(200_000), &NoProgress).unwrap();
+    for (name, s) in [("a→b", &r.test_to_reference), ("b→a", &r.reference_to_test), ("sym", &r.symmetric)] {
+        assert_rel_near!(s.max.value, 0.1, 0.02, "{name} max");
+        assert_rel_near!(s.rms.value, 0.1 / 3f64.sqrt(), 0.02, "{name} rms");
+        assert_rel_near!(s.mean.value, 0.05, 0.02, "{name} mean");
+    }
+}
+
+#[test]
+fn mesh_to_cloud_uses_nearest_points() {
+    // The vertices of a sphere of radius 1.05 as a cloud, against the unit sphere.
+    let b = icosphere(1.05, 5, [0.0; 3]);
+    let cloud = Geometry::Cloud(PointCloud::new(b.positions.clone(), None, None).unwrap());
+    let a = mesh(icosphere(1.0, 5, [0.0; 3]));
+    let r = compare(&cloud, &a, &opts(50_000), &NoProgress).unwrap();
+    // Cloud → mesh: every point is 0.05 off (minus chord sag of the level-5 mesh, ~2e-4).
+    assert_rel_near!(r.test_to_reference.mean.value, 0.05, 0.01);
+    assert_eq!(r.test_to_reference.samples, b.positions.len());
+    // Mesh → cloud: at least the radial gap, more between the points.
+    assert!(r.reference_to_test.min_ok(0.05 * 0.99), "{:?}", r.reference_to_test);
+}
+
+trait MinOk {
+    fn min_ok(&self, lo: f64) -> bool;
+}
+impl MinOk for scanstation::stages::quality::DistanceStats {
+    fn min_ok(&self, lo: f64) -> bool {
+        self.median.value >= lo && self.rms.value >= lo
+    }
+}
+
+#[test]
+fn box_against_itself_is_zero_and_deterministic() {
+    let a = mesh(cuboid([0.0; 3], [1.0, 2.0, 3.0]));
+    let r1 = compare(&a, &a, &opts(10_000), &NoProgress).unwrap();
+    let r2 = compare(&a, &a, &opts(10_000), &NoProgress).unwrap();
+    assert_eq!(r1, r2, "same input and seed must give identical reports");
+    assert_near!(r1.symmetric.max.value, 0.0, 1e-12);
+    assert_eq!(r1.symmetric.rms.one_part_in, None);
+    let other_seed = compare(&a, &a, &CompareOptions { seed: 7, ..opts(10_000) }, &NoProgress).unwrap();
+    assert_eq!(other_seed.seed, 7);
+}
+
+#[test]
+fn zero_area_and_empty_inputs_are_errors() {
+    let flat = mesh(TriMesh::new(vec![[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]], vec![[0, 1, 2]]).unwrap());
+    let ok = mesh(cuboid([0.0; 3], [1.0; 3]));
+    let e = compare(&flat, &ok, &opts(100), &NoProgress).unwrap_err();
+    assert_eq!(e.code, ErrorCode::InputNoGeometry);
+    let e = compare(&ok, &ok, &opts(0), &NoProgress).unwrap_err();
+    assert_eq!(e.code, ErrorCode::InputBadArgument);
+    let tiny = CompareOptions { memory_budget: 1000, ..opts(100) };
+    assert_eq!(compare(&ok, &ok, &tiny, &NoProgress).unwrap_err().code, ErrorCode::ResourceMemoryBudget);
+}
+
+#[test]
+fn percentile_interpolates_like_numpy() {
+    let mut v = vec![4.0, 1.0, 3.0, 2.0];
+    assert_near!(percentile(&mut v, 0.5), 2.5, 1e-15);
+    assert_near!(percentile(&mut v, 0.95), 3.85, 1e-12);
+    assert_near!(percentile(&mut v, 1.0), 4.0, 0.0);
+    assert_near!(percentile(&mut [7.0], 0.3), 7.0, 0.0);
+}
+
+#[test]
+fn closest_point_regions_of_a_triangle() {
+    let (a, b, c) = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+    let cases = [
+        ([0.25, 0.25, 2.0], [0.25, 0.25, 0.0]), // face interior
+        ([-1.0, -1.0, 0.0], a),                 // vertex regions
+        ([2.0, -0.5, 0.0], b),
+        ([-0.5, 2.0, 1.0], c),
+        ([0.5, -1.0, 0.0], [0.5, 0.0, 0.0]), // edge ab
+        ([-1.0, 0.5, 0.0], [0.0, 0.5, 0.0]), // edge ca
+        ([1.0, 1.0, 0.0], [0.5, 0.5, 0.0]),  // edge bc
+    ];
+    for (p, want) in cases {
+        let got = closest_point_on_triangle(p, a, b, c);
+        assert_near!(norm(sub(got, want)), 0.0, 1e-15, "p = {p:?}: got {got:?}, want {want:?}");
+    }
+    // Degenerate triangles: a segment and a point.
+    let q = closest_point_on_triangle([0.5, 1.0, 0.0], a, b, b);
+    assert_near!(norm(sub(q, [0.5, 0.0, 0.0])), 0.0, 1e-15);
+    let q = closest_point_on_triangle([1.0, 1.0, 1.0], a, a, a);
+    assert_near!(norm(sub(q, a)), 0.0, 0.0);
+}
+
+fn random_mesh() -> impl Strategy<Value = TriMesh> {
+    // A sphere of random radius/centre with each vertex jittered: closed, varied, non-convex.
+    (0.2f64..3.0, prop::array::uniform3(-2.0f64..2.0), 0u32..3, any::<u64>()).prop_map(|(r, c, level, seed)| {
+        let mut m = icosphere(r, level + 1, c);
+        let mut s = seed;
+        for p in &mut m.positions {
+            for x in p.iter_mut() {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                *x += (((s >> 40) as f64 / (1u64 << 24) as f64 - 0.5) * 0.2 * r) as f32;
+            }
+        }
+        m
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    #[test]
+    fn distance_to_itself_is_zero(m in random_mesh()) {
+        let diag = m.bbox().diagonal();
+        let g = mesh(m);
+        let r = compare(&g, &g, &opts(2_000), &NoProgress).unwrap();
+        prop_assert!(r.symmetric.max.value <= 1e-6 * diag, "max {} (diag {diag})", r.symmetric.max.value);
+    }
+
+    #[test]
+    fn swapping_inputs_swaps_the_sides(a in random_mesh(), b in random_mesh()) {
+        let (a, b) = (mesh(a), mesh(b));
+        let ab = compare(&a, &b, &opts(2_000), &NoProgress).unwrap();
+        let ba = compare(&b, &a, &opts(2_000), &NoProgress).unwrap();
+        prop_assert_eq!(ab.test_to_reference.rms.value, ba.reference_to_test.rms.value);
+        prop_assert_eq!(ab.reference_to_test.max.value, ba.test_to_reference.max.value);
+        prop_assert_eq!(ab.symmetric.rms.value, ba.symmetric.rms.value);
+        prop_assert_eq!(ab.symmetric.max.value, ba.symmetric.max.value);
+        prop_assert!((ab.symmetric.median.value - ba.symmetric.median.value).abs() <= 1e-12);
+    }
+
+    #[test]
+    fn bvh_matches_brute_force(m in random_mesh(), p in prop::array::uniform3(-6.0f64..6.0)) {
+        let bvh = TriangleBvh::new(&m);
+        let brute = (0..m.triangles.len())
+            .map(|t| { let [a, b, c] = m.corners(t); norm(sub(p, closest_point_on_triangle(p, a, b, c))) })
+            .fold(f64::INFINITY, f64::min);
+        prop_assert_eq!(bvh.distance(p), brute);
+    }
+
+    #[test]
+    fn statistics_are_ordered(a in random_mesh(), b in random_mesh()) {
+        let r = compare(&mesh(a), &mesh(b), &opts(1_000), &NoProgress).unwrap();
+        for s in [&r.test_to_reference, &r.reference_to_test, &r.symmetric] {
+            prop_assert!(s.median.value <= s.p95.value && s.p95.value <= s.max.value);
+            prop_assert!(s.mean.value <= s.rms.value * (1.0 + 1e-12) && s.rms.value <= s.max.value);
+        }
+    }
+}
