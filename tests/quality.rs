@@ -192,3 +192,24 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn hausdorff_inside_a_triangle_is_found_not_sampled() {
+    // A unit square against the cloud of its 4 corners: the farthest point of the square from every corner is
+    // its centre, at √2/2, inside the surface, never a vertex. 100 samples would rarely land near it.
+    let square = mesh(
+        TriMesh::new(
+            vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+            vec![[0, 1, 2], [0, 2, 3]],
+        )
+        .unwrap(),
+    );
+    let corners = Geometry::Cloud(PointCloud::new(square_positions(), None, None).unwrap());
+    let r = compare(&square, &corners, &opts(100), &NoProgress).unwrap();
+    assert_near!(r.test_to_reference.max.value, 0.5f64.sqrt(), 1e-6);
+    assert!(r.test_to_reference.p95.value < r.test_to_reference.max.value);
+}
+
+fn square_positions() -> Vec<[f32; 3]> {
+    vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]
+}

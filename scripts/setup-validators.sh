@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Install what the conformance suite needs: a Python virtualenv (.venv-validators/) with the pinned packages of
+# ../shared/validators that our suites call (point-cloud-utils, trimesh, numpy, scipy). Idempotent.
+# Usage: bash scripts/setup-validators.sh            (SCANSTATION_VALIDATORS overrides ../shared/validators)
+set -euo pipefail
+root="$(cd "$(dirname "$0")/.." && pwd)"
+kit="${SCANSTATION_VALIDATORS:-$root/../shared/validators}"
+venv="$root/.venv-validators"
+if [ ! -f "$kit/requirements.txt" ]; then
+  echo "setup-validators: $kit/requirements.txt not found (set SCANSTATION_VALIDATORS to the validators kit)" >&2
+  exit 1
+fi
+[ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+# Only the packages our suites use, at the kit's pinned versions.
+pins=$(grep -E '^(numpy|scipy|trimesh|rtree|point-cloud-utils)==' "$kit/requirements.txt" | sed 's/[[:space:]]*#.*//')
+# shellcheck disable=SC2086
+"$venv/bin/pip" install -q --disable-pip-version-check $pins
+"$venv/bin/python" -c "import point_cloud_utils, trimesh, numpy, scipy; print('validators venv ok:', '$venv')"

@@ -1,0 +1,114 @@
+//! The `scanstation` binary end to end: JSON reports, human output, exit codes, error maps.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{file, scratch};
+use scanstation::geometry::io::{VertexAttributes, write_ply};
+use scanstation::geometry::shapes::icosphere;
+use scanstation::{PolyMesh, assert_rel_near};
+use serde_json::Value;
+
+const SPOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/spot.ply");
+
+/// Run the binary; returns (exit code, stdout, stderr).
+fn run(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_scanstation")).args(args).output().expect("run scanstation");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
+}
+
+fn json(args: &[&str]) -> (i32, Value) {
+    let (code, out, err) = run(args);
+    let v = serde_json::from_str(&out).unwrap_or_else(|e| panic!("{args:?}: stdout is not JSON ({e}): {out}\n{err}"));
+    (code, v)
+}
+
+fn sphere_file(dir: &Path, name: &str, r: f64, center: [f64; 3]) -> String {
+    let p = dir.join(name);
+    write_ply(&p, &PolyMesh::from(icosphere(r, 5, center)), &VertexAttributes::default(), &[]).unwrap();
+    p.to_string_lossy().into_owned()
+}
+
+#[test]
+fn inspect_json_on_the_bundled_sample() {
+    let (code, v) = json(&["inspect", SPOT, "--json"]);
+    assert_eq!(code, 0);
+    assert_eq!(v["ok"], true);
+    for (key, want) in [
+        ("vertices", 2930),
+        ("faces", 5856),
+        ("boundary_loops", 0),
+        ("nonmanifold_edges", 0),
+        ("components", 1),
+        ("degenerate_faces", 0),
+        ("euler_characteristic", 2),
+        ("genus", 0),
+    ] {
+        assert_eq!(v[key], want, "{key}");
+    }
+    assert_eq!(v["closed"], true);
+    assert_eq!(v["faces_by_degree"]["3"], 5856);
+    assert!(v["volume"].as_f64().unwrap() > 0.0, "outward orientation gives a positive volume");
+    let d = v["bbox_diagonal"].as_f64().unwrap();
+    assert_rel_near!(d, (0.94f64.powi(2) + 1.69f64.powi(2) + 1.72f64.powi(2)).sqrt(), 0.01);
+}
+
+#[test]
+fn inspect_human_output() {
+    let (code, out, _) = run(&["inspect", SPOT]);
+    assert_eq!(code, 0);
+    assert!(out.contains("closed:") && out.contains("true") && out.contains("genus:"), "{out}");
+}
+
+#[test]
+fn compare_spheres_and_write_an_error_map() {
+    let dir = scratch("cli_compare");
+    let a = sphere_file(&dir, "a.ply", 1.0, [0.0; 3]);
+    let b = sphere_file(&dir, "b.ply", 1.05, [0.0; 3]);
+    let map = dir.join("map.ply");
+    let (code, v) = json(&["compare", &a, &b, "--samples", "50000", "--json", "--error-map", map.to_str().unwrap()]);
+    assert_eq!(code, 0, "{v}");
+    for side in ["test_to_reference", "reference_to_test", "symmetric"] {
+        assert_rel_near!(v[side]["rms"]["value"].as_f64().unwrap(), 0.05, 0.005, "{side}");
+    }
+    assert_eq!(v["samples_per_side"], 50000);
+    let header = String::from_utf8_lossy(&std::fs::read(&map).unwrap()[..600]).into_owned();
+    assert!(header.contains("property float distance") && header.contains("property uchar red"), "{header}");
+    let m = common::read_mesh(&map);
+    assert_eq!(m.positions.len(), 10242);
+    // Deterministic: the same command gives the same numbers.
+    let (_, v2) = json(&["compare", &a, &b, "--samples", "50000", "--json"]);
+    assert_eq!(v["symmetric"], v2["symmetric"]);
+}
+
+#[test]
+fn errors_have_codes_and_exit_statuses() {
+    let dir = scratch("cli_errors");
+    let bad = file(
+        &dir,
+        "bad.ply",
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n",
+    );
+    let (code, v) = json(&["inspect", bad.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 2);
+    assert_eq!(v["ok"], false);
+    assert_eq!(v["error_code"], "input.truncated");
+    assert_eq!(v["error"]["location"]["line"], 9);
+    let (code, _, err) = run(&["inspect", dir.join("missing.stl").to_str().unwrap()]);
+    assert_eq!(code, 2);
+    assert!(err.contains("input.not-found") && err.contains("missing.stl"), "{err}");
+    // Refusing to overwrite an input is a resource/output error; the input stays as it was.
+    let a = sphere_file(&dir, "a.ply", 1.0, [0.0; 3]);
+    let before = std::fs::read(&a).unwrap();
+    let (code, v) = json(&["compare", &a, SPOT, "--json", "--error-map", &a]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")));
+    assert_eq!(std::fs::read(&a).unwrap(), before);
+    let (code, _, _) = run(&["inspect", SPOT, "--memory-budget", "1K"]);
+    assert_eq!(code, 3);
+}

@@ -1,0 +1,192 @@
+//! Corpus suite: every file of the shared scan data (`../shared/data`, override with
+//! `SCANSTATION_SHARED_DATA`) read and inspected, checked against the table in that folder's README.
+//! Needs the data: it fails, saying where it looked, when the folder is missing. Run it with
+//! `cargo test --features corpus --test corpus` (`.ci/run` does).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use scanstation::geometry::io::ReadOptions;
+use scanstation::pipeline::inspect_file;
+use scanstation::stages::NoProgress;
+use scanstation::stages::quality::{CompareOptions, compare};
+use scanstation::{Geometry, PointCloud, assert_near};
+
+fn data_dir() -> PathBuf {
+    let dir = std::env::var_os("SCANSTATION_SHARED_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    assert!(
+        dir.join("README.md").is_file(),
+        "shared scan data not found at {} (set SCANSTATION_SHARED_DATA to the folder holding data/README.md)",
+        dir.display()
+    );
+    dir
+}
+
+/// The leading integer of a table cell: "35,947 (1,113 unreferenced)" → 35947, "−108 (genus 55)" → -108,
+/// "5*" → 5.
+fn leading_int(cell: &str) -> i64 {
+    let s = cell.trim().replace(',', "").replace('−', "-");
+    let end =
+        s.char_indices().find(|&(i, c)| !(c.is_ascii_digit() || (i == 0 && c == '-'))).map_or(s.len(), |(i, _)| i);
+    s[..end].parse().unwrap_or_else(|_| panic!("no number in table cell {cell:?}"))
+}
+
+/// One row of the README's mesh table.
+#[derive(Debug)]
+struct Row {
+    file: String,
+    vertices: i64,
+    faces: i64,
+    closed: bool,
+    boundary_loops: i64,
+    nonmanifold_edges: i64,
+    components: i64,
+    euler: i64,
+}
+
+fn mesh_table(readme: &str) -> Vec<Row> {
+    let section = readme.split("## Meshes").nth(1).expect("README has a '## Meshes' section");
+    let section = section.split("\n## ").next().unwrap();
+    let rows: Vec<Row> = section
+        .lines()
+        .filter(|l| l.starts_with("| `"))
+        .map(|l| {
+            let c: Vec<&str> = l.split('|').map(str::trim).collect();
+            // c[0] is empty (leading '|'); columns: File, Object, Source, License, Vertices, Faces, Closed,
+            // Boundary loops, Non-manifold edges, Comp., χ, Bbox, Size.
+            Row {
+                file: c[1].trim_matches('`').to_string(),
+                vertices: leading_int(c[5]),
+                faces: leading_int(c[6]),
+                closed: c[7].starts_with("yes"),
+                boundary_loops: leading_int(c[8]),
+                nonmanifold_edges: leading_int(c[9]),
+                components: leading_int(c[10]),
+                euler: leading_int(c[11]),
+            }
+        })
+        .collect();
+    assert!(rows.len() >= 9, "parsed only {} rows from the README mesh table", rows.len());
+    rows
+}
+
+#[test]
+fn inspect_agrees_with_the_data_readme_table() {
+    let dir = data_dir();
+    let readme = std::fs::read_to_string(dir.join("README.md")).unwrap();
+    for row in mesh_table(&readme) {
+        let path = dir.join(&row.file);
+        let r = inspect_file(&path, &ReadOptions::default()).unwrap_or_else(|e| panic!("{}: {e}", row.file));
+        let m = r.mesh.as_ref().unwrap_or_else(|| panic!("{}: read as a point cloud", row.file));
+        let f = &row.file;
+        assert_eq!(m.vertices as i64, row.vertices, "{f}: vertices");
+        assert_eq!(m.faces as i64, row.faces, "{f}: faces");
+        assert_eq!(m.closed, row.closed, "{f}: closed");
+        assert_eq!(m.boundary_loops as i64, row.boundary_loops, "{f}: boundary loops");
+        assert_eq!(m.nonmanifold_edges as i64, row.nonmanifold_edges, "{f}: non-manifold edges");
+        assert_eq!(m.components as i64, row.components, "{f}: components");
+        assert_eq!(m.euler_characteristic, row.euler, "{f}: Euler characteristic");
+        if row.closed {
+            assert!(m.volume.unwrap() > 0.0, "{f}: closed meshes in the corpus face outward");
+        }
+    }
+}
+
+#[test]
+fn readme_notes_on_defects_hold() {
+    let dir = data_dir();
+    let get = |f: &str| inspect_file(&dir.join(f), &ReadOptions::default()).unwrap().mesh.unwrap();
+    let dragon = get("large/dragon_vrip_draco.ply.gz");
+    assert_eq!(dragon.degenerate_faces, 105_118, "dragon: zero-area faces");
+    assert_eq!(dragon.coincident_vertices, 51_986, "dragon: vertices sharing a position");
+    assert_eq!(dragon.genus, Some(55), "dragon: genus");
+    let zipper = get("bunny/reconstruction/bun_zipper.ply");
+    assert_eq!(zipper.unreferenced_vertices, 1_113, "bun_zipper: unreferenced vertices");
+    assert!(zipper.consistently_oriented, "bun_zipper is oriented consistently");
+    for (f, conflicts) in [("res2", 298), ("res3", 281), ("res4", 138)] {
+        let m = get(&format!("bunny/reconstruction/bun_zipper_{f}.ply"));
+        assert_eq!(m.orientation_conflicts, conflicts, "bun_zipper_{f}: directed edges used more than once");
+    }
+}
+
+/// The ten range scans, read as point clouds (their `range_grid` list element skipped).
+fn range_scans(dir: &Path) -> Vec<(String, PointCloud)> {
+    let conf = std::fs::read_to_string(dir.join("bunny/scans/bun.conf")).unwrap();
+    conf.lines()
+        .filter(|l| l.starts_with("bmesh"))
+        .map(|l| {
+            let name = l.split_whitespace().nth(1).unwrap().to_string();
+            let g =
+                scanstation::geometry::io::read_geometry(&dir.join("bunny/scans").join(&name), &ReadOptions::default())
+                    .unwrap_or_else(|e| panic!("{name}: {e}"));
+            match g {
+                Geometry::Cloud(c) => (name, c),
+                Geometry::Mesh(_) => panic!("{name}: read as a mesh; range scans have no faces"),
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn bunny_range_scans_read_as_clouds() {
+    let dir = data_dir();
+    let scans = range_scans(&dir);
+    assert_eq!(scans.len(), 10);
+    let expected = [
+        ("bun000.ply", 40_256),
+        ("bun045.ply", 40_097),
+        ("bun090.ply", 30_379),
+        ("bun180.ply", 40_251),
+        ("bun270.ply", 31_701),
+        ("bun315.ply", 35_336),
+        ("top2.ply", 38_298),
+        ("top3.ply", 36_023),
+        ("chin.ply", 37_738),
+        ("ear_back.ply", 32_193),
+    ];
+    for (name, n) in expected {
+        let c = &scans.iter().find(|(f, _)| f == name).unwrap_or_else(|| panic!("{name} missing from bun.conf")).1;
+        assert_eq!(c.positions.len(), n, "{name}: points");
+    }
+    let total: usize = scans.iter().map(|(_, c)| c.positions.len()).sum();
+    assert_eq!(total, 362_272, "all range scans");
+}
+
+/// Real-data oracle for `compare`: the ten scans, placed with the poses of `bun.conf`
+/// (p' = R(q)ᵀ·p + t, q scalar-last), lie on `bun_zipper.ply` with RMS 0.20 mm and median 0.06 mm
+/// (data/README.md, measured independently).
+#[test]
+fn aligned_range_scans_lie_on_the_zippered_bunny() {
+    let dir = data_dir();
+    let conf = std::fs::read_to_string(dir.join("bunny/scans/bun.conf")).unwrap();
+    let mut merged = Vec::new();
+    for ((name, cloud), line) in range_scans(&dir).into_iter().zip(conf.lines().filter(|l| l.starts_with("bmesh"))) {
+        let v: Vec<f64> = line.split_whitespace().skip(2).map(|t| t.parse().unwrap()).collect();
+        let (t, [x, y, z, w]) = ([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]]);
+        let r = [
+            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
+            [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
+            [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
+        ];
+        assert!(!name.is_empty());
+        for p in &cloud.positions {
+            let p = p.map(|c| c as f64);
+            // Rᵀ·p + t
+            merged.push([0, 1, 2].map(|i| (r[0][i] * p[0] + r[1][i] * p[1] + r[2][i] * p[2] + t[i]) as f32));
+        }
+    }
+    let cloud = Geometry::Cloud(PointCloud::new(merged, None, None).unwrap());
+    let zipper = scanstation::geometry::io::read_geometry(
+        &dir.join("bunny/reconstruction/bun_zipper.ply"),
+        &ReadOptions::default(),
+    )
+    .unwrap();
+    let r = compare(&cloud, &zipper, &CompareOptions { samples: 100_000, ..Default::default() }, &NoProgress).unwrap();
+    let s = &r.test_to_reference;
+    assert_eq!(s.samples, 362_272);
+    assert_near!(s.rms.value * 1000.0, 0.20, 0.01, "scans → bun_zipper RMS in mm");
+    assert_near!(s.median.value * 1000.0, 0.06, 0.01, "scans → bun_zipper median in mm");
+}
