@@ -10,6 +10,10 @@
 //!
 //! Errors everywhere are [`Error`] values with a stable [`ErrorCode`].
 
+// `!(x > 0.0)` is deliberate: it is also true for NaN. Index loops over the 3 coordinates read better than
+// zipped iterators in the geometry kernels.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop, clippy::collapsible_match)]
+
 pub mod error;
 pub mod geometry;
 pub mod pipeline;
