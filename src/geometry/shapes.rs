@@ -99,3 +99,28 @@ pub fn cuboid(min: [f64; 3], max: [f64; 3]) -> TriMesh {
     ];
     TriMesh { positions, triangles }
 }
+
+/// A torus around the z axis with major radius `major`, tube radius `minor`, `n` segments around the axis
+/// and `m` around the tube: closed, outward, genus 1; `n·m` vertices, `2·n·m` triangles.
+pub fn torus(major: f64, minor: f64, n: usize, m: usize) -> TriMesh {
+    use std::f64::consts::TAU;
+    let mut positions = Vec::with_capacity(n * m);
+    for i in 0..n {
+        let u = TAU * i as f64 / n as f64;
+        for j in 0..m {
+            let v = TAU * j as f64 / m as f64;
+            let r = major + minor * v.cos();
+            positions.push([(r * u.cos()) as f32, (r * u.sin()) as f32, (minor * v.sin()) as f32]);
+        }
+    }
+    let id = |i: usize, j: usize| ((i % n) * m + (j % m)) as u32;
+    let mut triangles = Vec::with_capacity(2 * n * m);
+    for i in 0..n {
+        for j in 0..m {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+            triangles.push([a, b, c]);
+            triangles.push([a, c, d]);
+        }
+    }
+    TriMesh { positions, triangles }
+}
