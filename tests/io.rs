@@ -334,3 +334,45 @@ fn bad_files_fail_with_stable_codes_and_locations() {
     let missing = read(&dir.join("does_not_exist.ply")).unwrap_err();
     assert_eq!(missing.code, ErrorCode::InputNotFound);
 }
+
+mod never_panics {
+    //! Truncated and corrupted versions of valid files: the reader returns a value or an error, never panics.
+    use super::*;
+    use proptest::prelude::*;
+
+    fn seeds() -> Vec<(&'static str, Vec<u8>)> {
+        vec![
+            ("a.ply", PLY_ASCII.as_bytes().to_vec()),
+            ("le.ply", ply_binary(false)),
+            ("be.ply", ply_binary(true)),
+            ("s.obj", b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf -4 -2 -1\nf 1/1 2/2 3/3 4/4\n".to_vec()),
+            ("s.off", b"OFF\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n".to_vec()),
+            ("s.xyz", b"1 2 3\n4 5 6\n7 8 9\n".to_vec()),
+            ("s.stl", b"solid s\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid s\n".to_vec()),
+            ("g.ply.gz", gz(&ply_binary(false))),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 400, ..ProptestConfig::default() })]
+
+        #[test]
+        fn corrupted_inputs_give_errors_not_panics(
+            which in 0usize..8,
+            cut in any::<prop::sample::Index>(),
+            flips in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 0..4),
+        ) {
+            let (name, mut bytes) = seeds().swap_remove(which);
+            for (at, byte) in flips {
+                let i = at.index(bytes.len());
+                bytes[i] = byte;
+            }
+            bytes.truncate(cut.index(bytes.len() + 1));
+            let dir = scratch(&format!("fuzz_{}", std::thread::current().name().unwrap_or("t").replace("::", "_")));
+            let p = file(&dir, name, &bytes);
+            if let Err(e) = read(&p) {
+                prop_assert_eq!(e.file.as_deref(), Some(p.as_path()));
+            }
+        }
+    }
+}
