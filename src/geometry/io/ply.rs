@@ -264,7 +264,6 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
     // (Each element alone is checked against all bytes left: a count that only the sum exceeds is left to
     // the reader, which reports `input.truncated` where the data ends.)
     let left = input.max_bytes.saturating_sub(header.bytes);
-    let mut counts = Vec::with_capacity(header.elements.len());
     let mut vertex_count = 0usize;
     let mut face_count = 0usize;
     for el in &header.elements {
@@ -282,10 +281,6 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
             "face" => face_count = n,
             _ => {}
         }
-        counts.push(n);
-    }
-    if vertex_count > u32::MAX as usize {
-        return Err(Error::new(ErrorCode::InputAbsurdCount, "more than 2^32 vertices"));
     }
     let vertex_el = header.elements.iter().find(|e| e.name == "vertex");
     let layout = vertex_el.map(vertex_layout).transpose()?;
@@ -294,7 +289,7 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
         positions: Vec::with_capacity(vertex_count),
         normals: layout.as_ref().and_then(|l| l.normal).map(|_| Vec::with_capacity(vertex_count)),
         colors: layout.as_ref().and_then(|l| l.color).map(|_| Vec::with_capacity(vertex_count)),
-        mesh: has_faces.then(|| PolyMesh::with_capacity(0, face_count, 3 * face_count.min(left as usize))),
+        mesh: has_faces.then(|| PolyMesh::with_capacity(0, face_count, 3 * face_count)),
         face_buf: Vec::new(),
     };
     let mut pos = header.bytes;
