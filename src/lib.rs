@@ -9,6 +9,20 @@
 //! * daemon / devices — arrive with their own issue (tokio, zbus, watch folders, serial/CAN drivers).
 //!
 //! Errors everywhere are [`Error`] values with a stable [`ErrorCode`].
+//!
+//! # Example: the quality measure every stage reports with
+//! ```
+//! use scanstation::geometry::shapes::icosphere;
+//! use scanstation::stages::{NoProgress, quality::{compare, CompareOptions}};
+//! use scanstation::{Geometry, PolyMesh};
+//!
+//! let inner = Geometry::Mesh(PolyMesh::from(icosphere(1.0, 5, [0.0; 3])));
+//! let outer = Geometry::Mesh(PolyMesh::from(icosphere(1.05, 5, [0.0; 3])));
+//! let opts = CompareOptions { samples: 20_000, ..Default::default() };
+//! let report = compare(&inner, &outer, &opts, &NoProgress)?;
+//! assert!((report.symmetric.rms.value - 0.05).abs() < 0.05 * 0.005);
+//! # Ok::<(), scanstation::Error>(())
+//! ```
 
 // `!(x > 0.0)` is deliberate: it is also true for NaN. Index loops over the 3 coordinates read better than
 // zipped iterators in the geometry kernels.
