@@ -55,6 +55,8 @@ pub enum ErrorCode {
     InputNoGeometry,
     /// An argument or option is out of its valid range.
     InputBadArgument,
+    /// Repair could not make the mesh a closed 2-manifold; the message names the step that gave up.
+    RepairFailed,
     /// The operation would need more memory than its budget allows.
     ResourceMemoryBudget,
     /// Writing an output failed (disk full, permissions) or would overwrite an input.
@@ -81,6 +83,7 @@ impl ErrorCode {
             ErrorCode::InputAbsurdCount => "input.absurd-count",
             ErrorCode::InputNoGeometry => "input.no-geometry",
             ErrorCode::InputBadArgument => "input.bad-argument",
+            ErrorCode::RepairFailed => "repair.failed",
             ErrorCode::ResourceMemoryBudget => "resource.memory-budget",
             ErrorCode::ResourceOutput => "resource.output",
             ErrorCode::InternalBug => "internal.bug",

@@ -35,6 +35,18 @@ enum Command {
         /// The file to inspect.
         file: PathBuf,
     },
+    /// Make a mesh a closed, outward-oriented 2-manifold: weld, fix non-manifold parts and orientation, drop
+    /// debris, fill holes (smoothly); report each step and the distance to the input.
+    Repair {
+        /// The mesh to repair.
+        input: PathBuf,
+        /// Where to write the result (.ply binary, or .obj).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Keep components other than the largest when they hold at least this share of the area.
+        #[arg(long, default_value_t = 0.1)]
+        keep_share: f64,
+    },
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare {
         /// The surface to measure.
@@ -76,6 +88,11 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Inspect { file } => {
             pipeline::inspect_file(file, &read).map(|r| if cli.json { print_json(&r) } else { print_inspect(&r) })
+        }
+        Command::Repair { input, output, keep_share } => {
+            let opts = scanstation::stages::repair::RepairOptions { keep_share: *keep_share, ..Default::default() };
+            pipeline::repair_file(input, output, &read, &opts, &NoProgress)
+                .map(|r| if cli.json { print_json(&r) } else { print_repair(&r) })
         }
         Command::Compare { test, reference, samples, seed, error_map } => {
             let opts = CompareOptions {
@@ -199,4 +216,50 @@ fn print_compare(r: &CompareReport) {
         println!("error map: {} (colour scale 0 .. {:.6e})", p.display(), r.error_map_scale.unwrap_or(0.0));
     }
     println!("read / compare: {:.3} s / {:.3} s", r.read_seconds, r.compare_seconds);
+}
+
+fn print_repair(r: &pipeline::RepairFileReport) {
+    let rep = &r.repair;
+    println!("input:   {} ({} vertices, {} faces)", r.input_file.display(), rep.input.vertices, rep.input.faces);
+    let w = &rep.weld;
+    println!(
+        "weld:    {} vertices merged, {} collapsed and {} duplicate faces dropped, {} unreferenced vertices dropped",
+        w.merged_vertices, w.collapsed_faces, w.duplicate_faces, w.unreferenced_vertices
+    );
+    let m = &rep.manifold;
+    println!(
+        "manifold: {} non-manifold edges ({} faces removed), {} faces flipped, {} removed for orientation, {} vertices split",
+        m.nonmanifold_edges,
+        m.faces_removed_at_nonmanifold_edges,
+        m.faces_flipped,
+        m.faces_removed_orientation,
+        m.vertices_split
+    );
+    println!(
+        "components: {} found, {} kept ({:.2} % of the area), {} debris faces removed",
+        m.components_found,
+        m.components_kept,
+        100.0 * m.area_share_kept,
+        m.faces_removed_debris
+    );
+    let h = &rep.holes;
+    println!(
+        "holes:   {} filled (largest {} edges), {} triangles and {} vertices added",
+        h.holes_filled, h.largest_hole_edges, h.triangles_added, h.vertices_added
+    );
+    let o = &rep.output;
+    println!(
+        "output:  {} ({} vertices, {} faces, closed {}, genus {:?}, volume {:.6e})",
+        r.output_file.display(),
+        o.vertices,
+        o.faces,
+        o.closed,
+        o.genus,
+        o.volume.unwrap_or(f64::NAN)
+    );
+    let d = &rep.distance.symmetric;
+    println!(
+        "distance to input: rms {:.4e} ({:.4} %), max {:.4e} ({:.4} %); repair took {:.3} s",
+        d.rms.value, d.rms.pct_of_diagonal, d.max.value, d.max.pct_of_diagonal, rep.seconds
+    );
 }

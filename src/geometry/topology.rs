@@ -61,10 +61,8 @@ pub struct MeshTopology {
 impl MeshTopology {
     /// Build the edge table of `mesh`. Cost: O(H log H), H = number of corners.
     pub fn new(mesh: &PolyMesh) -> Self {
-        let h_count = mesh.corner_count();
-        let idx = mesh.corner_indices();
-        let mut corner_face = Vec::with_capacity(h_count);
-        let mut corner_next = Vec::with_capacity(h_count);
+        let mut corner_face = Vec::with_capacity(mesh.corner_count());
+        let mut corner_next = Vec::with_capacity(mesh.corner_count());
         for (f, face) in mesh.faces().enumerate() {
             let s = mesh.face_start(f) as u32;
             let d = face.len() as u32;
@@ -73,6 +71,19 @@ impl MeshTopology {
                 corner_next.push(s + (k + 1) % d);
             }
         }
+        Self::build(mesh.corner_indices(), corner_face, corner_next)
+    }
+
+    /// Build the edge table of a triangle list (corner `3f + k` is corner `k` of triangle `f`).
+    pub fn from_triangles(triangles: &[[u32; 3]]) -> Self {
+        let n = triangles.len() as u32;
+        let corner_face = (0..n).flat_map(|f| [f, f, f]).collect();
+        let corner_next = (0..n).flat_map(|f| [3 * f + 1, 3 * f + 2, 3 * f]).collect();
+        Self::build(triangles.as_flattened(), corner_face, corner_next)
+    }
+
+    fn build(idx: &[u32], corner_face: Vec<u32>, corner_next: Vec<u32>) -> Self {
+        let h_count = idx.len();
         let mut keyed: Vec<(u64, u32)> = (0..h_count)
             .map(|h| {
                 let (a, b) = (idx[h], idx[corner_next[h] as usize]);

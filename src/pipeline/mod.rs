@@ -169,3 +169,40 @@ pub fn compare_files(
         compare_seconds: t1.elapsed().as_secs_f64(),
     })
 }
+
+/// What `scanstation repair` reports.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct RepairFileReport {
+    /// Input path.
+    pub input_file: PathBuf,
+    /// Output path.
+    pub output_file: PathBuf,
+    /// The stage's report.
+    #[serde(flatten)]
+    pub repair: crate::stages::repair::RepairReport,
+}
+
+/// Read a mesh, repair it and write the result (`.obj` as OBJ, anything else as binary PLY).
+///
+/// # Errors
+/// Reader errors; `input.no-geometry` for a point cloud; `repair.failed`; `resource.output` when the output
+/// cannot be written or names the input.
+pub fn repair_file(
+    input: &Path,
+    output: &Path,
+    read: &ReadOptions,
+    opts: &crate::stages::repair::RepairOptions,
+    progress: &dyn Progress,
+) -> Result<RepairFileReport> {
+    ensure_not_input(output, &[input])?;
+    let mesh = crate::geometry::io::read_mesh(input, read)?;
+    let (out, report) = crate::stages::repair::repair(&mesh, opts, progress).map_err(|e| e.in_file(input))?;
+    let out = crate::geometry::mesh::PolyMesh::from(out);
+    let is_obj = output.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj"));
+    if is_obj {
+        crate::geometry::io::write_obj(output, &out)?;
+    } else {
+        crate::geometry::io::write_ply(output, &out, &Default::default(), &["repaired by scanstation"])?;
+    }
+    Ok(RepairFileReport { input_file: input.to_path_buf(), output_file: output.to_path_buf(), repair: report })
+}

@@ -5,6 +5,7 @@
 //! remesh, surface, brep/step, fea and reconstruction arrive with their issues.
 
 pub mod quality;
+pub mod repair;
 
 /// Receives progress from a running stage: `fraction` in [0, 1], never decreasing within one stage call,
 /// and a short phase name. Implementations must be cheap and thread-safe; stages call it from worker

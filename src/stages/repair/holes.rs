@@ -1,0 +1,481 @@
+//! Step 5: fill every hole (Liepa 2003, "Filling holes in meshes").
+//!
+//! 1. **Triangulate** each boundary loop by a minimum-weight triangulation (dynamic programming, O(n³)); the
+//!    weight is lexicographic: first the worst dihedral angle the patch makes (with the mesh across the loop
+//!    and inside itself), then the total area. Degenerate triangles count as a 180° angle. Loops longer than
+//!    [`MWT_MAX_LOOP`] are first clipped down by ears of smallest angle.
+//! 2. **Refine** so the patch density matches its surroundings: a triangle is split at its centroid when the
+//!    centroid is farther than σ/√2 from each corner (σ = local edge length, interpolated from the loop), and
+//!    patch edges are flipped towards Delaunay after each round.
+//! 3. **Fair**: the new vertices minimise the discrete thin-plate energy Σ|L(x)|² (uniform umbrella L over
+//!    the patch and its boundary ring, the rest fixed), solved by conjugate gradients on the normal equations,
+//!    so the fill continues the surrounding curvature instead of lying flat.
+
+use std::collections::{HashMap, HashSet};
+
+use crate::geometry::topology::MeshTopology;
+use crate::geometry::vec3::{self, V3};
+
+/// Longest loop triangulated by the O(n³) dynamic programme; longer loops are ear-clipped down to it first.
+pub const MWT_MAX_LOOP: usize = 240;
+/// Refinement rounds at most (each can split every patch triangle).
+const REFINE_ROUNDS: usize = 40;
+/// Conjugate-gradient iterations at most for fairing.
+const FAIR_ITERATIONS: usize = 2000;
+
+/// What hole filling did.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct HoleReport {
+    /// Holes filled.
+    pub holes_filled: usize,
+    /// Boundary edges of the largest hole.
+    pub largest_hole_edges: usize,
+    /// Triangles added.
+    pub triangles_added: usize,
+    /// Vertices added by refinement.
+    pub vertices_added: usize,
+    /// Fairing: CG iterations used and final relative residual.
+    pub fair_iterations: usize,
+    pub fair_residual: f64,
+}
+
+/// Boundary loops as vertex sequences v0, v1, … where the mesh has the half-edges v_i → v_{i+1}.
+pub fn boundary_loops(tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
+    let topo = MeshTopology::from_triangles(tris);
+    let idx = tris.as_flattened();
+    let mut out_edge: HashMap<u32, u32> = HashMap::new(); // from-vertex -> to-vertex of boundary half-edges
+    for e in 0..topo.edges.len() {
+        if let [h] = *topo.edge_halfedges(e) {
+            out_edge.insert(idx[h as usize], idx[topo.corner_next[h as usize] as usize]);
+        }
+    }
+    let mut starts: Vec<u32> = out_edge.keys().copied().collect();
+    starts.sort_unstable();
+    let mut used = HashSet::new();
+    let mut loops = Vec::new();
+    for s in starts {
+        if used.contains(&s) {
+            continue;
+        }
+        let mut lp = vec![s];
+        used.insert(s);
+        let mut v = out_edge[&s];
+        while v != s {
+            if !used.insert(v) || lp.len() > out_edge.len() {
+                break; // malformed chain: leave to the caller's closedness check
+            }
+            lp.push(v);
+            match out_edge.get(&v) {
+                Some(&w) => v = w,
+                None => break,
+            }
+        }
+        if lp.len() >= 3 {
+            loops.push(lp);
+        }
+    }
+    loops
+}
+
+fn normal(p: &[V3], t: [u32; 3]) -> Option<V3> {
+    let [a, b, c] = t.map(|i| p[i as usize]);
+    let n = vec3::cross(vec3::sub(b, a), vec3::sub(c, a));
+    let l = vec3::norm(n);
+    (l > 0.0).then(|| vec3::scale(n, 1.0 / l))
+}
+
+fn angle_between(a: Option<V3>, b: Option<V3>) -> f64 {
+    match (a, b) {
+        (Some(a), Some(b)) => vec3::dot(a, b).clamp(-1.0, 1.0).acos(),
+        _ => std::f64::consts::PI,
+    }
+}
+
+fn tri_area(p: &[V3], t: [u32; 3]) -> f64 {
+    let [a, b, c] = t.map(|i| p[i as usize]);
+    0.5 * vec3::norm(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)))
+}
+
+/// Minimum-weight triangulation of a loop (Liepa). `outside[i]` is the normal of the mesh face across the
+/// boundary edge v_i → v_{i+1}. Returns triangles oriented to close the mesh.
+fn mwt(p: &[V3], lp: &[u32], outside: &[Option<V3>], exists: &HashSet<(u32, u32)>) -> Option<Vec<[u32; 3]>> {
+    let n = lp.len();
+    // A diagonal that is already a mesh edge would make that edge non-manifold.
+    let blocked = |a: usize, b: usize| {
+        b > a + 1 && !(a == 0 && b == n - 1) && exists.contains(&(lp[a].min(lp[b]), lp[a].max(lp[b])))
+    };
+    let tri = |i: usize, k: usize, j: usize| [lp[j], lp[k], lp[i]];
+    // weight[(i, j)] = (max angle, area); best k in choice.
+    let mut w = vec![(0.0f64, 0.0f64); n * n];
+    let mut choice = vec![u32::MAX; n * n];
+    let at = |i: usize, j: usize| i * n + j;
+    for len in 2..n {
+        for i in 0..n - len {
+            let j = i + len;
+            let mut best = (f64::INFINITY, f64::INFINITY);
+            let mut best_k = u32::MAX;
+            if blocked(i, j) {
+                w[at(i, j)] = (f64::INFINITY, f64::INFINITY);
+                continue;
+            }
+            for k in i + 1..j {
+                if !(w[at(i, k)].0.is_finite() && w[at(k, j)].0.is_finite()) {
+                    continue;
+                }
+                let t = tri(i, k, j);
+                let nt = normal(p, t);
+                let side = |a: usize, b: usize| {
+                    if b == a + 1 {
+                        outside[a]
+                    } else {
+                        let m = choice[at(a, b)] as usize;
+                        normal(p, tri(a, m, b))
+                    }
+                };
+                let mut ang = angle_between(nt, side(i, k)).max(angle_between(nt, side(k, j)));
+                if i == 0 && j == n - 1 {
+                    ang = ang.max(angle_between(nt, outside[n - 1]));
+                }
+                let (wa, wb) = (w[at(i, k)], w[at(k, j)]);
+                let cand = (ang.max(wa.0).max(wb.0), wa.1 + wb.1 + tri_area(p, t));
+                if cand.0 < best.0 - 1e-12 || (cand.0 <= best.0 + 1e-12 && cand.1 < best.1) {
+                    best = cand;
+                    best_k = k as u32;
+                }
+            }
+            w[at(i, j)] = best;
+            choice[at(i, j)] = best_k;
+        }
+    }
+    if !w[at(0, n - 1)].0.is_finite() {
+        return None;
+    }
+    let mut out = Vec::with_capacity(n - 2);
+    let mut stack = vec![(0usize, n - 1)];
+    while let Some((i, j)) = stack.pop() {
+        if j < i + 2 {
+            continue;
+        }
+        let k = choice[at(i, j)] as usize;
+        out.push(tri(i, k, j));
+        stack.push((i, k));
+        stack.push((k, j));
+    }
+    Some(out)
+}
+
+/// Fan from a new vertex at the loop's centroid: always valid topologically; used when every triangulation
+/// of the loop would reuse an existing edge.
+fn centroid_fan(p: &mut Vec<V3>, lp: &[u32]) -> Vec<[u32; 3]> {
+    let n = lp.len();
+    let c = lp.iter().fold([0.0; 3], |acc, &v| vec3::add(acc, p[v as usize]));
+    p.push(vec3::scale(c, 1.0 / n as f64));
+    let m = (p.len() - 1) as u32;
+    (0..n).map(|i| [lp[(i + 1) % n], lp[i], m]).collect()
+}
+
+/// Clip ears of smallest interior angle until the loop is short enough for [`mwt`]. Returns the clipped
+/// triangles and the remaining loop (with its outside normals).
+fn clip_ears(
+    p: &[V3],
+    lp: &mut Vec<u32>,
+    outside: &mut Vec<Option<V3>>,
+    limit: usize,
+    exists: &mut HashSet<(u32, u32)>,
+) -> Vec<[u32; 3]> {
+    let mut out = Vec::new();
+    while lp.len() > limit {
+        let n = lp.len();
+        let angle = |i: usize| {
+            let (a, b, c) = (p[lp[(i + n - 1) % n] as usize], p[lp[i] as usize], p[lp[(i + 1) % n] as usize]);
+            let (u, v) = (vec3::sub(a, b), vec3::sub(c, b));
+            let d = (vec3::norm(u) * vec3::norm(v)).max(f64::MIN_POSITIVE);
+            (vec3::dot(u, v) / d).clamp(-1.0, 1.0).acos()
+        };
+        let free = |i: usize| {
+            let (a, b) = (lp[(i + n - 1) % n], lp[(i + 1) % n]);
+            !exists.contains(&(a.min(b), a.max(b)))
+        };
+        let Some(i) = (0..n).filter(|&i| free(i)).min_by(|&a, &b| angle(a).total_cmp(&angle(b)).then(a.cmp(&b))) else {
+            break;
+        };
+        let (prev, next) = ((i + n - 1) % n, (i + 1) % n);
+        let t = [lp[next], lp[i], lp[prev]];
+        out.push(t);
+        exists.insert((lp[prev].min(lp[next]), lp[prev].max(lp[next])));
+        outside[prev] = normal(p, t);
+        lp.remove(i);
+        outside.remove(i);
+    }
+    out
+}
+
+/// Local edge length around each loop vertex: mean length of its mesh edges.
+fn loop_sigma(p: &[V3], tris: &[[u32; 3]], lp: &[u32]) -> HashMap<u32, f64> {
+    let on_loop: HashSet<u32> = lp.iter().copied().collect();
+    let mut acc: HashMap<u32, (f64, usize)> = HashMap::new();
+    for t in tris {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let l = vec3::norm(vec3::sub(p[a as usize], p[b as usize]));
+            for v in [a, b] {
+                if on_loop.contains(&v) {
+                    let e = acc.entry(v).or_insert((0.0, 0));
+                    e.0 += l;
+                    e.1 += 1;
+                }
+            }
+        }
+    }
+    acc.into_iter().map(|(v, (s, n))| (v, s / n.max(1) as f64)).collect()
+}
+
+fn opposite_angle(p: &[V3], a: u32, b: u32, c: u32) -> f64 {
+    // Angle at c in triangle (a, b, c).
+    let (u, v) = (vec3::sub(p[a as usize], p[c as usize]), vec3::sub(p[b as usize], p[c as usize]));
+    let d = (vec3::norm(u) * vec3::norm(v)).max(f64::MIN_POSITIVE);
+    (vec3::dot(u, v) / d).clamp(-1.0, 1.0).acos()
+}
+
+/// Flip interior patch edges towards Delaunay (opposite angles summing to more than π), never creating an
+/// edge that exists already (`fixed_edges` holds the mesh's edges among loop vertices).
+fn relax(p: &[V3], patch: &mut [[u32; 3]], fixed_edges: &HashSet<(u32, u32)>) {
+    let key = |a: u32, b: u32| (a.min(b), a.max(b));
+    for _ in 0..8 {
+        let mut edges: HashMap<(u32, u32), Vec<(usize, usize)>> = HashMap::new();
+        for (f, t) in patch.iter().enumerate() {
+            for k in 0..3 {
+                edges.entry(key(t[k], t[(k + 1) % 3])).or_default().push((f, k));
+            }
+        }
+        let mut keys: Vec<_> = edges.keys().copied().collect();
+        keys.sort_unstable();
+        let mut touched = HashSet::new();
+        let mut created = HashSet::new();
+        let mut flipped = 0;
+        for e in keys {
+            let hs = &edges[&e];
+            if hs.len() != 2 || touched.contains(&hs[0].0) || touched.contains(&hs[1].0) {
+                continue;
+            }
+            let ((f1, k1), (f2, k2)) = (hs[0], hs[1]);
+            let (t1, t2) = (patch[f1], patch[f2]);
+            let (a, b, c) = (t1[k1], t1[(k1 + 1) % 3], t1[(k1 + 2) % 3]);
+            let d = t2[(k2 + 2) % 3];
+            if t2[k2] != b
+                || c == d
+                || fixed_edges.contains(&key(c, d))
+                || edges.contains_key(&key(c, d))
+                || created.contains(&key(c, d))
+            {
+                continue;
+            }
+            if opposite_angle(p, a, b, c) + opposite_angle(p, a, b, d) <= std::f64::consts::PI + 1e-9 {
+                continue;
+            }
+            let (n1, n2) = ([a, d, c], [b, c, d]);
+            // Keep both new triangles facing the same way as the old pair.
+            let old = vec3::add(normal(p, t1).unwrap_or([0.0; 3]), normal(p, t2).unwrap_or([0.0; 3]));
+            let ok = |t| normal(p, t).is_some_and(|n| vec3::dot(n, old) > 0.0);
+            if !ok(n1) || !ok(n2) {
+                continue;
+            }
+            patch[f1] = n1;
+            patch[f2] = n2;
+            touched.insert(f1);
+            touched.insert(f2);
+            created.insert(key(c, d));
+            flipped += 1;
+        }
+        if flipped == 0 {
+            break;
+        }
+    }
+}
+
+/// Split patch triangles until their density matches σ (Liepa's √2 criterion); new vertices are appended
+/// to `p`. Returns the number of vertices added.
+fn refine(
+    p: &mut Vec<V3>,
+    patch: &mut Vec<[u32; 3]>,
+    sigma: &mut HashMap<u32, f64>,
+    fixed: &HashSet<(u32, u32)>,
+) -> usize {
+    let alpha = std::f64::consts::SQRT_2;
+    let mut added = 0;
+    for _ in 0..REFINE_ROUNDS {
+        let mut next = Vec::with_capacity(patch.len() * 3);
+        let mut split = 0;
+        for &t in patch.iter() {
+            let [a, b, c] = t.map(|i| p[i as usize]);
+            let centre = vec3::scale(vec3::add(vec3::add(a, b), c), 1.0 / 3.0);
+            let sc = t.iter().map(|v| sigma[v]).sum::<f64>() / 3.0;
+            let far = t.iter().all(|&v| {
+                let d = alpha * vec3::norm(vec3::sub(centre, p[v as usize]));
+                d > sc && d > sigma[&v]
+            });
+            if far {
+                p.push(centre);
+                let m = (p.len() - 1) as u32;
+                sigma.insert(m, sc);
+                next.extend_from_slice(&[[t[0], t[1], m], [t[1], t[2], m], [t[2], t[0], m]]);
+                split += 1;
+                added += 1;
+            } else {
+                next.push(t);
+            }
+        }
+        *patch = next;
+        relax(p, patch, fixed);
+        if split == 0 {
+            break;
+        }
+    }
+    added
+}
+
+/// Thin-plate fairing of the vertices `free` (indices into `p`): minimise Σ_v |L_v(x)|² over the free
+/// vertices and their neighbours v, L_v = mean of v's neighbours − x_v, all other vertices fixed. CG on
+/// the normal equations, per coordinate. Returns (iterations, relative residual).
+fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32]) -> (usize, f64) {
+    if free.is_empty() {
+        return (0, 0.0);
+    }
+    let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); p.len()];
+    for t in tris {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            nbrs[a as usize].push(b);
+            nbrs[b as usize].push(a);
+        }
+    }
+    for n in &mut nbrs {
+        n.sort_unstable();
+        n.dedup();
+    }
+    let col: HashMap<u32, usize> = free.iter().enumerate().map(|(i, &v)| (v, i)).collect();
+    // Rows: free vertices and their neighbours.
+    let mut rows: Vec<u32> = free.to_vec();
+    for &v in free {
+        rows.extend(nbrs[v as usize].iter().copied());
+    }
+    rows.sort_unstable();
+    rows.dedup();
+    // Sparse rows: (coefficients on free columns, fixed part per coordinate).
+    let mut a_rows: Vec<Vec<(usize, f64)>> = Vec::with_capacity(rows.len());
+    let mut fixed_part: Vec<V3> = Vec::with_capacity(rows.len());
+    for &v in &rows {
+        let nb = &nbrs[v as usize];
+        let inv = 1.0 / nb.len().max(1) as f64;
+        let mut coeffs: Vec<(usize, f64)> = Vec::new();
+        let mut fx = [0.0; 3];
+        let mut add = |u: u32, c: f64, coeffs: &mut Vec<(usize, f64)>| match col.get(&u) {
+            Some(&j) => coeffs.push((j, c)),
+            None => (0..3).for_each(|k| fx[k] += c * p[u as usize][k]),
+        };
+        for &u in nb {
+            add(u, inv, &mut coeffs);
+        }
+        add(v, -1.0, &mut coeffs);
+        a_rows.push(coeffs);
+        fixed_part.push(fx);
+    }
+    let n = free.len();
+    let mut iters = 0;
+    let mut worst = 0.0f64;
+    for k in 0..3 {
+        // Minimise |A x + f|²  ->  AᵀA x = −Aᵀ f.
+        let apply = |x: &[f64]| -> Vec<f64> {
+            let ax: Vec<f64> = a_rows.iter().map(|r| r.iter().map(|&(j, c)| c * x[j]).sum()).collect();
+            let mut out = vec![0.0; n];
+            for (r, &v) in a_rows.iter().zip(&ax) {
+                for &(j, c) in r {
+                    out[j] += c * v;
+                }
+            }
+            out
+        };
+        let mut b = vec![0.0; n];
+        for (r, f) in a_rows.iter().zip(&fixed_part) {
+            for &(j, c) in r {
+                b[j] -= c * f[k];
+            }
+        }
+        let mut x: Vec<f64> = free.iter().map(|&v| p[v as usize][k]).collect();
+        let ax = apply(&x);
+        let mut r: Vec<f64> = b.iter().zip(&ax).map(|(b, a)| b - a).collect();
+        let mut d = r.clone();
+        let b_norm = b.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
+        let mut rr: f64 = r.iter().map(|v| v * v).sum();
+        let mut it = 0;
+        while it < FAIR_ITERATIONS && rr.sqrt() > 1e-10 * b_norm {
+            let ad = apply(&d);
+            let dad: f64 = d.iter().zip(&ad).map(|(a, b)| a * b).sum();
+            if !(dad > 0.0) {
+                break;
+            }
+            let alpha = rr / dad;
+            x.iter_mut().zip(&d).for_each(|(x, d)| *x += alpha * d);
+            r.iter_mut().zip(&ad).for_each(|(r, a)| *r -= alpha * a);
+            let rr_new: f64 = r.iter().map(|v| v * v).sum();
+            let beta = rr_new / rr;
+            rr = rr_new;
+            d.iter_mut().zip(&r).for_each(|(d, r)| *d = r + beta * *d);
+            it += 1;
+        }
+        iters = iters.max(it);
+        worst = worst.max(rr.sqrt() / b_norm);
+        for (i, &v) in free.iter().enumerate() {
+            p[v as usize][k] = x[i];
+        }
+    }
+    (iters, worst)
+}
+
+/// Fill every hole of the oriented manifold `tris` (in place), adding vertices to `p`.
+pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) -> HoleReport {
+    let mut report = HoleReport::default();
+    let loops = boundary_loops(tris);
+    if loops.is_empty() {
+        return report;
+    }
+    // Normal of the face across each boundary half-edge.
+    let mut face_of_edge: HashMap<(u32, u32), [u32; 3]> = HashMap::new();
+    let on_loop: HashSet<u32> = loops.iter().flatten().copied().collect();
+    let mut fixed_edges: HashSet<(u32, u32)> = HashSet::new();
+    for t in tris.iter() {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            if on_loop.contains(&a) && on_loop.contains(&b) {
+                face_of_edge.insert((a, b), *t);
+                fixed_edges.insert((a.min(b), a.max(b)));
+            }
+        }
+    }
+    let first_new_vertex = p.len();
+    for lp in loops {
+        let mut lp = lp;
+        report.largest_hole_edges = report.largest_hole_edges.max(lp.len());
+        let n = lp.len();
+        let mut outside: Vec<Option<V3>> =
+            (0..n).map(|i| face_of_edge.get(&(lp[i], lp[(i + 1) % n])).and_then(|&t| normal(p, t))).collect();
+        let mut sigma = loop_sigma(p, tris, &lp);
+        let mut patch = clip_ears(p, &mut lp, &mut outside, MWT_MAX_LOOP, &mut fixed_edges);
+        match mwt(p, &lp, &outside, &fixed_edges) {
+            Some(t) => patch.extend(t),
+            None => {
+                sigma.insert(p.len() as u32, lp.iter().map(|v| sigma[v]).sum::<f64>() / lp.len() as f64);
+                patch.extend(centroid_fan(p, &lp));
+            }
+        }
+        report.vertices_added += refine(p, &mut patch, &mut sigma, &fixed_edges);
+        report.triangles_added += patch.len();
+        report.holes_filled += 1;
+        tris.extend(patch);
+    }
+    let free: Vec<u32> = (first_new_vertex as u32..p.len() as u32).collect();
+    let (it, res) = fair(p, tris, &free);
+    report.fair_iterations = it;
+    report.fair_residual = res;
+    report
+}

@@ -1,0 +1,203 @@
+//! Steps 2–3: make the mesh an oriented 2-manifold and keep the components that matter.
+//!
+//! * Non-manifold edges: of the faces on an edge, the lowest-numbered face and the first face that crosses
+//!   the edge in the opposite direction stay (the "most consistent" pair); the others are removed (the
+//!   holes they leave are filled later).
+//! * Orientation: a breadth-first walk over manifold edges flips faces to agree with their component's first
+//!   face; a face that cannot agree (a Möbius-like conflict) is removed.
+//! * Non-manifold vertices: each extra fan of faces around a vertex gets its own copy of the vertex.
+//! * Components: the largest by area stays, with every other component of at least `keep_share` of the total
+//!   area; the rest is debris.
+
+use std::collections::VecDeque;
+
+use crate::geometry::topology::{MeshTopology, UnionFind};
+use crate::geometry::vec3::{self, V3};
+
+/// What the manifold step changed.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ManifoldReport {
+    /// Edges that had more than two faces.
+    pub nonmanifold_edges: usize,
+    /// Faces removed to make those edges manifold.
+    pub faces_removed_at_nonmanifold_edges: usize,
+    /// Faces whose orientation was reversed to agree with their neighbours.
+    pub faces_flipped: usize,
+    /// Faces removed because no orientation agrees with all neighbours.
+    pub faces_removed_orientation: usize,
+    /// Vertices duplicated to separate fans that met at one vertex.
+    pub vertices_split: usize,
+    /// Components found, and kept.
+    pub components_found: usize,
+    pub components_kept: usize,
+    /// Faces removed with dropped components.
+    pub faces_removed_debris: usize,
+    /// Share of the area kept, in [0, 1].
+    pub area_share_kept: f64,
+}
+
+fn area(p: &[V3], t: [u32; 3]) -> f64 {
+    let [a, b, c] = t.map(|i| p[i as usize]);
+    0.5 * vec3::norm(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)))
+}
+
+/// Remove extra faces on non-manifold edges. Returns the kept faces.
+fn fix_nonmanifold_edges(tris: &[[u32; 3]], r: &mut ManifoldReport) -> Vec<[u32; 3]> {
+    let topo = MeshTopology::from_triangles(tris);
+    let idx = tris.as_flattened();
+    let mut remove = vec![false; tris.len()];
+    for e in 0..topo.edges.len() {
+        let hs = topo.edge_halfedges(e);
+        if hs.len() <= 2 {
+            continue;
+        }
+        r.nonmanifold_edges += 1;
+        let alive: Vec<u32> = hs.iter().copied().filter(|&h| !remove[h as usize / 3]).collect();
+        if alive.len() <= 2 {
+            continue;
+        }
+        let first = alive[0];
+        let opposite = alive[1..].iter().copied().find(|&h| idx[h as usize] != idx[first as usize]).unwrap_or(alive[1]);
+        for &h in &alive {
+            if h != first && h != opposite {
+                remove[h as usize / 3] = true;
+            }
+        }
+    }
+    let kept: Vec<[u32; 3]> = tris.iter().zip(&remove).filter(|(_, r)| !**r).map(|(t, _)| *t).collect();
+    r.faces_removed_at_nonmanifold_edges = tris.len() - kept.len();
+    kept
+}
+
+/// Orient faces consistently per component; remove faces in conflict.
+fn orient(tris: &mut Vec<[u32; 3]>, r: &mut ManifoldReport) {
+    let topo = MeshTopology::from_triangles(tris);
+    let n = tris.len();
+    let mut flip = vec![false; n];
+    let mut seen = vec![false; n];
+    let mut conflict = vec![false; n];
+    let mut queue = VecDeque::new();
+    for start in 0..n {
+        if seen[start] {
+            continue;
+        }
+        seen[start] = true;
+        queue.push_back(start as u32);
+        while let Some(f) = queue.pop_front() {
+            for k in 0..3u32 {
+                let h = 3 * f + k;
+                let Some(o) = topo.opposite(h) else { continue };
+                let g = o / 3;
+                // Direction of h and o after applying the flips found so far.
+                let from = |h: u32, flipped: bool| {
+                    let t = tris[(h / 3) as usize];
+                    let (a, b) = (t[(h % 3) as usize], t[((h % 3 + 1) % 3) as usize]);
+                    if flipped { b } else { a }
+                };
+                let same_dir = from(h, flip[f as usize]) == from(o, flip[g as usize]);
+                if !seen[g as usize] {
+                    seen[g as usize] = true;
+                    if same_dir {
+                        flip[g as usize] = true;
+                    }
+                    queue.push_back(g);
+                } else if same_dir && !conflict[f as usize] {
+                    conflict[g as usize] = true;
+                }
+            }
+        }
+    }
+    let mut out = Vec::with_capacity(n);
+    for (f, t) in tris.iter().enumerate() {
+        if conflict[f] {
+            r.faces_removed_orientation += 1;
+        } else if flip[f] {
+            r.faces_flipped += 1;
+            out.push([t[0], t[2], t[1]]);
+        } else {
+            out.push(*t);
+        }
+    }
+    *tris = out;
+}
+
+/// Give every extra fan around a vertex its own vertex copy.
+fn split_nonmanifold_vertices(pos: &mut Vec<V3>, tris: &mut [[u32; 3]], r: &mut ManifoldReport) {
+    let topo = MeshTopology::from_triangles(tris);
+    let idx: Vec<u32> = tris.as_flattened().to_vec();
+    let mut uf = UnionFind::new(idx.len());
+    for e in 0..topo.edges.len() {
+        if let [h1, h2] = *topo.edge_halfedges(e) {
+            let (a1, b1) = (h1, topo.corner_next[h1 as usize]);
+            let (a2, b2) = (h2, topo.corner_next[h2 as usize]);
+            if idx[a1 as usize] == idx[a2 as usize] {
+                uf.union(a1, a2);
+                uf.union(b1, b2);
+            } else {
+                uf.union(a1, b2);
+                uf.union(b1, a2);
+            }
+        }
+    }
+    // First fan (by lowest corner root) keeps the vertex; others get copies.
+    let mut owner: Vec<u32> = vec![u32::MAX; pos.len()];
+    let mut copy_of_root: std::collections::HashMap<u32, u32> = std::collections::HashMap::new();
+    let flat = tris.as_flattened_mut();
+    for h in 0..flat.len() {
+        let v = flat[h] as usize;
+        let root = uf.find(h as u32);
+        if owner[v] == u32::MAX {
+            owner[v] = root;
+        } else if owner[v] != root {
+            let id = *copy_of_root.entry(root).or_insert_with(|| {
+                pos.push(pos[v]);
+                r.vertices_split += 1;
+                (pos.len() - 1) as u32
+            });
+            flat[h] = id;
+        }
+    }
+}
+
+/// Keep the largest component by area and every other one of at least `keep_share` of the total area.
+fn keep_components(pos: &[V3], tris: &mut Vec<[u32; 3]>, keep_share: f64, r: &mut ManifoldReport) {
+    let topo = MeshTopology::from_triangles(tris);
+    let mut uf = UnionFind::new(tris.len());
+    for e in 0..topo.edges.len() {
+        if let [h1, h2] = *topo.edge_halfedges(e) {
+            uf.union(h1 / 3, h2 / 3);
+        }
+    }
+    let mut comp_area = std::collections::BTreeMap::<u32, f64>::new();
+    let areas: Vec<f64> = tris.iter().map(|&t| area(pos, t)).collect();
+    let roots: Vec<u32> = (0..tris.len() as u32).map(|f| uf.find(f)).collect();
+    for (f, &root) in roots.iter().enumerate() {
+        *comp_area.entry(root).or_insert(0.0) += areas[f];
+    }
+    let total: f64 = comp_area.values().sum();
+    let largest = comp_area.iter().max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(a.0))).map(|(&k, _)| k);
+    let keep = |root: u32| Some(root) == largest || comp_area[&root] >= keep_share * total;
+    r.components_found = comp_area.len();
+    r.components_kept = comp_area.keys().filter(|&&k| keep(k)).count();
+    let kept_area: f64 = comp_area.iter().filter(|(k, _)| keep(**k)).map(|(_, a)| a).sum();
+    r.area_share_kept = if total > 0.0 { kept_area / total } else { 0.0 };
+    let before = tris.len();
+    let mut out = Vec::with_capacity(before);
+    for (f, t) in tris.iter().enumerate() {
+        if keep(roots[f]) {
+            out.push(*t);
+        }
+    }
+    r.faces_removed_debris = before - out.len();
+    *tris = out;
+}
+
+/// Run the manifold step. `pos` may grow (split vertices).
+pub fn make_manifold(pos: &mut Vec<V3>, tris: Vec<[u32; 3]>, keep_share: f64) -> (Vec<[u32; 3]>, ManifoldReport) {
+    let mut r = ManifoldReport::default();
+    let mut tris = fix_nonmanifold_edges(&tris, &mut r);
+    orient(&mut tris, &mut r);
+    split_nonmanifold_vertices(pos, &mut tris, &mut r);
+    keep_components(pos, &mut tris, keep_share, &mut r);
+    (tris, r)
+}
