@@ -452,6 +452,8 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) -> HoleReport {
             }
         }
     }
+    let all_loops: Vec<u32> = loops.iter().flatten().copied().collect();
+    let all_sigma = loop_sigma(p, tris, &all_loops);
     let first_new_vertex = p.len();
     for lp in loops {
         let mut lp = lp;
@@ -459,7 +461,7 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) -> HoleReport {
         let n = lp.len();
         let mut outside: Vec<Option<V3>> =
             (0..n).map(|i| face_of_edge.get(&(lp[i], lp[(i + 1) % n])).and_then(|&t| normal(p, t))).collect();
-        let mut sigma = loop_sigma(p, tris, &lp);
+        let mut sigma: HashMap<u32, f64> = lp.iter().map(|v| (*v, all_sigma[v])).collect();
         let mut patch = clip_ears(p, &mut lp, &mut outside, MWT_MAX_LOOP, &mut fixed_edges);
         match mwt(p, &lp, &outside, &fixed_edges) {
             Some(t) => patch.extend(t),

@@ -1,0 +1,153 @@
+//! The repair stage: analytic oracles (punched spheres refilled onto the sphere), invariants as property tests
+//! (clean meshes pass unchanged, repair is idempotent), synthetic defects, and bad input.
+
+use proptest::prelude::*;
+use scanstation::geometry::shapes::{icosphere, torus};
+use scanstation::geometry::topology::TopologyReport;
+use scanstation::stages::NoProgress;
+use scanstation::stages::repair::{RepairOptions, repair};
+use scanstation::{ErrorCode, PolyMesh, TriMesh};
+
+fn opts() -> RepairOptions {
+    RepairOptions { compare_samples: 5_000, ..Default::default() }
+}
+
+fn run(t: TriMesh) -> (TriMesh, scanstation::stages::repair::RepairReport) {
+    repair(&PolyMesh::from(t), &opts(), &NoProgress).unwrap_or_else(|e| panic!("repair failed: {e}"))
+}
+
+fn assert_clean(r: &TopologyReport, what: &str) {
+    assert!(r.closed, "{what}: not closed ({} boundary edges)", r.boundary_edges);
+    assert!(r.consistently_oriented, "{what}: {} orientation conflicts", r.orientation_conflicts);
+    assert_eq!((r.nonmanifold_edges, r.nonmanifold_vertices), (0, 0), "{what}: non-manifold");
+    assert_eq!(r.components, 1, "{what}: components");
+    assert!(r.volume.unwrap() > 0.0, "{what}: must face outward");
+}
+
+/// Remove the faces around each of `centres` (vertex indices) out to `rings` rings.
+fn punch(mut t: TriMesh, centres: &[u32], rings: usize) -> TriMesh {
+    let mut hit: std::collections::HashSet<u32> = centres.iter().copied().collect();
+    for _ in 0..rings {
+        let grow: Vec<u32> =
+            t.triangles.iter().filter(|f| f.iter().any(|v| hit.contains(v))).flatten().copied().collect();
+        hit.extend(grow);
+    }
+    // Faces with all corners inside the grown set go; a ring of the last vertices remains as the rim.
+    t.triangles.retain(|f| !f.iter().all(|v| hit.contains(v)));
+    t
+}
+
+fn max_radial_error(t: &TriMesh, r: f64) -> f64 {
+    t.positions
+        .iter()
+        .map(|p| ((p.iter().map(|&c| (c as f64).powi(2)).sum::<f64>()).sqrt() - r).abs())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn punched_sphere_is_refilled_onto_the_sphere() {
+    let sphere = icosphere(1.0, 4, [0.0; 3]);
+    let holed = punch(sphere, &[0, 7, 11], 3);
+    let before = TopologyReport::compute(&PolyMesh::from(holed.clone()));
+    assert_eq!(before.boundary_loops, 3);
+    let (out, rep) = run(holed);
+    assert_clean(&rep.output, "punched sphere");
+    assert_eq!(rep.holes.holes_filled, 3);
+    assert!(rep.holes.vertices_added > 0, "the fill is refined to the surrounding density");
+    let err = max_radial_error(&out, 1.0);
+    assert!(err <= 0.01, "filled vertices must lie within 1 % of the radius: max error {err}");
+}
+
+#[test]
+fn synthetic_defects_are_repaired() {
+    let mut t = icosphere(1.0, 3, [0.0; 3]);
+    let n = t.positions.len() as u32;
+    t.triangles[5].swap(1, 2); // a flipped face
+    let dup = t.triangles[9];
+    t.triangles.push(dup); // a duplicate face
+    let e = t.triangles[20];
+    t.positions.push([3.0, 3.0, 3.0]);
+    t.triangles.push([e[0], e[1], n]); // a fin: third face on an edge
+    t.positions.extend([[9.0, 9.0, 9.0], [9.01, 9.0, 9.0], [9.0, 9.01, 9.0]]);
+    t.triangles.push([n + 1, n + 2, n + 3]); // debris far away
+    t.positions.push([t.positions[0][0], t.positions[0][1], t.positions[0][2]]); // a coincident copy
+    let c = t.triangles.iter().position(|f| f.contains(&0)).unwrap();
+    t.triangles[c] = t.triangles[c].map(|v| if v == 0 { n + 4 } else { v });
+    let (_, rep) = run(t);
+    assert_clean(&rep.output, "synthetic defects");
+    assert_eq!(rep.weld.merged_vertices, 1);
+    assert_eq!(rep.weld.duplicate_faces, 1);
+    assert!(rep.manifold.nonmanifold_edges >= 1);
+    assert!(rep.manifold.components_found >= 2 && rep.manifold.components_kept == 1);
+    assert_eq!(rep.output.genus, Some(0));
+}
+
+#[test]
+fn inward_facing_mesh_is_turned_outward() {
+    let mut t = icosphere(2.0, 2, [0.0; 3]);
+    t.triangles.iter_mut().for_each(|f| f.swap(1, 2));
+    let (_, rep) = run(t);
+    assert!(rep.flipped_outward);
+    assert_clean(&rep.output, "inward sphere");
+}
+
+#[test]
+fn nothing_left_is_a_clear_error() {
+    let t = TriMesh { positions: vec![[0.0; 3], [0.0; 3], [0.0; 3]], triangles: vec![[0, 1, 2]] };
+    let e = repair(&PolyMesh::from(t), &opts(), &NoProgress).unwrap_err();
+    assert_eq!(e.code, ErrorCode::RepairFailed);
+    assert!(e.message.starts_with("weld:"), "the message names the step: {e}");
+    let empty = PolyMesh::default();
+    assert_eq!(repair(&empty, &opts(), &NoProgress).unwrap_err().code, ErrorCode::InputNoGeometry);
+}
+
+fn jittered(level: u32, seed: u64, genus_one: bool) -> TriMesh {
+    let mut m = if genus_one {
+        torus(2.0, 0.6, 24 + level as usize * 8, 12 + level as usize * 4)
+    } else {
+        icosphere(1.5, level, [0.5, -1.0, 2.0])
+    };
+    let mut s = seed;
+    for p in &mut m.positions {
+        for x in p.iter_mut() {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            *x += ((s >> 40) as f64 / (1u64 << 24) as f64 - 0.5) as f32 * 0.02;
+        }
+    }
+    m
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 12, ..ProptestConfig::default() })]
+
+    #[test]
+    fn clean_closed_meshes_pass_unchanged(level in 1u32..4, seed in any::<u64>(), genus_one in any::<bool>()) {
+        let m = jittered(level, seed, genus_one);
+        let (out, rep) = run(m.clone());
+        prop_assert_eq!(&out, &m);
+        prop_assert_eq!(rep.holes.holes_filled, 0);
+        prop_assert_eq!(rep.output.genus, Some(genus_one as i64));
+    }
+
+    #[test]
+    fn repair_is_idempotent(level in 2u32..4, seed in any::<u64>(), holes in prop::collection::vec(0u32..600, 1..4)) {
+        let m = jittered(level, seed, false);
+        let n = m.positions.len() as u32;
+        let holed = punch(m, &holes.iter().map(|h| h % n).collect::<Vec<_>>(), 1);
+        let (once, _) = run(holed);
+        let (twice, rep) = run(once.clone());
+        prop_assert_eq!(rep.holes.holes_filled, 0);
+        prop_assert_eq!(once, twice);
+    }
+
+    #[test]
+    fn random_holes_are_filled_within_one_percent_of_the_radius(seed in any::<u64>(), k in 1usize..5, rings in 1usize..4) {
+        let sphere = icosphere(1.0, 4, [0.0; 3]);
+        let n = sphere.positions.len() as u64;
+        let centres: Vec<u32> = (0..k as u64).map(|i| ((seed.wrapping_mul(2654435761).wrapping_add(i * 7919)) % n) as u32).collect();
+        let (out, rep) = run(punch(sphere, &centres, rings));
+        assert_clean(&rep.output, "random holes");
+        let err = max_radial_error(&out, 1.0);
+        prop_assert!(err <= 0.01, "max radial error {}", err);
+    }
+}
