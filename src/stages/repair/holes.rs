@@ -37,6 +37,13 @@ pub struct HoleReport {
     /// Fairing: CG iterations used and final relative residual.
     pub fair_iterations: usize,
     pub fair_residual: f64,
+    /// Per hole: the largest distance of a new patch vertex from a quadric height field fitted to the two
+    /// rings of mesh vertices around the hole (input units). Small when the fill continues the surrounding
+    /// surface; a flat fan over a curved region shows the quadric's sag here.
+    pub patch_quadric_deviation: Vec<f64>,
+    /// Per hole: the largest residual of that quadric fit on the rim itself (how well one quadric describes
+    /// the surroundings; the patch figure cannot be judged below this).
+    pub rim_quadric_residual: Vec<f64>,
 }
 
 /// Boundary loops as vertex sequences v0, v1, … where the mesh has the half-edges v_i → v_{i+1}.
@@ -453,6 +460,8 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) -> HoleReport {
         }
     }
     let all_loops: Vec<u32> = loops.iter().flatten().copied().collect();
+    let original_faces = tris.len();
+    let mut patches: Vec<Vec<u32>> = Vec::new();
     let all_sigma = loop_sigma(p, tris, &all_loops);
     let first_new_vertex = p.len();
     for lp in loops {
@@ -470,8 +479,14 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) -> HoleReport {
                 patch.extend(centroid_fan(p, &lp));
             }
         }
+        let before = p.len();
         report.vertices_added += refine(p, &mut patch, &mut sigma, &fixed_edges);
         report.triangles_added += patch.len();
+        let mut pv = lp.clone();
+        pv.extend(patch.iter().flatten().copied().filter(|&v| v as usize >= before || !lp.contains(&v)));
+        pv.sort_unstable();
+        pv.dedup();
+        patches.push(pv);
         report.holes_filled += 1;
         tris.extend(patch);
     }
@@ -479,5 +494,115 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) -> HoleReport {
     let (it, res) = fair(p, tris, &free);
     report.fair_iterations = it;
     report.fair_residual = res;
+    // Faces of the original mesh around each vertex (fill patches excluded).
+    let mut vertex_faces: Vec<Vec<u32>> = vec![Vec::new(); p.len()];
+    for (f, t) in tris[..original_faces].iter().enumerate() {
+        for &v in t {
+            vertex_faces[v as usize].push(f as u32);
+        }
+    }
+    for pv in &patches {
+        let (dev, rim) = quadric_deviation(p, tris, &vertex_faces, pv, first_new_vertex as u32);
+        report.patch_quadric_deviation.push(dev);
+        report.rim_quadric_residual.push(rim);
+    }
     report
+}
+
+/// Solve the small dense system `a x = b` by Gaussian elimination with partial pivoting.
+fn solve_dense<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; N]> {
+    for c in 0..N {
+        let piv = (c..N).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
+        if a[piv][c].abs() < 1e-300 {
+            return None;
+        }
+        a.swap(c, piv);
+        b.swap(c, piv);
+        for r in c + 1..N {
+            let f = a[r][c] / a[c][c];
+            for k in c..N {
+                a[r][k] -= f * a[c][k];
+            }
+            b[r] -= f * b[c];
+        }
+    }
+    let mut x = [0.0; N];
+    for c in (0..N).rev() {
+        let s: f64 = (c + 1..N).map(|k| a[c][k] * x[k]).sum();
+        x[c] = (b[c] - s) / a[c][c];
+    }
+    Some(x)
+}
+
+/// Fit a quadric height field to the mesh vertices within two rings of the loop (faces `< original_faces`
+/// only) and return (max distance of the patch's new vertices from it, max residual of the fit on the rim).
+/// `patch` holds the loop vertices and the new vertices; `first_new` is the first new vertex index.
+fn quadric_deviation(
+    p: &[V3],
+    tris: &[[u32; 3]],
+    vertex_faces: &[Vec<u32>],
+    patch: &[u32],
+    first_new: u32,
+) -> (f64, f64) {
+    let in_patch: HashSet<u32> = patch.iter().copied().collect();
+    let mut rim: HashSet<u32> = HashSet::new();
+    let mut front: HashSet<u32> = patch.iter().copied().filter(|v| (*v as usize) < p.len()).collect();
+    let mut normal_sum = [0.0; 3];
+    for _ in 0..2 {
+        let mut next = HashSet::new();
+        let mut faces: Vec<u32> = front.iter().flat_map(|&v| vertex_faces[v as usize].iter().copied()).collect();
+        faces.sort_unstable();
+        faces.dedup();
+        for f in faces {
+            let t = tris[f as usize];
+            normal_sum = vec3::add(normal_sum, normal(p, t).unwrap_or([0.0; 3]));
+            for v in t {
+                if !in_patch.contains(&v) && rim.insert(v) {
+                    next.insert(v);
+                }
+            }
+        }
+        front = next;
+    }
+    let nl = vec3::norm(normal_sum);
+    if rim.len() < 6 || nl == 0.0 {
+        return (f64::NAN, f64::NAN);
+    }
+    let n = vec3::scale(normal_sum, 1.0 / nl);
+    let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+    let u = {
+        let c = vec3::cross(n, helper);
+        vec3::scale(c, 1.0 / vec3::norm(c))
+    };
+    let v = vec3::cross(n, u);
+    let mut rim: Vec<u32> = rim.into_iter().collect();
+    rim.sort_unstable();
+    let origin = rim.iter().fold([0.0; 3], |a, &i| vec3::add(a, p[i as usize]));
+    let origin = vec3::scale(origin, 1.0 / rim.len() as f64);
+    let local = |q: V3| {
+        let d = vec3::sub(q, origin);
+        (vec3::dot(d, u), vec3::dot(d, v), vec3::dot(d, n))
+    };
+    let basis = |x: f64, y: f64| [x * x, x * y, y * y, x, y, 1.0];
+    let mut ata = [[0.0; 6]; 6];
+    let mut atb = [0.0; 6];
+    for &i in &rim {
+        let (x, y, z) = local(p[i as usize]);
+        let b = basis(x, y);
+        for r in 0..6 {
+            for c in 0..6 {
+                ata[r][c] += b[r] * b[c];
+            }
+            atb[r] += b[r] * z;
+        }
+    }
+    let Some(coef) = solve_dense(ata, atb) else { return (f64::NAN, f64::NAN) };
+    let off = |i: u32| {
+        let (x, y, z) = local(p[i as usize]);
+        let h: f64 = basis(x, y).iter().zip(&coef).map(|(b, c)| b * c).sum();
+        (z - h).abs()
+    };
+    let patch_max = patch.iter().filter(|&&i| i >= first_new).map(|&i| off(i)).fold(0.0, f64::max);
+    let rim_max = rim.iter().map(|&i| off(i)).fold(0.0, f64::max);
+    (patch_max, rim_max)
 }

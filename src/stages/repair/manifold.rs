@@ -41,8 +41,17 @@ fn area(p: &[V3], t: [u32; 3]) -> f64 {
     0.5 * vec3::norm(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)))
 }
 
-/// Remove extra faces on non-manifold edges. Returns the kept faces.
-fn fix_nonmanifold_edges(tris: &[[u32; 3]], r: &mut ManifoldReport) -> Vec<[u32; 3]> {
+fn unit_normal(p: &[V3], t: [u32; 3]) -> V3 {
+    let [a, b, c] = t.map(|i| p[i as usize]);
+    let n = vec3::cross(vec3::sub(b, a), vec3::sub(c, a));
+    let l = vec3::norm(n);
+    if l > 0.0 { vec3::scale(n, 1.0 / l) } else { [0.0; 3] }
+}
+
+/// Remove extra faces on non-manifold edges: keep the pair that continues the surface best (crossing the
+/// edge in opposite directions, with the most aligned normals; ties to the lower face numbers). Returns the
+/// kept faces.
+fn fix_nonmanifold_edges(p: &[V3], tris: &[[u32; 3]], r: &mut ManifoldReport) -> Vec<[u32; 3]> {
     let topo = MeshTopology::from_triangles(tris);
     let idx = tris.as_flattened();
     let mut remove = vec![false; tris.len()];
@@ -56,10 +65,20 @@ fn fix_nonmanifold_edges(tris: &[[u32; 3]], r: &mut ManifoldReport) -> Vec<[u32;
         if alive.len() <= 2 {
             continue;
         }
-        let first = alive[0];
-        let opposite = alive[1..].iter().copied().find(|&h| idx[h as usize] != idx[first as usize]).unwrap_or(alive[1]);
+        let mut best = (false, f64::NEG_INFINITY, alive[0], alive[1]);
+        for (i, &h) in alive.iter().enumerate() {
+            for &g in &alive[i + 1..] {
+                let opposite = idx[h as usize] != idx[g as usize];
+                let (nh, ng) = (unit_normal(p, tris[h as usize / 3]), unit_normal(p, tris[g as usize / 3]));
+                let align = if opposite { vec3::dot(nh, ng) } else { -vec3::dot(nh, ng) };
+                if (opposite, align) > (best.0, best.1) {
+                    best = (opposite, align, h, g);
+                }
+            }
+        }
+        let (keep_a, keep_b) = (best.2, best.3);
         for &h in &alive {
-            if h != first && h != opposite {
+            if h != keep_a && h != keep_b {
                 remove[h as usize / 3] = true;
             }
         }
@@ -195,7 +214,7 @@ fn keep_components(pos: &[V3], tris: &mut Vec<[u32; 3]>, keep_share: f64, r: &mu
 /// Run the manifold step. `pos` may grow (split vertices).
 pub fn make_manifold(pos: &mut Vec<V3>, tris: Vec<[u32; 3]>, keep_share: f64) -> (Vec<[u32; 3]>, ManifoldReport) {
     let mut r = ManifoldReport::default();
-    let mut tris = fix_nonmanifold_edges(&tris, &mut r);
+    let mut tris = fix_nonmanifold_edges(pos, &tris, &mut r);
     orient(&mut tris, &mut r);
     split_nonmanifold_vertices(pos, &mut tris, &mut r);
     keep_components(pos, &mut tris, keep_share, &mut r);

@@ -22,8 +22,8 @@ use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::geometry::tolerance::WELD_REL;
 use crate::geometry::topology::TopologyReport;
 use crate::geometry::vec3::{self, V3, wide};
-use crate::stages::Progress;
 use crate::stages::quality::{CompareOptions, DistanceReport, compare};
+use crate::stages::{NoProgress, Progress};
 
 /// Settings of the repair stage.
 #[derive(Copy, Clone, Debug)]
@@ -57,8 +57,12 @@ pub struct RepairReport {
     pub flipped_outward: bool,
     /// The result.
     pub output: TopologyReport,
-    /// Distance of the result (TEST) to the input (REFERENCE).
+    /// Distance of the result (TEST) to the input (REFERENCE). Its test→reference side includes the fill
+    /// patches, which lie where the input has no surface.
     pub distance: DistanceReport,
+    /// Distance from the result *without its fill patches* to the input: how far repair moved the surface
+    /// that was there.
+    pub distance_kept_surface: crate::stages::quality::DistanceStats,
     /// Wall time of the repair itself (without the final measurement).
     pub seconds: f64,
 }
@@ -103,6 +107,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         return Err(Error::new(ErrorCode::RepairFailed, "manifold: no face is left after cleaning"));
     }
     progress.report(0.4, "holes");
+    let faces_before_fill = tris.len();
     let holes = holes::fill_holes(&mut pos, &mut tris);
     let flipped_outward = signed_volume(&pos, &tris) < 0.0;
     if flipped_outward {
@@ -128,8 +133,22 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
     }
     progress.report(0.8, "measure");
     let copts = CompareOptions { samples: opts.compare_samples, ..Default::default() };
-    let distance =
-        compare(&Geometry::Mesh(out_poly), &Geometry::Mesh(mesh.clone()), &copts, &crate::stages::NoProgress)?;
+    let input_geometry = Geometry::Mesh(mesh.clone());
+    let distance = compare(&Geometry::Mesh(out_poly), &input_geometry, &copts, &NoProgress)?;
+    let kept = TriMesh { positions: out.positions.clone(), triangles: out.triangles[..faces_before_fill].to_vec() };
+    let distance_kept_surface =
+        compare(&Geometry::Mesh(PolyMesh::from(kept)), &input_geometry, &copts, &NoProgress)?.test_to_reference;
     progress.report(1.0, "done");
-    Ok((out, RepairReport { input, weld, manifold, holes, flipped_outward, output, distance, seconds }))
+    let report = RepairReport {
+        input,
+        weld,
+        manifold,
+        holes,
+        flipped_outward,
+        output,
+        distance,
+        distance_kept_surface,
+        seconds,
+    };
+    Ok((out, report))
 }
