@@ -94,6 +94,30 @@ impl Tree {
         Tree { nodes, order }
     }
 
+    /// Call `f(slot)` for every primitive whose box overlaps the box `[min, max]`.
+    fn overlapping(&self, min: [f32; 3], max: [f32; 3], mut f: impl FnMut(usize)) {
+        if self.order.is_empty() {
+            return;
+        }
+        let overlaps = |n: &Node| (0..3).all(|k| n.min[k] <= max[k] && n.max[k] >= min[k]);
+        let mut stack: [u32; 64] = [0; 64];
+        let mut sp = 1;
+        while sp > 0 {
+            sp -= 1;
+            let node = &self.nodes[stack[sp] as usize];
+            if !overlaps(node) {
+                continue;
+            }
+            if node.count > 0 {
+                (node.start as usize..(node.start + node.count) as usize).for_each(&mut f);
+            } else {
+                stack[sp] = node.start;
+                stack[sp + 1] = node.start + 1;
+                sp += 2;
+            }
+        }
+    }
+
     /// Nearest primitive to `p` whose squared distance (from `dist2(slot)`, slot in leaf order) is below
     /// `bound2`. Returns (slot, squared distance).
     #[inline]
@@ -308,5 +332,37 @@ impl PointBvh {
         self.tree
             .nearest(p, f64::INFINITY, |s| vec3::norm2(vec3::sub(p, wide(self.points[s]))))
             .map_or(f64::INFINITY, |(_, d2)| d2.sqrt())
+    }
+}
+
+/// A BVH over axis-aligned boxes, for overlap queries (e.g. candidate pairs of intersecting triangles).
+#[derive(Clone, Debug)]
+pub struct BoxTree {
+    tree: Tree,
+}
+
+/// The f32 box that contains the f64 points (rounded outward).
+pub fn box_of(points: &[V3]) -> ([f32; 3], [f32; 3]) {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in points {
+        for k in 0..3 {
+            let (d, u) = ((p[k] as f32).next_down(), (p[k] as f32).next_up());
+            lo[k] = lo[k].min(d);
+            hi[k] = hi[k].max(u);
+        }
+    }
+    (lo, hi)
+}
+
+impl BoxTree {
+    /// Build over `boxes` (index = primitive id). Cost: O(n log n).
+    pub fn new(boxes: &[([f32; 3], [f32; 3])]) -> Self {
+        BoxTree { tree: Tree::build(boxes) }
+    }
+
+    /// Call `f(id)` for every box overlapping `[min, max]`.
+    pub fn overlapping(&self, min: [f32; 3], max: [f32; 3], mut f: impl FnMut(u32)) {
+        self.tree.overlapping(min, max, |slot| f(self.tree.order[slot]));
     }
 }

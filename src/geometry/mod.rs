@@ -2,6 +2,7 @@
 //! synthetic shapes and file formats. Pure computation: no async runtime, no D-Bus, no global state.
 
 pub mod bvh;
+pub mod intersect;
 pub mod io;
 pub mod mesh;
 pub mod sampling;

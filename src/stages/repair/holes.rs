@@ -348,15 +348,27 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32]) -> (usize, f64) {
     if free.is_empty() {
         return (0, 0.0);
     }
-    let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); p.len()];
+    // Neighbour lists of the free vertices and of their neighbours (the rows of the energy) only.
+    let free_set: HashSet<u32> = free.iter().copied().collect();
+    let mut wanted: HashSet<u32> = free_set.clone();
+    for t in tris {
+        if t.iter().any(|v| free_set.contains(v)) {
+            wanted.extend(t.iter().copied());
+        }
+    }
+    let mut nbrs: HashMap<u32, Vec<u32>> = wanted.iter().map(|&v| (v, Vec::new())).collect();
     for t in tris {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
-            nbrs[a as usize].push(b);
-            nbrs[b as usize].push(a);
+            if let Some(n) = nbrs.get_mut(&a) {
+                n.push(b);
+            }
+            if let Some(n) = nbrs.get_mut(&b) {
+                n.push(a);
+            }
         }
     }
-    for n in &mut nbrs {
+    for n in nbrs.values_mut() {
         n.sort_unstable();
         n.dedup();
     }
@@ -364,7 +376,7 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32]) -> (usize, f64) {
     // Rows: free vertices and their neighbours.
     let mut rows: Vec<u32> = free.to_vec();
     for &v in free {
-        rows.extend(nbrs[v as usize].iter().copied());
+        rows.extend(nbrs[&v].iter().copied());
     }
     rows.sort_unstable();
     rows.dedup();
@@ -372,7 +384,7 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32]) -> (usize, f64) {
     let mut a_rows: Vec<Vec<(usize, f64)>> = Vec::with_capacity(rows.len());
     let mut fixed_part: Vec<V3> = Vec::with_capacity(rows.len());
     for &v in &rows {
-        let nb = &nbrs[v as usize];
+        let nb = &nbrs[&v];
         let inv = 1.0 / nb.len().max(1) as f64;
         let mut coeffs: Vec<(usize, f64)> = Vec::new();
         let mut fx = [0.0; 3];

@@ -220,3 +220,12 @@ pub fn make_manifold(pos: &mut Vec<V3>, tris: Vec<[u32; 3]>, keep_share: f64) ->
     keep_components(pos, &mut tris, keep_share, &mut r);
     (tris, r)
 }
+
+/// The part of [`make_manifold`] needed after deleting faces from an oriented manifold: split pinched
+/// vertices and keep the components that matter. Face order is preserved.
+pub fn split_and_keep(pos: &mut Vec<V3>, mut tris: Vec<[u32; 3]>, keep_share: f64) -> (Vec<[u32; 3]>, ManifoldReport) {
+    let mut r = ManifoldReport::default();
+    split_nonmanifold_vertices(pos, &mut tris, &mut r);
+    keep_components(pos, &mut tris, keep_share, &mut r);
+    (tris, r)
+}

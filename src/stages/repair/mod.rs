@@ -8,10 +8,14 @@
 //! 5. [`holes`]: fill every hole (Liepa: minimum-weight triangulation, refinement, thin-plate fairing);
 //!    then orient outward (positive signed volume).
 //!
-//! Not yet: self-intersection removal (4), spike removal and Taubin smoothing (6), decimation (7). The
+//! 4. [`intersections`]: delete intersecting triangles with a growing neighbourhood and refill, until none
+//!    remain (run after the first filling, so that fills are checked too).
+//!
+//! Not yet: spike removal and Taubin smoothing (6), decimation (7). The
 //! result is checked with the foundation's topology report and measured against the input with `compare`.
 
 pub mod holes;
+pub mod intersections;
 pub mod manifold;
 pub mod weld;
 
@@ -53,6 +57,8 @@ pub struct RepairReport {
     pub manifold: manifold::ManifoldReport,
     /// Step 5.
     pub holes: holes::HoleReport,
+    /// Step 4 (run after the first filling, as MeshFix does, so refills are checked too).
+    pub intersections: intersections::IntersectionReport,
     /// Faces reversed at the end so that the signed volume is positive.
     pub flipped_outward: bool,
     /// The result.
@@ -81,6 +87,18 @@ fn signed_volume(p: &[V3], tris: &[[u32; 3]]) -> f64 {
         / 6.0
 }
 
+/// Faces of `out` that are faces of `input` (same three positions, bit for bit): repair never moves a kept
+/// vertex, so these are the surface that was there, as opposed to fill patches.
+fn faces_from_input(input: &TriMesh, out: &TriMesh) -> Vec<[u32; 3]> {
+    let key = |p: &[[f32; 3]], t: &[u32; 3]| {
+        let mut k = t.map(|i| p[i as usize].map(|c| if c == 0.0 { 0 } else { c.to_bits() }));
+        k.sort_unstable();
+        k
+    };
+    let set: std::collections::HashSet<_> = input.triangles.iter().map(|t| key(&input.positions, t)).collect();
+    out.triangles.iter().filter(|t| set.contains(&key(&out.positions, t))).copied().collect()
+}
+
 /// Repair `mesh` (polygons are fan-triangulated first).
 ///
 /// # Errors
@@ -107,8 +125,18 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         return Err(Error::new(ErrorCode::RepairFailed, "manifold: no face is left after cleaning"));
     }
     progress.report(0.4, "holes");
-    let faces_before_fill = tris.len();
     let holes = holes::fill_holes(&mut pos, &mut tris);
+    progress.report(0.6, "intersections");
+    let intersections = intersections::remove_self_intersections(&mut pos, &mut tris, opts.keep_share);
+    if intersections.pairs_remaining > 0 {
+        return Err(Error::new(
+            ErrorCode::RepairFailed,
+            format!(
+                "intersections: {} intersecting triangle pairs remain after {} rounds",
+                intersections.pairs_remaining, intersections.rounds
+            ),
+        ));
+    }
     let flipped_outward = signed_volume(&pos, &tris) < 0.0;
     if flipped_outward {
         tris.iter_mut().for_each(|t| t.swap(1, 2));
@@ -135,7 +163,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
     let copts = CompareOptions { samples: opts.compare_samples, ..Default::default() };
     let input_geometry = Geometry::Mesh(mesh.clone());
     let distance = compare(&Geometry::Mesh(out_poly), &input_geometry, &copts, &NoProgress)?;
-    let kept = TriMesh { positions: out.positions.clone(), triangles: out.triangles[..faces_before_fill].to_vec() };
+    let kept = TriMesh { positions: out.positions.clone(), triangles: faces_from_input(&tri, &out) };
     let distance_kept_surface =
         compare(&Geometry::Mesh(PolyMesh::from(kept)), &input_geometry, &copts, &NoProgress)?.test_to_reference;
     progress.report(1.0, "done");
@@ -144,6 +172,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         weld,
         manifold,
         holes,
+        intersections,
         flipped_outward,
         output,
         distance,
