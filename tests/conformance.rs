@@ -87,3 +87,53 @@ fn compare_agrees_with_point_cloud_utils_on_real_meshes() {
         }
     }
 }
+
+/// Every repaired shared mesh is a valid volume for trimesh (`is_watertight`, `is_winding_consistent`,
+/// `is_volume`), loaded as written (no processing).
+#[test]
+fn repaired_meshes_are_volumes_for_trimesh() {
+    use scanstation::geometry::io::{VertexAttributes, read_mesh, write_ply};
+    use scanstation::stages::repair::{RepairOptions, repair};
+    let data = shared("SCANSTATION_SHARED_DATA", "data");
+    let out_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("conformance_repair");
+    std::fs::create_dir_all(&out_dir).unwrap();
+    let files = [
+        "bunny/reconstruction/bun_zipper.ply",
+        "bunny/reconstruction/bun_zipper_res2.ply",
+        "bunny/reconstruction/bun_zipper_res3.ply",
+        "bunny/reconstruction/bun_zipper_res4.ply",
+        "meshes/spot.ply",
+        "meshes/armadillo_50k.ply",
+        "meshes/igea.ply",
+        "meshes/fandisk.ply",
+        "large/dragon_vrip_draco.ply.gz",
+    ];
+    let mut written = Vec::new();
+    for f in files {
+        let mesh = read_mesh(&data.join(f), &ReadOptions::default()).unwrap_or_else(|e| panic!("{f}: {e}"));
+        let opts = RepairOptions { compare_samples: 2_000, ..Default::default() };
+        let (out, _) = repair(&mesh, &opts, &NoProgress).unwrap_or_else(|e| panic!("{f}: {e}"));
+        let path = out_dir.join(f.replace('/', "_").replace(".gz", ""));
+        write_ply(&path, &out.into(), &VertexAttributes::default(), &[]).unwrap();
+        written.push((f, path));
+    }
+    let script = [
+        "import sys, json, trimesh",
+        "for p in sys.argv[1:]:",
+        "    m = trimesh.load(p, process=False)",
+        "    print(json.dumps({'file': p, 'watertight': bool(m.is_watertight),",
+        "                      'winding': bool(m.is_winding_consistent), 'volume': bool(m.is_volume)}))",
+    ]
+    .join("\n");
+    let out = Command::new(python()).arg("-c").arg(script).args(written.iter().map(|(_, p)| p)).output().unwrap();
+    assert!(out.status.success(), "trimesh check failed: {}", String::from_utf8_lossy(&out.stderr));
+    let lines: Vec<Value> =
+        String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), written.len());
+    for ((f, _), v) in written.iter().zip(&lines) {
+        println!("{f}: {v}");
+        for key in ["watertight", "winding", "volume"] {
+            assert_eq!(v[key], true, "{f}: trimesh {key} is false: {v}");
+        }
+    }
+}
