@@ -44,7 +44,7 @@ pub fn ensure_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
     Ok(())
 }
 
-/// Write through a temporary file in the same directory, fsync, then rename onto `path`.
+/// Write through a temporary file in the same directory (created if missing), fsync, then rename onto `path`.
 pub(crate) fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name =
@@ -54,6 +54,7 @@ pub(crate) fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) 
     tmp_name.push(format!(".{}.tmp", std::process::id()));
     let tmp: PathBuf = dir.join(tmp_name);
     let result = (|| {
+        std::fs::create_dir_all(dir)?;
         let mut w = BufWriter::with_capacity(1 << 16, File::create(&tmp)?);
         body(&mut w)?;
         let f = w.into_inner().map_err(|e| e.into_error())?;
