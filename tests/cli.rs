@@ -112,3 +112,28 @@ fn errors_have_codes_and_exit_statuses() {
     let (code, _, _) = run(&["inspect", SPOT, "--memory-budget", "1K"]);
     assert_eq!(code, 3);
 }
+
+#[test]
+fn repair_writes_a_closed_mesh_and_reports_every_step() {
+    let dir = scratch("cli_repair");
+    // A sphere with a hole: the hole is filled.
+    let mut t = icosphere(1.0, 3, [0.0; 3]);
+    t.triangles.retain(|f| !f.contains(&0));
+    let holed = dir.join("holed.ply");
+    write_ply(&holed, &PolyMesh::from(t), &VertexAttributes::default(), &[]).unwrap();
+    let out = dir.join("sub/fixed.obj");
+    let (code, v) = json(&["repair", holed.to_str().unwrap(), "-o", out.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{v}");
+    for step in ["weld", "manifold", "holes", "intersections", "output", "distance", "distance_kept_surface"] {
+        assert!(v.get(step).is_some(), "report lacks {step}: {v}");
+    }
+    assert_eq!(v["holes"]["holes_filled"], 1);
+    assert_eq!(v["output"]["closed"], true);
+    let m = common::read_mesh(&out);
+    assert_eq!(m.face_count() as u64, v["output"]["faces"].as_u64().unwrap());
+    // Never onto the input.
+    let before = std::fs::read(&holed).unwrap();
+    let (code, v) = json(&["repair", holed.to_str().unwrap(), "-o", holed.to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")));
+    assert_eq!(std::fs::read(&holed).unwrap(), before);
+}
