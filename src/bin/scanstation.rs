@@ -46,6 +46,12 @@ enum Command {
         /// Keep components other than the largest when they hold at least this share of the area.
         #[arg(long, default_value_t = 0.1)]
         keep_share: f64,
+        /// Do not move spike vertices (far off their neighbours' plane) to their ring centroid.
+        #[arg(long)]
+        keep_spikes: bool,
+        /// Taubin (non-shrinking) smoothing iterations.
+        #[arg(long, default_value_t = 0)]
+        smooth: usize,
     },
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare {
@@ -89,8 +95,13 @@ fn main() -> ExitCode {
         Command::Inspect { file } => {
             pipeline::inspect_file(file, &read).map(|r| if cli.json { print_json(&r) } else { print_inspect(&r) })
         }
-        Command::Repair { input, output, keep_share } => {
-            let opts = scanstation::stages::repair::RepairOptions { keep_share: *keep_share, ..Default::default() };
+        Command::Repair { input, output, keep_share, keep_spikes, smooth } => {
+            let opts = scanstation::stages::repair::RepairOptions {
+                keep_share: *keep_share,
+                remove_spikes: !keep_spikes,
+                smooth_iterations: *smooth,
+                ..Default::default()
+            };
             pipeline::repair_file(input, output, &read, &opts, &NoProgress)
                 .map(|r| if cli.json { print_json(&r) } else { print_repair(&r) })
         }

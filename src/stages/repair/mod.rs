@@ -11,12 +11,15 @@
 //! 4. [`intersections`]: delete intersecting triangles with a growing neighbourhood and refill, until none
 //!    remain (run after the first filling, so that fills are checked too).
 //!
-//! Not yet: spike removal and Taubin smoothing (6), decimation (7). The
+//! 6. [`smooth`]: move spike vertices to their ring centroid; optional Taubin λ|μ smoothing.
+//!
+//! Not yet: decimation (7). The
 //! result is checked with the foundation's topology report and measured against the input with `compare`.
 
 pub mod holes;
 pub mod intersections;
 pub mod manifold;
+pub mod smooth;
 pub mod weld;
 
 use std::time::Instant;
@@ -38,11 +41,21 @@ pub struct RepairOptions {
     pub keep_share: f64,
     /// Samples per side for the final distance measurement.
     pub compare_samples: usize,
+    /// Move spike vertices to their ring centroid.
+    pub remove_spikes: bool,
+    /// Taubin λ|μ smoothing iterations (0: none).
+    pub smooth_iterations: usize,
 }
 
 impl Default for RepairOptions {
     fn default() -> Self {
-        RepairOptions { weld_rel: WELD_REL, keep_share: 0.1, compare_samples: 200_000 }
+        RepairOptions {
+            weld_rel: WELD_REL,
+            keep_share: 0.1,
+            compare_samples: 200_000,
+            remove_spikes: true,
+            smooth_iterations: 0,
+        }
     }
 }
 
@@ -59,6 +72,8 @@ pub struct RepairReport {
     pub holes: holes::HoleReport,
     /// Step 4 (run after the first filling, as MeshFix does, so refills are checked too).
     pub intersections: intersections::IntersectionReport,
+    /// Step 6.
+    pub smooth: smooth::SmoothReport,
     /// Faces reversed at the end so that the signed volume is positive.
     pub flipped_outward: bool,
     /// The result.
@@ -66,9 +81,10 @@ pub struct RepairReport {
     /// Distance of the result (TEST) to the input (REFERENCE). Its test→reference side includes the fill
     /// patches, which lie where the input has no surface.
     pub distance: DistanceReport,
-    /// Distance from the result *without its fill patches* to the input: how far repair moved the surface
-    /// that was there.
-    pub distance_kept_surface: crate::stages::quality::DistanceStats,
+    /// Distance from the result's faces that are unchanged input faces to the input (fill patches and moved
+    /// faces excluded): how far repair moved the surface that was there. `null` when no face is unchanged
+    /// (after smoothing).
+    pub distance_kept_surface: Option<crate::stages::quality::DistanceStats>,
     /// Wall time of the repair itself (without the final measurement).
     pub seconds: f64,
 }
@@ -137,6 +153,23 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
             ),
         ));
     }
+    progress.report(0.7, "smooth");
+    let mut smooth = smooth::SmoothReport::default();
+    if opts.remove_spikes || opts.smooth_iterations > 0 {
+        if opts.remove_spikes {
+            smooth.spikes_removed = smooth::remove_spikes(&mut pos, &tris);
+        }
+        smooth::taubin(&mut pos, &tris, opts.smooth_iterations);
+        smooth.taubin_iterations = opts.smooth_iterations;
+        // Moving vertices may make the surface cross itself: keep the result only if it does not.
+        let moved = smooth.spikes_removed > 0 || opts.smooth_iterations > 0;
+        if moved && !crate::geometry::intersect::self_intersections(&pos, &tris).is_empty() {
+            return Err(Error::new(
+                ErrorCode::RepairFailed,
+                "smooth: moving spikes / smoothing made the surface intersect itself; retry without them",
+            ));
+        }
+    }
     let flipped_outward = signed_volume(&pos, &tris) < 0.0;
     if flipped_outward {
         tris.iter_mut().for_each(|t| t.swap(1, 2));
@@ -164,8 +197,11 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
     let input_geometry = Geometry::Mesh(mesh.clone());
     let distance = compare(&Geometry::Mesh(out_poly), &input_geometry, &copts, &NoProgress)?;
     let kept = TriMesh { positions: out.positions.clone(), triangles: faces_from_input(&tri, &out) };
-    let distance_kept_surface =
-        compare(&Geometry::Mesh(PolyMesh::from(kept)), &input_geometry, &copts, &NoProgress)?.test_to_reference;
+    let distance_kept_surface = if kept.triangles.is_empty() {
+        None
+    } else {
+        Some(compare(&Geometry::Mesh(PolyMesh::from(kept)), &input_geometry, &copts, &NoProgress)?.test_to_reference)
+    };
     progress.report(1.0, "done");
     let report = RepairReport {
         input,
@@ -173,6 +209,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         manifold,
         holes,
         intersections,
+        smooth,
         flipped_outward,
         output,
         distance,

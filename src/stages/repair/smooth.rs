@@ -1,0 +1,138 @@
+//! Step 6: remove spikes, then optional non-shrinking smoothing (Taubin λ|μ).
+//!
+//! A **spike** is a vertex farther than `SPIKE_FACTOR ×` its ring radius (mean distance of the one-ring
+//! neighbours from their centroid) from the least-squares plane of those neighbours; it is moved to the ring's centroid (no topology change). Scans have
+//! such outliers where a stray sample was meshed; a smooth surface or a sharp CAD corner does not come near
+//! the threshold. **Taubin smoothing** alternates a shrinking step (λ) and an inflating step (μ < −λ) of the
+//! uniform umbrella operator, which removes noise without the shrinkage of plain Laplacian smoothing.
+
+use crate::geometry::vec3::{self, V3};
+
+/// Distance from the ring plane, in ring radii, above which a vertex is a spike (a cube corner is at 0.6).
+pub const SPIKE_FACTOR: f64 = 2.0;
+/// Taubin's smoothing and inflation factors.
+pub const TAUBIN_LAMBDA: f64 = 0.5;
+pub const TAUBIN_MU: f64 = -0.53;
+
+/// What the step changed.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct SmoothReport {
+    /// Spike vertices moved to their ring centroid.
+    pub spikes_removed: usize,
+    /// Taubin iterations run (each one λ and one μ pass).
+    pub taubin_iterations: usize,
+}
+
+/// Neighbour lists (sorted, unique).
+pub fn neighbours(n: usize, tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
+    let mut nb = vec![Vec::new(); n];
+    for t in tris {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            nb[a as usize].push(b);
+            nb[b as usize].push(a);
+        }
+    }
+    for l in &mut nb {
+        l.sort_unstable();
+        l.dedup();
+    }
+    nb
+}
+
+/// Eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix (cyclic Jacobi rotations).
+pub fn smallest_eigenvector(mut a: [[f64; 3]; 3]) -> V3 {
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    for _ in 0..32 {
+        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
+        let scale = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
+        if off <= 1e-15 * scale || off == 0.0 {
+            break;
+        }
+        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
+            if a[p][q].abs() < 1e-300 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let t = if theta == 0.0 { 1.0 } else { t };
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            // A ← Jᵀ A J for the rotation J in the (p, q) plane.
+            for k in 0..3 {
+                let (akp, akq) = (a[k][p], a[k][q]);
+                a[k][p] = c * akp - s * akq;
+                a[k][q] = s * akp + c * akq;
+            }
+            for k in 0..3 {
+                let (apk, aqk) = (a[p][k], a[q][k]);
+                a[p][k] = c * apk - s * aqk;
+                a[q][k] = s * apk + c * aqk;
+            }
+            for row in &mut v {
+                let (vp, vq) = (row[p], row[q]);
+                row[p] = c * vp - s * vq;
+                row[q] = s * vp + c * vq;
+            }
+        }
+    }
+    let k = (0..3).min_by(|&i, &j| a[i][i].total_cmp(&a[j][j])).unwrap();
+    [v[0][k], v[1][k], v[2][k]]
+}
+
+/// Move spike vertices to their ring centroid; returns how many moved.
+pub fn remove_spikes(p: &mut [V3], tris: &[[u32; 3]]) -> usize {
+    let nb = neighbours(p.len(), tris);
+    let mut moved = 0;
+    for v in 0..p.len() {
+        let ring = &nb[v];
+        if ring.len() < 3 {
+            continue;
+        }
+        let c = vec3::scale(ring.iter().fold([0.0; 3], |a, &u| vec3::add(a, p[u as usize])), 1.0 / ring.len() as f64);
+        let mut cov = [[0.0; 3]; 3];
+        let mut mean_len = 0.0;
+        for &u in ring {
+            let d = vec3::sub(p[u as usize], c);
+            for i in 0..3 {
+                for j in 0..3 {
+                    cov[i][j] += d[i] * d[j];
+                }
+            }
+            mean_len += vec3::norm(d);
+        }
+        mean_len /= ring.len() as f64;
+        let n = smallest_eigenvector(cov);
+        let height = vec3::dot(vec3::sub(p[v], c), n).abs();
+        if height > SPIKE_FACTOR * mean_len {
+            p[v] = c;
+            moved += 1;
+        }
+    }
+    moved
+}
+
+/// `iterations` rounds of Taubin λ|μ smoothing with the uniform umbrella operator.
+pub fn taubin(p: &mut [V3], tris: &[[u32; 3]], iterations: usize) {
+    let nb = neighbours(p.len(), tris);
+    let mut delta = vec![[0.0; 3]; p.len()];
+    for _ in 0..iterations {
+        for factor in [TAUBIN_LAMBDA, TAUBIN_MU] {
+            for (v, d) in delta.iter_mut().enumerate() {
+                let ring = &nb[v];
+                *d = if ring.is_empty() {
+                    [0.0; 3]
+                } else {
+                    let c = vec3::scale(
+                        ring.iter().fold([0.0; 3], |a, &u| vec3::add(a, p[u as usize])),
+                        1.0 / ring.len() as f64,
+                    );
+                    vec3::scale(vec3::sub(c, p[v]), factor)
+                };
+            }
+            for (q, d) in p.iter_mut().zip(&delta) {
+                *q = vec3::add(*q, *d);
+            }
+        }
+    }
+}
