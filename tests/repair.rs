@@ -170,3 +170,23 @@ fn a_spike_is_pulled_back_and_taubin_does_not_shrink() {
     assert!((v1 - v0).abs() / v0 < 0.01, "volume {v0} → {v1}");
     assert_eq!(rep.smooth.taubin_iterations, 10);
 }
+
+#[test]
+fn decimation_hits_the_target_and_keeps_topology_and_shape() {
+    for (name, mesh, genus) in [("sphere", icosphere(1.0, 5, [0.0; 3]), 0), ("torus", torus(2.0, 0.6, 96, 48), 1)] {
+        let o = RepairOptions { target_vertices: Some(800), ..opts() };
+        let (out, rep) = repair(&PolyMesh::from(mesh.clone()), &o, &NoProgress).unwrap();
+        let d = rep.decimate.as_ref().unwrap();
+        assert_eq!(d.vertices_after, 800, "{name}: {d:?}");
+        assert_clean(&rep.output, name);
+        assert_eq!(rep.output.genus, Some(genus), "{name}: genus");
+        let p: Vec<[f64; 3]> = out.positions.iter().map(|q| q.map(|c| c as f64)).collect();
+        assert!(scanstation::geometry::intersect::self_intersections_brute_force(&p, &out.triangles).is_empty());
+        // Close to the original surface: symmetric max ≤ 2 % of the diagonal, rms ≤ 0.2 %.
+        assert!(rep.distance.symmetric.max.pct_of_diagonal < 2.0, "{name}: {:?}", rep.distance.symmetric.max);
+        assert!(rep.distance.symmetric.rms.pct_of_diagonal < 0.2, "{name}: {:?}", rep.distance.symmetric.rms);
+        // Deterministic.
+        let (again, _) = repair(&PolyMesh::from(mesh), &o, &NoProgress).unwrap();
+        assert_eq!(out, again, "{name}: same input and settings, same output");
+    }
+}

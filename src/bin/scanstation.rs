@@ -52,6 +52,9 @@ enum Command {
         /// Taubin (non-shrinking) smoothing iterations.
         #[arg(long, default_value_t = 0)]
         smooth: usize,
+        /// Decimate the repaired mesh to this many vertices (quadric error metric).
+        #[arg(long)]
+        target_vertices: Option<usize>,
     },
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare {
@@ -95,11 +98,12 @@ fn main() -> ExitCode {
         Command::Inspect { file } => {
             pipeline::inspect_file(file, &read).map(|r| if cli.json { print_json(&r) } else { print_inspect(&r) })
         }
-        Command::Repair { input, output, keep_share, keep_spikes, smooth } => {
+        Command::Repair { input, output, keep_share, keep_spikes, smooth, target_vertices } => {
             let opts = scanstation::stages::repair::RepairOptions {
                 keep_share: *keep_share,
                 remove_spikes: !keep_spikes,
                 smooth_iterations: *smooth,
+                target_vertices: *target_vertices,
                 ..Default::default()
             };
             pipeline::repair_file(input, output, &read, &opts, &NoProgress)

@@ -12,10 +12,11 @@
 //!    remain (run after the first filling, so that fills are checked too).
 //!
 //! 6. [`smooth`]: move spike vertices to their ring centroid; optional Taubin λ|μ smoothing.
-//!
-//! Not yet: decimation (7). The
+//! 7. [`decimate`] (optional): quadric-error edge collapses to a target vertex count, refusing collapses that
+//!    break the link condition or fold faces; a final self-intersection search and removal. The
 //! result is checked with the foundation's topology report and measured against the input with `compare`.
 
+pub mod decimate;
 pub mod holes;
 pub mod intersections;
 pub mod manifold;
@@ -45,6 +46,8 @@ pub struct RepairOptions {
     pub remove_spikes: bool,
     /// Taubin λ|μ smoothing iterations (0: none).
     pub smooth_iterations: usize,
+    /// Decimate to this many vertices at the end (None: keep all).
+    pub target_vertices: Option<usize>,
 }
 
 impl Default for RepairOptions {
@@ -55,6 +58,7 @@ impl Default for RepairOptions {
             compare_samples: 200_000,
             remove_spikes: true,
             smooth_iterations: 0,
+            target_vertices: None,
         }
     }
 }
@@ -74,6 +78,10 @@ pub struct RepairReport {
     pub intersections: intersections::IntersectionReport,
     /// Step 6.
     pub smooth: smooth::SmoothReport,
+    /// Step 7, when a target vertex count was given.
+    pub decimate: Option<decimate::DecimateReport>,
+    /// Self-intersections after decimation, removed as in step 4.
+    pub decimate_intersections: Option<intersections::IntersectionReport>,
     /// Faces reversed at the end so that the signed volume is positive.
     pub flipped_outward: bool,
     /// The result.
@@ -170,6 +178,23 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
             ));
         }
     }
+    let (mut decimated, mut decimate_intersections) = (None, None);
+    if let Some(target) = opts.target_vertices {
+        progress.report(0.75, "decimate");
+        let (p2, t2, _) = weld::compact(&pos, &tris);
+        (pos, tris) = (p2, t2);
+        let t = Instant::now();
+        decimated = Some(decimate::decimate(&mut pos, &mut tris, target, 0));
+        tracing::debug!(seconds = t.elapsed().as_secs_f64(), "decimated");
+        let check = intersections::remove_self_intersections(&mut pos, &mut tris, opts.keep_share);
+        if check.pairs_remaining > 0 {
+            return Err(Error::new(
+                ErrorCode::RepairFailed,
+                format!("decimate: {} intersecting triangle pairs remain", check.pairs_remaining),
+            ));
+        }
+        decimate_intersections = Some(check);
+    }
     let flipped_outward = signed_volume(&pos, &tris) < 0.0;
     if flipped_outward {
         tris.iter_mut().for_each(|t| t.swap(1, 2));
@@ -210,6 +235,8 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         holes,
         intersections,
         smooth,
+        decimate: decimated,
+        decimate_intersections,
         flipped_outward,
         output,
         distance,
