@@ -116,6 +116,35 @@ impl MeshTopology {
         &self.edge_he[self.edge_he_start[e] as usize..self.edge_he_start[e + 1] as usize]
     }
 
+    /// Neighbours of every vertex (`n` vertices) as compact rows: the neighbours of `v` are
+    /// `cols[rows[v]..rows[v + 1]]`, ascending.
+    pub fn vertex_neighbours(&self, n: usize) -> (Vec<u32>, Vec<u32>) {
+        let mut rows = vec![0u32; n + 1];
+        for &[a, b] in &self.edges {
+            if a != b {
+                rows[a as usize + 1] += 1;
+                rows[b as usize + 1] += 1;
+            }
+        }
+        for v in 0..n {
+            rows[v + 1] += rows[v];
+        }
+        let mut fill = rows.clone();
+        let mut cols = vec![0u32; rows[n] as usize];
+        for &[a, b] in &self.edges {
+            if a != b {
+                cols[fill[a as usize] as usize] = b;
+                fill[a as usize] += 1;
+                cols[fill[b as usize] as usize] = a;
+                fill[b as usize] += 1;
+            }
+        }
+        for v in 0..n {
+            cols[rows[v] as usize..rows[v + 1] as usize].sort_unstable();
+        }
+        (rows, cols)
+    }
+
     /// Number of faces using edge `e`.
     #[inline]
     pub fn edge_valence(&self, e: usize) -> usize {

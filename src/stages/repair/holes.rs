@@ -22,6 +22,8 @@ pub const MWT_MAX_LOOP: usize = 240;
 const REFINE_ROUNDS: usize = 40;
 /// Conjugate-gradient iterations at most for fairing.
 const FAIR_ITERATIONS: usize = 2000;
+/// Rings of mesh vertices around a hole used as its rim when judging the fill.
+const RIM_RINGS: usize = 1;
 
 /// What hole filling did.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
@@ -44,6 +46,9 @@ pub struct HoleReport {
     /// Per hole: the largest residual of that quadric fit on the rim itself (how well one quadric describes
     /// the surroundings; the patch figure cannot be judged below this).
     pub rim_quadric_residual: Vec<f64>,
+    /// Per hole: the largest distance of a new patch vertex from one quadric height field fitted to the rim
+    /// and the patch together: whether the fill lies on a smooth surface with its surroundings.
+    pub patch_joint_quadric_deviation: Vec<f64>,
 }
 
 /// Boundary loops as vertex sequences v0, v1, … where the mesh has the half-edges v_i → v_{i+1}.
@@ -451,8 +456,9 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32]) -> (usize, f64) {
     (iters, worst)
 }
 
-/// Fill every hole of the oriented manifold `tris` (in place), adding vertices to `p`.
-pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) -> HoleReport {
+/// Fill every hole of the oriented manifold `tris` (in place), adding vertices to `p`. With `measure`, each
+/// patch's smoothness against its surroundings is measured (the `*_quadric_*` fields).
+pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> HoleReport {
     let mut report = HoleReport::default();
     let loops = boundary_loops(tris);
     if loops.is_empty() {
@@ -506,17 +512,34 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) -> HoleReport {
     let (it, res) = fair(p, tris, &free);
     report.fair_iterations = it;
     report.fair_residual = res;
-    // Faces of the original mesh around each vertex (fill patches excluded).
-    let mut vertex_faces: Vec<Vec<u32>> = vec![Vec::new(); p.len()];
+    if !measure {
+        return report;
+    }
+    // Faces of the original mesh around the vertices near the patches (fill patches excluded).
+    let mut vertex_faces: HashMap<u32, Vec<u32>> = HashMap::new();
+    let near: HashSet<u32> = patches.iter().flatten().copied().collect();
+    let mut ring: HashSet<u32> = near.clone();
+    for _ in 0..RIM_RINGS + 1 {
+        let mut grown = ring.clone();
+        for t in &tris[..original_faces] {
+            if t.iter().any(|v| ring.contains(v)) {
+                grown.extend(t.iter().copied());
+            }
+        }
+        ring = grown;
+    }
     for (f, t) in tris[..original_faces].iter().enumerate() {
         for &v in t {
-            vertex_faces[v as usize].push(f as u32);
+            if ring.contains(&v) {
+                vertex_faces.entry(v).or_default().push(f as u32);
+            }
         }
     }
     for pv in &patches {
-        let (dev, rim) = quadric_deviation(p, tris, &vertex_faces, pv, first_new_vertex as u32);
+        let (dev, rim, joint) = quadric_deviation(p, tris, &vertex_faces, pv, first_new_vertex as u32);
         report.patch_quadric_deviation.push(dev);
         report.rim_quadric_residual.push(rim);
+        report.patch_joint_quadric_deviation.push(joint);
     }
     report
 }
@@ -546,23 +569,26 @@ fn solve_dense<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<
     Some(x)
 }
 
-/// Fit a quadric height field to the mesh vertices within two rings of the loop (faces `< original_faces`
-/// only) and return (max distance of the patch's new vertices from it, max residual of the fit on the rim).
-/// `patch` holds the loop vertices and the new vertices; `first_new` is the first new vertex index.
+/// Quadric height fields around a filled hole, in a frame whose normal is the mean normal of the faces
+/// within two rings of the loop. Returns (a) the largest distance of the patch's new vertices from the
+/// quadric fitted to those rim vertices, (b) that fit's own largest residual on the rim, (c) the largest
+/// distance of the new vertices from one quadric fitted to rim and patch together. `patch` holds the loop
+/// and new vertices; `first_new` is the first new vertex index.
 fn quadric_deviation(
     p: &[V3],
     tris: &[[u32; 3]],
-    vertex_faces: &[Vec<u32>],
+    vertex_faces: &HashMap<u32, Vec<u32>>,
     patch: &[u32],
     first_new: u32,
-) -> (f64, f64) {
+) -> (f64, f64, f64) {
     let in_patch: HashSet<u32> = patch.iter().copied().collect();
     let mut rim: HashSet<u32> = HashSet::new();
     let mut front: HashSet<u32> = patch.iter().copied().filter(|v| (*v as usize) < p.len()).collect();
     let mut normal_sum = [0.0; 3];
-    for _ in 0..2 {
+    for _ in 0..RIM_RINGS {
         let mut next = HashSet::new();
-        let mut faces: Vec<u32> = front.iter().flat_map(|&v| vertex_faces[v as usize].iter().copied()).collect();
+        let mut faces: Vec<u32> =
+            front.iter().flat_map(|v| vertex_faces.get(v).into_iter().flatten().copied()).collect();
         faces.sort_unstable();
         faces.dedup();
         for f in faces {
@@ -578,7 +604,7 @@ fn quadric_deviation(
     }
     let nl = vec3::norm(normal_sum);
     if rim.len() < 6 || nl == 0.0 {
-        return (f64::NAN, f64::NAN);
+        return (f64::NAN, f64::NAN, f64::NAN);
     }
     let n = vec3::scale(normal_sum, 1.0 / nl);
     let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
@@ -596,25 +622,30 @@ fn quadric_deviation(
         (vec3::dot(d, u), vec3::dot(d, v), vec3::dot(d, n))
     };
     let basis = |x: f64, y: f64| [x * x, x * y, y * y, x, y, 1.0];
-    let mut ata = [[0.0; 6]; 6];
-    let mut atb = [0.0; 6];
-    for &i in &rim {
-        let (x, y, z) = local(p[i as usize]);
-        let b = basis(x, y);
-        for r in 0..6 {
-            for c in 0..6 {
-                ata[r][c] += b[r] * b[c];
+    // Least-squares quadric height field through `fit`; the largest |z − h(x, y)| over `eval`.
+    let fit_and_measure = |fit: &[u32], eval: &[u32]| -> f64 {
+        let mut ata = [[0.0; 6]; 6];
+        let mut atb = [0.0; 6];
+        for &i in fit {
+            let (x, y, z) = local(p[i as usize]);
+            let b = basis(x, y);
+            for r in 0..6 {
+                for c in 0..6 {
+                    ata[r][c] += b[r] * b[c];
+                }
+                atb[r] += b[r] * z;
             }
-            atb[r] += b[r] * z;
         }
-    }
-    let Some(coef) = solve_dense(ata, atb) else { return (f64::NAN, f64::NAN) };
-    let off = |i: u32| {
-        let (x, y, z) = local(p[i as usize]);
-        let h: f64 = basis(x, y).iter().zip(&coef).map(|(b, c)| b * c).sum();
-        (z - h).abs()
+        let Some(coef) = solve_dense(ata, atb) else { return f64::NAN };
+        eval.iter()
+            .map(|&i| {
+                let (x, y, z) = local(p[i as usize]);
+                let h: f64 = basis(x, y).iter().zip(&coef).map(|(b, c)| b * c).sum();
+                (z - h).abs()
+            })
+            .fold(0.0, f64::max)
     };
-    let patch_max = patch.iter().filter(|&&i| i >= first_new).map(|&i| off(i)).fold(0.0, f64::max);
-    let rim_max = rim.iter().map(|&i| off(i)).fold(0.0, f64::max);
-    (patch_max, rim_max)
+    let new: Vec<u32> = patch.iter().copied().filter(|&i| i >= first_new).collect();
+    let both: Vec<u32> = rim.iter().chain(&new).copied().collect();
+    (fit_and_measure(&rim, &new), fit_and_measure(&rim, &rim), fit_and_measure(&both, &new))
 }

@@ -100,7 +100,7 @@ pub fn remove_self_intersections(pos: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, ke
         // Kept faces stay in order at the front (they were checked); refills are appended after them.
         let t2 = std::time::Instant::now();
         first_unchecked = tris.len();
-        r.holes_refilled += holes::fill_holes(pos, tris).holes_filled;
+        r.holes_refilled += holes::fill_holes(pos, tris, false).holes_filled;
         tracing::debug!(
             round,
             manifold_s = (t2 - t).as_secs_f64(),

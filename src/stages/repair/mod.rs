@@ -143,13 +143,16 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
     if tris.is_empty() {
         return Err(Error::new(ErrorCode::RepairFailed, "weld: every face collapsed; nothing is left"));
     }
+    tracing::debug!(seconds = t0.elapsed().as_secs_f64(), "weld done");
     progress.report(0.2, "manifold");
     let (mut tris, manifold) = manifold::make_manifold(&mut pos, tris, opts.keep_share);
     if tris.is_empty() {
         return Err(Error::new(ErrorCode::RepairFailed, "manifold: no face is left after cleaning"));
     }
+    tracing::debug!(seconds = t0.elapsed().as_secs_f64(), "manifold done");
     progress.report(0.4, "holes");
-    let holes = holes::fill_holes(&mut pos, &mut tris);
+    let holes = holes::fill_holes(&mut pos, &mut tris, true);
+    tracing::debug!(seconds = t0.elapsed().as_secs_f64(), "holes done");
     progress.report(0.6, "intersections");
     let intersections = intersections::remove_self_intersections(&mut pos, &mut tris, opts.keep_share);
     if intersections.pairs_remaining > 0 {
@@ -161,23 +164,30 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
             ),
         ));
     }
+    tracing::debug!(seconds = t0.elapsed().as_secs_f64(), "intersections done");
     progress.report(0.7, "smooth");
     let mut smooth = smooth::SmoothReport::default();
     if opts.remove_spikes || opts.smooth_iterations > 0 {
+        let before = pos.clone();
         if opts.remove_spikes {
             smooth.spikes_removed = smooth::remove_spikes(&mut pos, &tris);
         }
         smooth::taubin(&mut pos, &tris, opts.smooth_iterations);
         smooth.taubin_iterations = opts.smooth_iterations;
-        // Moving vertices may make the surface cross itself: keep the result only if it does not.
-        let moved = smooth.spikes_removed > 0 || opts.smooth_iterations > 0;
-        if moved && !crate::geometry::intersect::self_intersections(&pos, &tris).is_empty() {
+        // Moving vertices may make the surface cross itself: keep the result only if it does not. Only
+        // faces with a moved vertex can take part in a new crossing.
+        let mut touched: Vec<u32> = (0..tris.len() as u32)
+            .filter(|&f| tris[f as usize].iter().any(|&v| pos[v as usize] != before[v as usize]))
+            .collect();
+        touched.sort_unstable();
+        if !touched.is_empty() && !crate::geometry::intersect::self_intersections_of(&pos, &tris, &touched).is_empty() {
             return Err(Error::new(
                 ErrorCode::RepairFailed,
                 "smooth: moving spikes / smoothing made the surface intersect itself; retry without them",
             ));
         }
     }
+    tracing::debug!(seconds = t0.elapsed().as_secs_f64(), spikes = smooth.spikes_removed, "smooth done");
     let (mut decimated, mut decimate_intersections) = (None, None);
     if let Some(target) = opts.target_vertices {
         progress.report(0.75, "decimate");

@@ -6,6 +6,7 @@
 //! the threshold. **Taubin smoothing** alternates a shrinking step (λ) and an inflating step (μ < −λ) of the
 //! uniform umbrella operator, which removes noise without the shrinkage of plain Laplacian smoothing.
 
+use crate::geometry::topology::MeshTopology;
 use crate::geometry::vec3::{self, V3};
 
 /// Distance from the ring plane, in ring radii, above which a vertex is a spike (a cube corner is at 0.6).
@@ -23,21 +24,20 @@ pub struct SmoothReport {
     pub taubin_iterations: usize,
 }
 
-/// Neighbour lists (sorted, unique).
-pub fn neighbours(n: usize, tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
-    let mut nb = vec![Vec::new(); n];
-    for t in tris {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            nb[a as usize].push(b);
-            nb[b as usize].push(a);
-        }
+/// Neighbour rows of every vertex (see [`MeshTopology::vertex_neighbours`]).
+struct Neighbours {
+    rows: Vec<u32>,
+    cols: Vec<u32>,
+}
+
+impl Neighbours {
+    fn new(n: usize, tris: &[[u32; 3]]) -> Self {
+        let (rows, cols) = MeshTopology::from_triangles(tris).vertex_neighbours(n);
+        Neighbours { rows, cols }
     }
-    for l in &mut nb {
-        l.sort_unstable();
-        l.dedup();
+    fn of(&self, v: usize) -> &[u32] {
+        &self.cols[self.rows[v] as usize..self.rows[v + 1] as usize]
     }
-    nb
 }
 
 /// Eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix (cyclic Jacobi rotations).
@@ -82,10 +82,10 @@ pub fn smallest_eigenvector(mut a: [[f64; 3]; 3]) -> V3 {
 
 /// Move spike vertices to their ring centroid; returns how many moved.
 pub fn remove_spikes(p: &mut [V3], tris: &[[u32; 3]]) -> usize {
-    let nb = neighbours(p.len(), tris);
+    let nb = Neighbours::new(p.len(), tris);
     let mut moved = 0;
     for v in 0..p.len() {
-        let ring = &nb[v];
+        let ring = nb.of(v);
         if ring.len() < 3 {
             continue;
         }
@@ -114,12 +114,12 @@ pub fn remove_spikes(p: &mut [V3], tris: &[[u32; 3]]) -> usize {
 
 /// `iterations` rounds of Taubin λ|μ smoothing with the uniform umbrella operator.
 pub fn taubin(p: &mut [V3], tris: &[[u32; 3]], iterations: usize) {
-    let nb = neighbours(p.len(), tris);
+    let nb = Neighbours::new(p.len(), tris);
     let mut delta = vec![[0.0; 3]; p.len()];
     for _ in 0..iterations {
         for factor in [TAUBIN_LAMBDA, TAUBIN_MU] {
             for (v, d) in delta.iter_mut().enumerate() {
-                let ring = &nb[v];
+                let ring = nb.of(v);
                 *d = if ring.is_empty() {
                     [0.0; 3]
                 } else {
