@@ -114,21 +114,22 @@ fn segment_hits(p: V3, q: V3, t: &[V3; 3]) -> bool {
     u > eps && v > eps && u + v < 1.0 - eps && w > eps && w < 1.0 - eps
 }
 
-/// Do two triangles of one mesh intersect other than along what they share?
+/// Do two triangles of one mesh intersect other than along what they share? Corners are shared when they
+/// are the same vertex or two vertices at exactly the same position (e.g. copies made to split a pinched
+/// vertex): surfaces that only touch there do not cross.
 pub fn mesh_triangles_intersect(p: &[V3], a: [u32; 3], b: [u32; 3]) -> bool {
-    let shared = a.iter().filter(|v| b.contains(v)).count();
     let ta = a.map(|i| p[i as usize]);
     let tb = b.map(|i| p[i as usize]);
-    match shared {
+    let same = |i: usize, j: usize| a[i] == b[j] || ta[i] == tb[j];
+    let shared_in_a: Vec<usize> = (0..3).filter(|&i| (0..3).any(|j| same(i, j))).collect();
+    match shared_in_a.len() {
         0 => triangles_intersect(&ta, &tb),
         1 => {
-            // The edge opposite the shared vertex of each must not pierce the other.
-            let opp = |t: [u32; 3], other: [u32; 3]| {
-                let k = (0..3).find(|&k| other.contains(&t[k])).unwrap();
-                (p[t[(k + 1) % 3] as usize], p[t[(k + 2) % 3] as usize])
-            };
-            let (a1, a2) = opp(a, b);
-            let (b1, b2) = opp(b, a);
+            // The edge opposite the shared corner of each must not pierce the other.
+            let ka = shared_in_a[0];
+            let kb = (0..3).find(|&j| same(ka, j)).unwrap();
+            let (a1, a2) = (ta[(ka + 1) % 3], ta[(ka + 2) % 3]);
+            let (b1, b2) = (tb[(kb + 1) % 3], tb[(kb + 2) % 3]);
             segment_hits(a1, a2, &tb) || segment_hits(b1, b2, &ta)
         }
         _ => false,

@@ -2,7 +2,8 @@
 //!
 //! 1. **Triangulate** each boundary loop by a minimum-weight triangulation (dynamic programming, O(n³)); the
 //!    weight is lexicographic: first the worst dihedral angle the patch makes (with the mesh across the loop
-//!    and inside itself), then the total area. Degenerate triangles count as a 180° angle. Loops longer than
+//!    and inside itself), then the total area. Degenerate triangles count as a 180° angle; triangles that
+//!    would cross the existing surface, or reuse an existing edge, are not candidates. Loops longer than
 //!    [`MWT_MAX_LOOP`] are first clipped down by ears of smallest angle.
 //! 2. **Refine** so the patch density matches its surroundings: a triangle is split at its centroid when the
 //!    centroid is farther than σ/√2 from each corner (σ = local edge length, interpolated from the loop), and
@@ -13,6 +14,8 @@
 
 use std::collections::{HashMap, HashSet};
 
+use crate::geometry::bvh::{BoxTree, box_of};
+use crate::geometry::intersect::mesh_triangles_intersect;
 use crate::geometry::topology::MeshTopology;
 use crate::geometry::vec3::{self, V3};
 
@@ -110,7 +113,13 @@ fn tri_area(p: &[V3], t: [u32; 3]) -> f64 {
 
 /// Minimum-weight triangulation of a loop (Liepa). `outside[i]` is the normal of the mesh face across the
 /// boundary edge v_i → v_{i+1}. Returns triangles oriented to close the mesh.
-fn mwt(p: &[V3], lp: &[u32], outside: &[Option<V3>], exists: &HashSet<(u32, u32)>) -> Option<Vec<[u32; 3]>> {
+fn mwt(
+    p: &[V3],
+    lp: &[u32],
+    outside: &[Option<V3>],
+    exists: &HashSet<(u32, u32)>,
+    crosses: &dyn Fn([u32; 3]) -> bool,
+) -> Option<Vec<[u32; 3]>> {
     let n = lp.len();
     // A diagonal that is already a mesh edge would make that edge non-manifold.
     let blocked = |a: usize, b: usize| {
@@ -135,6 +144,9 @@ fn mwt(p: &[V3], lp: &[u32], outside: &[Option<V3>], exists: &HashSet<(u32, u32)
                     continue;
                 }
                 let t = tri(i, k, j);
+                if crosses(t) {
+                    continue;
+                }
                 let nt = normal(p, t);
                 let side = |a: usize, b: usize| {
                     if b == a + 1 {
@@ -457,7 +469,9 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32]) -> (usize, f64) {
 }
 
 /// Fill every hole of the oriented manifold `tris` (in place), adding vertices to `p`. With `measure`, each
-/// patch's smoothness against its surroundings is measured (the `*_quadric_*` fields).
+/// patch's smoothness against its surroundings is measured (the `*_quadric_*` fields) and candidate
+/// triangles that would cross the existing surface are excluded (the self-intersection loop, which refills
+/// the holes it makes with `measure` off, checks its refills itself).
 pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> HoleReport {
     let mut report = HoleReport::default();
     let loops = boundary_loops(tris);
@@ -477,6 +491,10 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> H
             }
         }
     }
+    // Candidate fill triangles that would cross the existing surface are not used.
+    let boxes: Vec<_> =
+        if measure { tris.iter().map(|t| box_of(&t.map(|i| p[i as usize]))).collect() } else { Vec::new() };
+    let mesh_tree = BoxTree::new(&boxes);
     let all_loops: Vec<u32> = loops.iter().flatten().copied().collect();
     let original_faces = tris.len();
     let mut patches: Vec<Vec<u32>> = Vec::new();
@@ -490,7 +508,15 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> H
             (0..n).map(|i| face_of_edge.get(&(lp[i], lp[(i + 1) % n])).and_then(|&t| normal(p, t))).collect();
         let mut sigma: HashMap<u32, f64> = lp.iter().map(|v| (*v, all_sigma[v])).collect();
         let mut patch = clip_ears(p, &mut lp, &mut outside, MWT_MAX_LOOP, &mut fixed_edges);
-        match mwt(p, &lp, &outside, &fixed_edges) {
+        let crosses = |t: [u32; 3]| {
+            let (lo, hi) = box_of(&t.map(|i| p[i as usize]));
+            let mut hit = false;
+            mesh_tree.overlapping(lo, hi, |f| {
+                hit = hit || mesh_triangles_intersect(p, t, tris[f as usize]);
+            });
+            hit
+        };
+        match mwt(p, &lp, &outside, &fixed_edges, &crosses) {
             Some(t) => patch.extend(t),
             None => {
                 sigma.insert(p.len() as u32, lp.iter().map(|v| sigma[v]).sum::<f64>() / lp.len() as f64);

@@ -5,10 +5,12 @@
 use std::collections::HashSet;
 
 use crate::geometry::bvh::TriangleBvh;
-use crate::geometry::intersect::{self_intersections_involving, self_intersections_of};
+use crate::geometry::bvh::{BoxTree, box_of};
+use crate::geometry::intersect::{mesh_triangles_intersect, self_intersections_involving};
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::vec3::{self, V3};
 use crate::stages::repair::{holes, manifold};
+use rayon::prelude::*;
 
 /// Pieces cut off by a deletion are dropped only below this fraction of the `keep_share` threshold: what
 /// a deletion separates is surface the scan had, not debris.
@@ -61,12 +63,25 @@ pub fn remove_self_intersections(pos: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, ke
         r.rounds += 1;
         let mut faces: HashSet<u32> = pairs.iter().flat_map(|&(a, b)| [a, b]).collect();
         if GROW_FIRST + round > 0 {
-            let mut vertex_faces: std::collections::HashMap<u32, Vec<u32>> = std::collections::HashMap::new();
-            for (f, t) in tris.iter().enumerate() {
+            // Faces around each vertex as compact rows (counting sort).
+            let mut rows = vec![0u32; pos.len() + 1];
+            for t in tris.iter() {
                 for &v in t {
-                    vertex_faces.entry(v).or_default().push(f as u32);
+                    rows[v as usize + 1] += 1;
                 }
             }
+            for v in 0..pos.len() {
+                rows[v + 1] += rows[v];
+            }
+            let mut fill = rows.clone();
+            let mut cols = vec![0u32; rows[pos.len()] as usize];
+            for (f, t) in tris.iter().enumerate() {
+                for &v in t {
+                    cols[fill[v as usize] as usize] = f as u32;
+                    fill[v as usize] += 1;
+                }
+            }
+            let faces_of = |v: u32| &cols[rows[v as usize] as usize..rows[v as usize + 1] as usize];
             let area = |f: u32| {
                 let [a, b, c] = tris[f as usize].map(|i| pos[i as usize]);
                 0.5 * vec3::norm(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)))
@@ -74,7 +89,7 @@ pub fn remove_self_intersections(pos: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, ke
             let total: f64 = (0..tris.len() as u32).map(area).sum();
             for _ in 0..GROW_FIRST + round {
                 let verts: HashSet<u32> = faces.iter().flat_map(|&f| tris[f as usize]).collect();
-                let grown: HashSet<u32> = verts.iter().flat_map(|v| vertex_faces[v].iter().copied()).collect();
+                let grown: HashSet<u32> = verts.iter().flat_map(|&v| faces_of(v).iter().copied()).collect();
                 if round == 0 && grown.iter().map(|&f| area(f)).sum::<f64>() > GROW_MAX_AREA_SHARE * total {
                     break;
                 }
@@ -109,7 +124,9 @@ pub fn remove_self_intersections(pos: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, ke
         );
     }
     if r.pairs_remaining == 0 && !deleted.is_empty() {
+        let t = std::time::Instant::now();
         restore_shape(pos, tris, first_new_vertex, &deleted, &mut r);
+        tracing::debug!(seconds = t.elapsed().as_secs_f64(), restored = r.vertices_restored, "shape restored");
     }
     r
 }
@@ -137,11 +154,33 @@ fn restore_shape(
         }
     }
     let mut moved: HashSet<u32> = new.iter().copied().collect();
+    let old = |v: u32| if v >= first_new { before[(v - first_new) as usize] } else { pos[v as usize] };
+    // One tree for every rollback state: each face's box covers its corners both moved and not.
+    let boxes: Vec<_> = tris
+        .par_iter()
+        .map(|t| {
+            let pts: Vec<V3> = t.iter().flat_map(|&v| [pos[v as usize], old(v)]).collect();
+            box_of(&pts)
+        })
+        .collect();
+    let tree = BoxTree::new(&boxes);
+    let mut touched: Vec<u32> =
+        (0..tris.len() as u32).filter(|&f| tris[f as usize].iter().any(|&v| v >= first_new)).collect();
     for _ in 0..MAX_ROUNDS * 4 {
-        let mut faces: Vec<u32> =
-            (0..tris.len() as u32).filter(|&f| tris[f as usize].iter().any(|v| moved.contains(v))).collect();
-        faces.sort_unstable();
-        let pairs = self_intersections_of(pos, tris, &faces);
+        touched.retain(|&f| tris[f as usize].iter().any(|v| moved.contains(v)));
+        let pairs: Vec<(u32, u32)> = touched
+            .par_iter()
+            .flat_map_iter(|&f| {
+                let mut found = Vec::new();
+                let (lo, hi) = boxes[f as usize];
+                tree.overlapping(lo, hi, |g| {
+                    if g != f && mesh_triangles_intersect(pos, tris[f as usize], tris[g as usize]) {
+                        found.push((f, g));
+                    }
+                });
+                found
+            })
+            .collect();
         if pairs.is_empty() {
             break;
         }

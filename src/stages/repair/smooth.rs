@@ -6,6 +6,8 @@
 //! the threshold. **Taubin smoothing** alternates a shrinking step (λ) and an inflating step (μ < −λ) of the
 //! uniform umbrella operator, which removes noise without the shrinkage of plain Laplacian smoothing.
 
+use rayon::prelude::*;
+
 use crate::geometry::topology::MeshTopology;
 use crate::geometry::vec3::{self, V3};
 
@@ -80,36 +82,40 @@ pub fn smallest_eigenvector(mut a: [[f64; 3]; 3]) -> V3 {
     [v[0][k], v[1][k], v[2][k]]
 }
 
-/// Move spike vertices to their ring centroid; returns how many moved.
+/// Move spike vertices to their ring centroid; returns how many moved. All spikes are found on the
+/// unmoved surface first (in parallel), then moved, so the result does not depend on vertex order.
 pub fn remove_spikes(p: &mut [V3], tris: &[[u32; 3]]) -> usize {
     let nb = Neighbours::new(p.len(), tris);
-    let mut moved = 0;
-    for v in 0..p.len() {
-        let ring = nb.of(v);
-        if ring.len() < 3 {
-            continue;
-        }
-        let c = vec3::scale(ring.iter().fold([0.0; 3], |a, &u| vec3::add(a, p[u as usize])), 1.0 / ring.len() as f64);
-        let mut cov = [[0.0; 3]; 3];
-        let mut mean_len = 0.0;
-        for &u in ring {
-            let d = vec3::sub(p[u as usize], c);
-            for i in 0..3 {
-                for j in 0..3 {
-                    cov[i][j] += d[i] * d[j];
-                }
+    let spikes: Vec<(usize, V3)> = (0..p.len())
+        .into_par_iter()
+        .filter_map(|v| {
+            let ring = nb.of(v);
+            if ring.len() < 3 {
+                return None;
             }
-            mean_len += vec3::norm(d);
-        }
-        mean_len /= ring.len() as f64;
-        let n = smallest_eigenvector(cov);
-        let height = vec3::dot(vec3::sub(p[v], c), n).abs();
-        if height > SPIKE_FACTOR * mean_len {
-            p[v] = c;
-            moved += 1;
-        }
+            let c =
+                vec3::scale(ring.iter().fold([0.0; 3], |a, &u| vec3::add(a, p[u as usize])), 1.0 / ring.len() as f64);
+            let mut cov = [[0.0; 3]; 3];
+            let mut radius = 0.0;
+            for &u in ring {
+                let d = vec3::sub(p[u as usize], c);
+                for i in 0..3 {
+                    for j in 0..3 {
+                        cov[i][j] += d[i] * d[j];
+                    }
+                }
+                radius += vec3::norm(d);
+            }
+            radius /= ring.len() as f64;
+            let n = smallest_eigenvector(cov);
+            let height = vec3::dot(vec3::sub(p[v], c), n).abs();
+            (height > SPIKE_FACTOR * radius).then_some((v, c))
+        })
+        .collect();
+    for &(v, c) in &spikes {
+        p[v] = c;
     }
-    moved
+    spikes.len()
 }
 
 /// `iterations` rounds of Taubin λ|μ smoothing with the uniform umbrella operator.
