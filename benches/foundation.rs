@@ -6,6 +6,10 @@
 //! `.venv-validators/bin/python` from `scripts/setup-validators.sh`, skipped with a note when absent).
 //! Deterministic: fixed seed, fixed decimation.
 
+mod common;
+
+use common::{data_dir, peak_mib, reset_peak};
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
@@ -15,22 +19,6 @@ use scanstation::geometry::topology::TopologyReport;
 use scanstation::stages::NoProgress;
 use scanstation::stages::quality::{CompareOptions, compare};
 use scanstation::{Geometry, PolyMesh};
-
-/// Reset the kernel's peak-RSS counter (VmHWM) to the current RSS; false when not permitted.
-fn reset_peak() -> bool {
-    std::fs::write("/proc/self/clear_refs", "5").is_ok()
-}
-
-/// Peak RSS (VmHWM) in MiB.
-fn peak_mib() -> f64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    status
-        .lines()
-        .find(|l| l.starts_with("VmHWM:"))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|kb| kb.parse::<f64>().ok())
-        .map_or(f64::NAN, |kb| kb / 1024.0)
-}
 
 struct Row {
     stage: String,
@@ -142,9 +130,7 @@ fn peer(a: &Path, b: &Path, samples: usize) -> Result<(f64, f64, f64, f64), Stri
 }
 
 fn main() {
-    let data = std::env::var_os("SCANSTATION_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let data = data_dir();
     let dragon_path = data.join("large/dragon_vrip_draco.ply.gz");
     assert!(dragon_path.is_file(), "{} not found (set SCANSTATION_SHARED_DATA)", dragon_path.display());
     let samples = 1_000_000;

@@ -2,31 +2,18 @@
 //! non-manifold edges after welding, self-intersections) through the repair stage. Reports wall time and
 //! peak RSS per stage. Run: `cargo bench --bench repair` (data: `SCANSTATION_SHARED_DATA`).
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{data_dir, peak_mib, reset_peak};
+
 use std::time::Instant;
 
 use scanstation::geometry::io::{ReadOptions, read_mesh};
 use scanstation::stages::NoProgress;
 use scanstation::stages::repair::{RepairOptions, decimate, intersections, repair};
 
-fn reset_peak() -> bool {
-    std::fs::write("/proc/self/clear_refs", "5").is_ok()
-}
-
-fn peak_mib() -> f64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    status
-        .lines()
-        .find(|l| l.starts_with("VmHWM:"))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|kb| kb.parse::<f64>().ok())
-        .map_or(f64::NAN, |kb| kb / 1024.0)
-}
-
 fn main() {
-    let data = std::env::var_os("SCANSTATION_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let data = data_dir();
     let path = data.join("large/dragon_vrip_draco.ply.gz");
     assert!(path.is_file(), "{} not found (set SCANSTATION_SHARED_DATA)", path.display());
     let mesh = read_mesh(&path, &ReadOptions::default()).expect("read dragon");

@@ -143,39 +143,31 @@ pub fn self_intersections(p: &[V3], tris: &[[u32; 3]]) -> Vec<(u32, u32)> {
 
 /// Intersecting pairs (i < j, sorted) in which at least one triangle is in `faces` (sorted, deduplicated).
 pub fn self_intersections_of(p: &[V3], tris: &[[u32; 3]], faces: &[u32]) -> Vec<(u32, u32)> {
-    let boxes: Vec<_> = tris.par_iter().map(|t| box_of(&t.map(|i| p[i as usize]))).collect();
-    let tree = BoxTree::new(&boxes);
-    let mut pairs: Vec<(u32, u32)> = faces
-        .par_iter()
-        .flat_map_iter(|&i| {
-            let mut found = Vec::new();
-            let (lo, hi) = boxes[i as usize];
-            tree.overlapping(lo, hi, |j| {
-                let counted = if faces.binary_search(&j).is_ok() { j > i } else { true };
-                if counted && mesh_triangles_intersect(p, tris[i as usize], tris[j as usize]) {
-                    found.push((i.min(j), i.max(j)));
-                }
-            });
-            found
-        })
-        .collect();
-    pairs.sort_unstable();
-    pairs
+    pairs_from(p, tris, faces.par_iter().copied(), |j| faces.binary_search(&j).is_ok())
 }
 
 /// Intersecting pairs (i < j, sorted) in which at least one triangle has index ≥ `first_new`: after faces
 /// are appended to a mesh known to be free of intersections, only the new ones need checking.
 pub fn self_intersections_involving(p: &[V3], tris: &[[u32; 3]], first_new: usize) -> Vec<(u32, u32)> {
+    pairs_from(p, tris, (first_new as u32..tris.len() as u32).into_par_iter(), |j| j as usize >= first_new)
+}
+
+/// Intersecting pairs found by querying the triangles `from` against all; `queried(j)` tells whether `j` is
+/// queried itself (then the pair is counted from the smaller index only).
+fn pairs_from(
+    p: &[V3],
+    tris: &[[u32; 3]],
+    from: impl ParallelIterator<Item = u32>,
+    queried: impl Fn(u32) -> bool + Sync,
+) -> Vec<(u32, u32)> {
     let boxes: Vec<_> = tris.par_iter().map(|t| box_of(&t.map(|i| p[i as usize]))).collect();
     let tree = BoxTree::new(&boxes);
-    let mut pairs: Vec<(u32, u32)> = (first_new as u32..tris.len() as u32)
-        .into_par_iter()
+    let mut pairs: Vec<(u32, u32)> = from
         .flat_map_iter(|i| {
             let mut found = Vec::new();
             let (lo, hi) = boxes[i as usize];
             tree.overlapping(lo, hi, |j| {
-                // Each pair once: by the larger index when both are new, else from the new one.
-                let counted = if (j as usize) >= first_new { j > i } else { true };
+                let counted = if queried(j) { j > i } else { true };
                 if counted && mesh_triangles_intersect(p, tris[i as usize], tris[j as usize]) {
                     found.push((i.min(j), i.max(j)));
                 }

@@ -145,6 +145,26 @@ impl MeshTopology {
         (rows, cols)
     }
 
+    /// Join, in `uf` (one set per corner), the corners of the two faces of every manifold edge at each of its
+    /// endpoints. Afterwards the corners around a vertex fall into one set per fan of faces (a vertex with
+    /// more than one set is pinched, i.e. non-manifold). `idx` holds each corner's vertex.
+    pub fn join_fan_corners(&self, idx: &[u32], uf: &mut UnionFind) {
+        for e in 0..self.edges.len() {
+            if let [h1, h2] = *self.edge_halfedges(e) {
+                // (corner at the edge's start, corner at its end) for each face.
+                let (a1, b1) = (h1, self.corner_next[h1 as usize]);
+                let (a2, b2) = (h2, self.corner_next[h2 as usize]);
+                if idx[a1 as usize] == idx[a2 as usize] {
+                    uf.union(a1, a2);
+                    uf.union(b1, b2);
+                } else {
+                    uf.union(a1, b2);
+                    uf.union(b1, a2);
+                }
+            }
+        }
+    }
+
     /// Number of faces using edge `e`.
     #[inline]
     pub fn edge_valence(&self, e: usize) -> usize {
@@ -280,26 +300,12 @@ impl TopologyReport {
                     on_boundary[a as usize] = true;
                     on_boundary[b as usize] = true;
                 }
-                2 => {
-                    let (h1, h2) = (hs[0], hs[1]);
-                    face_uf.union(topo.corner_face[h1 as usize], topo.corner_face[h2 as usize]);
-                    // Join the corners of the two faces at each endpoint of the edge.
-                    let ends = |h: u32| (h, topo.corner_next[h as usize]); // (corner at from, corner at to)
-                    let (a1, b1) = ends(h1);
-                    let (a2, b2) = ends(h2);
-                    if idx[a1 as usize] == idx[a2 as usize] {
-                        corner_uf.union(a1, a2);
-                        corner_uf.union(b1, b2);
-                    } else {
-                        corner_uf.union(a1, b2);
-                        corner_uf.union(b1, a2);
-                    }
-                }
+                2 => face_uf.union(topo.corner_face[hs[0] as usize], topo.corner_face[hs[1] as usize]),
                 _ => nonmanifold_edges += 1,
             }
         }
-        // Corners of one face around a vertex also belong to one fan only if the face is simple; a face that
-        // visits a vertex twice is a pinch, which the fan count below reports.
+        // A face that visits a vertex twice is a pinch, which the fan count below reports.
+        topo.join_fan_corners(idx, &mut corner_uf);
         let mut fan_root = vec![u32::MAX; nv];
         let mut nonmanifold = vec![false; nv];
         for h in 0..idx.len() as u32 {

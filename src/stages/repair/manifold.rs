@@ -145,19 +145,7 @@ fn split_nonmanifold_vertices(pos: &mut Vec<V3>, tris: &mut [[u32; 3]], r: &mut 
     let topo = MeshTopology::from_triangles(tris);
     let idx: Vec<u32> = tris.as_flattened().to_vec();
     let mut uf = UnionFind::new(idx.len());
-    for e in 0..topo.edges.len() {
-        if let [h1, h2] = *topo.edge_halfedges(e) {
-            let (a1, b1) = (h1, topo.corner_next[h1 as usize]);
-            let (a2, b2) = (h2, topo.corner_next[h2 as usize]);
-            if idx[a1 as usize] == idx[a2 as usize] {
-                uf.union(a1, a2);
-                uf.union(b1, b2);
-            } else {
-                uf.union(a1, b2);
-                uf.union(b1, a2);
-            }
-        }
-    }
+    topo.join_fan_corners(&idx, &mut uf);
     // First fan (by lowest corner root) keeps the vertex; others get copies.
     let mut owner: Vec<u32> = vec![u32::MAX; pos.len()];
     let mut copy_of_root: std::collections::HashMap<u32, u32> = std::collections::HashMap::new();
