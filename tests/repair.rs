@@ -190,3 +190,26 @@ fn decimation_hits_the_target_and_keeps_topology_and_shape() {
         assert_eq!(out, again, "{name}: same input and settings, same output");
     }
 }
+
+#[test]
+fn the_memory_budget_is_checked_first() {
+    let o = RepairOptions { memory_budget: 10_000, ..opts() };
+    let e = repair(&PolyMesh::from(icosphere(1.0, 4, [0.0; 3])), &o, &NoProgress).unwrap_err();
+    assert_eq!(e.code, ErrorCode::ResourceMemoryBudget);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 8, ..ProptestConfig::default() })]
+
+    #[test]
+    fn decimation_keeps_a_clean_closed_manifold(seed in any::<u64>(), genus_one in any::<bool>(), target in 60usize..400) {
+        let m = jittered(3, seed, genus_one);
+        let o = RepairOptions { target_vertices: Some(target), ..opts() };
+        let (out, rep) = repair(&PolyMesh::from(m), &o, &NoProgress).unwrap();
+        assert_clean(&rep.output, "decimated");
+        prop_assert_eq!(rep.output.genus, Some(genus_one as i64));
+        prop_assert_eq!(rep.decimate.as_ref().unwrap().vertices_after, target);
+        let p: Vec<[f64; 3]> = out.positions.iter().map(|q| q.map(|c| c as f64)).collect();
+        prop_assert!(scanstation::geometry::intersect::self_intersections_brute_force(&p, &out.triangles).is_empty());
+    }
+}

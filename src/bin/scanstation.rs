@@ -104,6 +104,7 @@ fn main() -> ExitCode {
                 remove_spikes: !keep_spikes,
                 smooth_iterations: *smooth,
                 target_vertices: *target_vertices,
+                memory_budget: cli.memory_budget,
                 ..Default::default()
             };
             pipeline::repair_file(input, output, &read, &opts, &NoProgress)
