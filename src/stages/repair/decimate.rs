@@ -9,6 +9,7 @@
 //! * break the **link condition** (the endpoints share more than the two opposite vertices), which would make
 //!   an edge non-manifold, or shrink a tetrahedron;
 //! * **fold** a face over (its normal turns by more than [`MAX_NORMAL_TURN_DEG`]) or make it degenerate.
+//!
 //! A final self-intersection search checks the result; the repair loop removes any crossing it finds.
 
 use crate::geometry::sampling::Rng;

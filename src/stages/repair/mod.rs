@@ -1,20 +1,21 @@
 //! **Repair** — every scan becomes a closed, consistently outward-oriented 2-manifold triangle mesh.
 //!
-//! Steps, each reporting what it changed:
+//! Steps, in the order they run, each reporting what it changed:
+//!
 //! 1. [`weld`]: merge vertices within `weld_rel × diagonal`, drop collapsed/duplicate faces and unreferenced
 //!    vertices;
-//! 2–3. [`manifold`]: make non-manifold edges and vertices manifold, orient faces consistently, keep the
+//! 2. [`manifold`]: make non-manifold edges and vertices manifold, orient faces consistently, keep the
 //!    components that matter (largest by area, plus any of at least `keep_share` of the area);
-//! 5. [`holes`]: fill every hole (Liepa: minimum-weight triangulation, refinement, thin-plate fairing);
-//!    then orient outward (positive signed volume).
-//!
+//! 3. [`holes`]: fill every hole (Liepa: minimum-weight triangulation, refinement, thin-plate fairing);
 //! 4. [`intersections`]: delete intersecting triangles with a growing neighbourhood and refill, until none
-//!    remain (run after the first filling, so that fills are checked too).
+//!    remain (after the first filling, so that fills are checked too);
+//! 5. [`smooth`]: move spike vertices to their ring centroid; optional Taubin λ|μ smoothing;
+//! 6. [`decimate`] (optional): quadric-error edge collapses to a target vertex count, refusing collapses that
+//!    break the link condition or fold faces; then a self-intersection search and removal;
+//! 7. orient outward (positive signed volume).
 //!
-//! 6. [`smooth`]: move spike vertices to their ring centroid; optional Taubin λ|μ smoothing.
-//! 7. [`decimate`] (optional): quadric-error edge collapses to a target vertex count, refusing collapses that
-//!    break the link condition or fold faces; a final self-intersection search and removal. The
-//! result is checked with the foundation's topology report and measured against the input with `compare`.
+//! The result is checked with the foundation's topology report and measured against the input with
+//! `compare`.
 
 pub mod decimate;
 pub mod holes;
