@@ -140,13 +140,7 @@ fn random_mesh() -> impl Strategy<Value = TriMesh> {
     // A sphere of random radius/centre with each vertex jittered: closed, varied, non-convex.
     (0.2f64..3.0, prop::array::uniform3(-2.0f64..2.0), 0u32..3, any::<u64>()).prop_map(|(r, c, level, seed)| {
         let mut m = icosphere(r, level + 1, c);
-        let mut s = seed;
-        for p in &mut m.positions {
-            for x in p.iter_mut() {
-                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                *x += (((s >> 40) as f64 / (1u64 << 24) as f64 - 0.5) * 0.2 * r) as f32;
-            }
-        }
+        common::jitter(&mut m, seed, 0.2 * r);
         m
     })
 }

@@ -1,6 +1,8 @@
 //! The repair stage: analytic oracles (punched spheres refilled onto the sphere), invariants as property tests
 //! (clean meshes pass unchanged, repair is idempotent), synthetic defects, and bad input.
 
+mod common;
+
 use proptest::prelude::*;
 use scanstation::geometry::shapes::{icosphere, torus};
 use scanstation::geometry::topology::TopologyReport;
@@ -107,13 +109,7 @@ fn jittered(level: u32, seed: u64, genus_one: bool) -> TriMesh {
     } else {
         icosphere(1.5, level, [0.5, -1.0, 2.0])
     };
-    let mut s = seed;
-    for p in &mut m.positions {
-        for x in p.iter_mut() {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            *x += ((s >> 40) as f64 / (1u64 << 24) as f64 - 0.5) as f32 * 0.02;
-        }
-    }
+    common::jitter(&mut m, seed, 0.02);
     m
 }
 

@@ -135,11 +135,11 @@ impl PolyMesh {
         Ok(PolyMesh { positions, offsets, indices })
     }
 
-    /// Start an empty mesh with capacity hints (caller-checked; never pass untrusted counts unclamped).
-    pub(crate) fn with_capacity(vertices: usize, faces: usize, corners: usize) -> Self {
+    /// Start an empty mesh (positions are set by the reader) with capacity hints (caller-checked; never pass untrusted counts unclamped).
+    pub(crate) fn with_capacity(faces: usize, corners: usize) -> Self {
         let mut offsets = Vec::with_capacity(faces + 1);
         offsets.push(0);
-        PolyMesh { positions: Vec::with_capacity(vertices), offsets, indices: Vec::with_capacity(corners) }
+        PolyMesh { positions: Vec::new(), offsets, indices: Vec::with_capacity(corners) }
     }
 
     /// Append a face without range checks (readers validate all indices once at the end).

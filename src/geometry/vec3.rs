@@ -82,3 +82,24 @@ impl Aabb {
         norm(self.extent())
     }
 }
+
+/// (b − a) × (c − a) for the triangle `t` over positions `p`: its normal, scaled by twice its area.
+#[inline]
+pub fn tri_cross(p: &[V3], t: [u32; 3]) -> V3 {
+    let [a, b, c] = t.map(|i| p[i as usize]);
+    cross(sub(b, a), sub(c, a))
+}
+
+/// Area of triangle `t` over positions `p`.
+#[inline]
+pub fn tri_area(p: &[V3], t: [u32; 3]) -> f64 {
+    0.5 * norm(tri_cross(p, t))
+}
+
+/// Unit normal of triangle `t` over positions `p`; `None` when it has no area.
+#[inline]
+pub fn tri_unit_normal(p: &[V3], t: [u32; 3]) -> Option<V3> {
+    let n = tri_cross(p, t);
+    let l = norm(n);
+    (l > 0.0).then(|| scale(n, 1.0 / l))
+}

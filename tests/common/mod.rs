@@ -57,3 +57,15 @@ pub fn ply_binary(header: &str, body: &[u8]) -> Vec<u8> {
     v.extend_from_slice(body);
     v
 }
+
+/// Move every vertex coordinate by a pseudo-random offset in [−amplitude/2, amplitude/2) (seeded LCG),
+/// making synthetic shapes irregular but keeping them closed.
+pub fn jitter(m: &mut scanstation::TriMesh, seed: u64, amplitude: f64) {
+    let mut s = seed;
+    for p in &mut m.positions {
+        for x in p.iter_mut() {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            *x += (((s >> 40) as f64 / (1u64 << 24) as f64 - 0.5) * amplitude) as f32;
+        }
+    }
+}

@@ -61,7 +61,7 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
     if nf == 0 {
         return Ok(Geometry::Cloud(PointCloud::new(positions, None, None)?));
     }
-    let mut mesh = PolyMesh::with_capacity(0, nf_cap, 3 * nf_cap);
+    let mut mesh = PolyMesh::with_capacity(nf_cap, 3 * nf_cap);
     let mut face = Vec::new();
     for i in 0..nf {
         let Some((l, loc)) = content(&mut lines)? else {

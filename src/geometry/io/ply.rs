@@ -289,7 +289,7 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
         positions: Vec::with_capacity(vertex_count),
         normals: layout.as_ref().and_then(|l| l.normal).map(|_| Vec::with_capacity(vertex_count)),
         colors: layout.as_ref().and_then(|l| l.color).map(|_| Vec::with_capacity(vertex_count)),
-        mesh: has_faces.then(|| PolyMesh::with_capacity(0, face_count, 3 * face_count)),
+        mesh: has_faces.then(|| PolyMesh::with_capacity(face_count, 3 * face_count)),
         face_buf: Vec::new(),
     };
     let mut pos = header.bytes;

@@ -225,12 +225,6 @@ fn stats_with(d: &mut [f64], s: Sums, diagonal: f64) -> DistanceStats {
     }
 }
 
-/// Statistics of sample distances `d` (reordered); `vertex_max` is a further candidate for the maximum.
-pub fn stats(d: &mut [f64], vertex_max: f64, diagonal: f64) -> DistanceStats {
-    let s = Sums::of(d, vertex_max);
-    stats_with(d, s, diagonal)
-}
-
 fn distances(points: &[V3], to: &Prepared) -> Vec<f64> {
     let mut out = Vec::new();
     points.par_iter().map(|&p| to.distance(p)).collect_into_vec(&mut out);

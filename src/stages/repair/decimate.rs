@@ -145,12 +145,9 @@ pub fn decimate(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, target: usize, seed: 
     let mut q = vec![[0.0; 10]; n];
     let mut vertex_faces = vec![Vec::new(); n];
     for (f, t) in tris.iter().enumerate() {
-        let [a, b, c] = t.map(|i| p[i as usize]);
-        let nrm = vec3::cross(vec3::sub(b, a), vec3::sub(c, a));
-        let len = vec3::norm(nrm);
-        if len > 0.0 {
-            let unit = vec3::scale(nrm, 1.0 / len);
-            let pq = plane_quadric(unit, -vec3::dot(unit, a), 0.5 * len);
+        if let Some(unit) = vec3::tri_unit_normal(p, *t) {
+            let a = p[t[0] as usize];
+            let pq = plane_quadric(unit, -vec3::dot(unit, a), vec3::tri_area(p, *t));
             for &v in t {
                 q_add(&mut q[v as usize], &pq);
             }

@@ -17,7 +17,7 @@ use std::collections::{HashMap, HashSet};
 use crate::geometry::bvh::{BoxTree, box_of};
 use crate::geometry::intersect::mesh_triangles_intersect;
 use crate::geometry::topology::MeshTopology;
-use crate::geometry::vec3::{self, V3};
+use crate::geometry::vec3::{self, V3, tri_area, tri_unit_normal};
 
 /// Longest loop triangulated by the O(n³) dynamic programme; longer loops are ear-clipped down to it first.
 pub const MWT_MAX_LOOP: usize = 240;
@@ -92,23 +92,11 @@ pub fn boundary_loops(tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
     loops
 }
 
-fn normal(p: &[V3], t: [u32; 3]) -> Option<V3> {
-    let [a, b, c] = t.map(|i| p[i as usize]);
-    let n = vec3::cross(vec3::sub(b, a), vec3::sub(c, a));
-    let l = vec3::norm(n);
-    (l > 0.0).then(|| vec3::scale(n, 1.0 / l))
-}
-
 fn angle_between(a: Option<V3>, b: Option<V3>) -> f64 {
     match (a, b) {
         (Some(a), Some(b)) => vec3::dot(a, b).clamp(-1.0, 1.0).acos(),
         _ => std::f64::consts::PI,
     }
-}
-
-fn tri_area(p: &[V3], t: [u32; 3]) -> f64 {
-    let [a, b, c] = t.map(|i| p[i as usize]);
-    0.5 * vec3::norm(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)))
 }
 
 /// Minimum-weight triangulation of a loop (Liepa). `outside[i]` is the normal of the mesh face across the
@@ -147,13 +135,13 @@ fn mwt(
                 if crosses(t) {
                     continue;
                 }
-                let nt = normal(p, t);
+                let nt = tri_unit_normal(p, t);
                 let side = |a: usize, b: usize| {
                     if b == a + 1 {
                         outside[a]
                     } else {
                         let m = choice[at(a, b)] as usize;
-                        normal(p, tri(a, m, b))
+                        tri_unit_normal(p, tri(a, m, b))
                     }
                 };
                 let mut ang = angle_between(nt, side(i, k)).max(angle_between(nt, side(k, j)));
@@ -227,7 +215,7 @@ fn clip_ears(
         let t = [lp[next], lp[i], lp[prev]];
         out.push(t);
         exists.insert((lp[prev].min(lp[next]), lp[prev].max(lp[next])));
-        outside[prev] = normal(p, t);
+        outside[prev] = tri_unit_normal(p, t);
         lp.remove(i);
         outside.remove(i);
     }
@@ -299,8 +287,8 @@ fn relax(p: &[V3], patch: &mut [[u32; 3]], fixed_edges: &HashSet<(u32, u32)>) {
             }
             let (n1, n2) = ([a, d, c], [b, c, d]);
             // Keep both new triangles facing the same way as the old pair.
-            let old = vec3::add(normal(p, t1).unwrap_or([0.0; 3]), normal(p, t2).unwrap_or([0.0; 3]));
-            let ok = |t| normal(p, t).is_some_and(|n| vec3::dot(n, old) > 0.0);
+            let old = vec3::add(tri_unit_normal(p, t1).unwrap_or([0.0; 3]), tri_unit_normal(p, t2).unwrap_or([0.0; 3]));
+            let ok = |t| tri_unit_normal(p, t).is_some_and(|n| vec3::dot(n, old) > 0.0);
             if !ok(n1) || !ok(n2) {
                 continue;
             }
@@ -505,7 +493,7 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> H
         report.largest_hole_edges = report.largest_hole_edges.max(lp.len());
         let n = lp.len();
         let mut outside: Vec<Option<V3>> =
-            (0..n).map(|i| face_of_edge.get(&(lp[i], lp[(i + 1) % n])).and_then(|&t| normal(p, t))).collect();
+            (0..n).map(|i| face_of_edge.get(&(lp[i], lp[(i + 1) % n])).and_then(|&t| tri_unit_normal(p, t))).collect();
         let mut sigma: HashMap<u32, f64> = lp.iter().map(|v| (*v, all_sigma[v])).collect();
         let mut patch = clip_ears(p, &mut lp, &mut outside, MWT_MAX_LOOP, &mut fixed_edges);
         let crosses = |t: [u32; 3]| {
@@ -619,7 +607,7 @@ fn quadric_deviation(
         faces.dedup();
         for f in faces {
             let t = tris[f as usize];
-            normal_sum = vec3::add(normal_sum, normal(p, t).unwrap_or([0.0; 3]));
+            normal_sum = vec3::add(normal_sum, tri_unit_normal(p, t).unwrap_or([0.0; 3]));
             for v in t {
                 if !in_patch.contains(&v) && rim.insert(v) {
                     next.insert(v);

@@ -82,10 +82,7 @@ pub fn remove_self_intersections(pos: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, ke
                 }
             }
             let faces_of = |v: u32| &cols[rows[v as usize] as usize..rows[v as usize + 1] as usize];
-            let area = |f: u32| {
-                let [a, b, c] = tris[f as usize].map(|i| pos[i as usize]);
-                0.5 * vec3::norm(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)))
-            };
+            let area = |f: u32| vec3::tri_area(pos, tris[f as usize]);
             let total: f64 = (0..tris.len() as u32).map(area).sum();
             for _ in 0..GROW_FIRST + round {
                 let verts: HashSet<u32> = faces.iter().flat_map(|&f| tris[f as usize]).collect();

@@ -12,7 +12,7 @@
 use std::collections::VecDeque;
 
 use crate::geometry::topology::{MeshTopology, UnionFind};
-use crate::geometry::vec3::{self, V3};
+use crate::geometry::vec3::{self, V3, tri_area, tri_unit_normal};
 
 /// What the manifold step changed.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
@@ -36,24 +36,13 @@ pub struct ManifoldReport {
     pub area_share_kept: f64,
 }
 
-fn area(p: &[V3], t: [u32; 3]) -> f64 {
-    let [a, b, c] = t.map(|i| p[i as usize]);
-    0.5 * vec3::norm(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)))
-}
-
-fn unit_normal(p: &[V3], t: [u32; 3]) -> V3 {
-    let [a, b, c] = t.map(|i| p[i as usize]);
-    let n = vec3::cross(vec3::sub(b, a), vec3::sub(c, a));
-    let l = vec3::norm(n);
-    if l > 0.0 { vec3::scale(n, 1.0 / l) } else { [0.0; 3] }
-}
-
 /// Remove extra faces on non-manifold edges: keep the pair that continues the surface best (crossing the
 /// edge in opposite directions, with the most aligned normals; ties to the lower face numbers). Returns the
 /// kept faces.
 fn fix_nonmanifold_edges(p: &[V3], tris: &[[u32; 3]], r: &mut ManifoldReport) -> Vec<[u32; 3]> {
     let topo = MeshTopology::from_triangles(tris);
     let idx = tris.as_flattened();
+    let unit = |t: [u32; 3]| tri_unit_normal(p, t).unwrap_or([0.0; 3]);
     let mut remove = vec![false; tris.len()];
     for e in 0..topo.edges.len() {
         let hs = topo.edge_halfedges(e);
@@ -69,7 +58,7 @@ fn fix_nonmanifold_edges(p: &[V3], tris: &[[u32; 3]], r: &mut ManifoldReport) ->
         for (i, &h) in alive.iter().enumerate() {
             for &g in &alive[i + 1..] {
                 let opposite = idx[h as usize] != idx[g as usize];
-                let (nh, ng) = (unit_normal(p, tris[h as usize / 3]), unit_normal(p, tris[g as usize / 3]));
+                let (nh, ng) = (unit(tris[h as usize / 3]), unit(tris[g as usize / 3]));
                 let align = if opposite { vec3::dot(nh, ng) } else { -vec3::dot(nh, ng) };
                 if (opposite, align) > (best.0, best.1) {
                     best = (opposite, align, h, g);
@@ -176,7 +165,7 @@ fn keep_components(pos: &[V3], tris: &mut Vec<[u32; 3]>, keep_share: f64, r: &mu
         }
     }
     let mut comp_area = std::collections::BTreeMap::<u32, f64>::new();
-    let areas: Vec<f64> = tris.iter().map(|&t| area(pos, t)).collect();
+    let areas: Vec<f64> = tris.iter().map(|&t| tri_area(pos, t)).collect();
     let roots: Vec<u32> = (0..tris.len() as u32).map(|f| uf.find(f)).collect();
     for (f, &root) in roots.iter().enumerate() {
         *comp_area.entry(root).or_insert(0.0) += areas[f];

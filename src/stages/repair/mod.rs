@@ -30,7 +30,7 @@ use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::geometry::tolerance::WELD_REL;
 use crate::geometry::topology::TopologyReport;
-use crate::geometry::vec3::{self, V3, wide};
+use crate::geometry::vec3::{V3, wide};
 use crate::stages::quality::{CompareOptions, DistanceReport, compare};
 use crate::stages::{NoProgress, Progress};
 
@@ -107,16 +107,6 @@ pub struct RepairReport {
 
 fn to_trimesh(p: &[V3], tris: Vec<[u32; 3]>) -> TriMesh {
     TriMesh { positions: p.iter().map(|q| q.map(|c| c as f32)).collect(), triangles: tris }
-}
-
-fn signed_volume(p: &[V3], tris: &[[u32; 3]]) -> f64 {
-    tris.iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| p[i as usize]);
-            vec3::dot(a, vec3::cross(b, c))
-        })
-        .sum::<f64>()
-        / 6.0
 }
 
 /// Faces of `out` that are faces of `input` (same three positions, bit for bit): repair never moves a kept
@@ -221,12 +211,12 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         }
         decimate_intersections = Some(check);
     }
-    let flipped_outward = signed_volume(&pos, &tris) < 0.0;
-    if flipped_outward {
-        tris.iter_mut().for_each(|t| t.swap(1, 2));
-    }
     let (pos, tris, _) = weld::compact(&pos, &tris);
-    let out = to_trimesh(&pos, tris);
+    let mut out = to_trimesh(&pos, tris);
+    let flipped_outward = out.signed_volume() < 0.0;
+    if flipped_outward {
+        out.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+    }
     let seconds = t0.elapsed().as_secs_f64();
     let out_poly = PolyMesh::from(out.clone());
     let output = TopologyReport::compute(&out_poly);
