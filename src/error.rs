@@ -57,6 +57,10 @@ pub enum ErrorCode {
     InputBadArgument,
     /// Repair could not make the mesh a closed 2-manifold; the message names the step that gave up.
     RepairFailed,
+    /// Remeshing needs a closed, 2-manifold triangle mesh and got something else (run `repair` first).
+    RemeshInputNotClosed,
+    /// Remeshing could not produce a valid pure-quad mesh; the message names the step and the element.
+    RemeshFailed,
     /// The operation would need more memory than its budget allows.
     ResourceMemoryBudget,
     /// Writing an output failed (disk full, permissions) or would overwrite an input.
@@ -84,6 +88,8 @@ impl ErrorCode {
             ErrorCode::InputNoGeometry => "input.no-geometry",
             ErrorCode::InputBadArgument => "input.bad-argument",
             ErrorCode::RepairFailed => "repair.failed",
+            ErrorCode::RemeshInputNotClosed => "remesh.input-not-closed",
+            ErrorCode::RemeshFailed => "remesh.failed",
             ErrorCode::ResourceMemoryBudget => "resource.memory-budget",
             ErrorCode::ResourceOutput => "resource.output",
             ErrorCode::InternalBug => "internal.bug",

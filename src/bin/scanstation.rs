@@ -56,6 +56,30 @@ enum Command {
         #[arg(long)]
         target_vertices: Option<usize>,
     },
+    /// Field-aligned pure-quad remeshing of a closed mesh (run `repair` first): orientation and position
+    /// fields, extraction, clean-up to all quads at the requested vertex count, projection onto the input.
+    Remesh {
+        /// The closed triangle mesh to remesh.
+        input: PathBuf,
+        /// Where to write the quad mesh (.obj keeps quads; anything else is binary PLY).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Final vertex count wanted.
+        #[arg(long, conflicts_with = "edge_length", required_unless_present = "edge_length")]
+        vertices: Option<usize>,
+        /// Target edge length instead (in the input's units): vertices = area / length².
+        #[arg(long)]
+        edge_length: Option<f64>,
+        /// Seed of the random initial fields.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Gauss–Seidel sweeps per hierarchy level for each field.
+        #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().iterations)]
+        iterations: usize,
+        /// Weight of the pull toward principal curvature directions (0 = off).
+        #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight)]
+        curvature_weight: f64,
+    },
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare {
         /// The surface to measure.
@@ -110,6 +134,17 @@ fn main() -> ExitCode {
             pipeline::repair_file(input, output, &read, &opts, &NoProgress)
                 .map(|r| if cli.json { print_json(&r) } else { print_repair(&r) })
         }
+        Command::Remesh { input, output, vertices, edge_length, seed, iterations, curvature_weight } => {
+            let opts = scanstation::stages::remesh::RemeshOptions {
+                seed: *seed,
+                iterations: *iterations,
+                curvature_weight: *curvature_weight,
+                memory_budget: cli.memory_budget,
+                ..Default::default()
+            };
+            remesh(input, output, *vertices, *edge_length, opts, &read)
+                .map(|r| if cli.json { print_json(&r) } else { print_remesh(&r) })
+        }
         Command::Compare { test, reference, samples, seed, error_map } => {
             let opts = CompareOptions {
                 samples: *samples,
@@ -125,6 +160,80 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => report_error(&e, cli.json),
     }
+}
+
+fn remesh(
+    input: &std::path::Path,
+    output: &std::path::Path,
+    vertices: Option<usize>,
+    edge_length: Option<f64>,
+    opts: scanstation::stages::remesh::RemeshOptions,
+    read: &ReadOptions,
+) -> Result<pipeline::RemeshFileReport, Error> {
+    let target = match (vertices, edge_length) {
+        (Some(v), _) => v,
+        (None, Some(l)) => {
+            if !(l.is_finite() && l > 0.0) {
+                return Err(Error::new(scanstation::ErrorCode::InputBadArgument, "--edge-length must be > 0"));
+            }
+            let mesh = scanstation::geometry::io::read_mesh(input, read)?;
+            let area = scanstation::geometry::topology::TopologyReport::compute(&mesh).area;
+            (area / (l * l)).round().min(1e9) as usize
+        }
+        (None, None) => unreachable!("clap requires one of them"),
+    };
+    let opts = scanstation::stages::remesh::RemeshOptions { target_vertices: target, ..opts };
+    pipeline::remesh_file(input, output, read, &opts, &NoProgress)
+}
+
+fn print_remesh(r: &pipeline::RemeshFileReport) {
+    let m = &r.remesh;
+    let o = &m.output;
+    println!("{} -> {}", r.input_file.display(), r.output_file.display());
+    println!(
+        "  input: {} vertices, {} faces, χ = {}; working mesh {} ({} vertices), {} levels",
+        m.input_vertices, m.input_faces, m.input_euler_characteristic, m.working_mesh, m.working_vertices,
+        m.hierarchy_levels
+    );
+    for (i, a) in m.attempts.iter().enumerate() {
+        println!(
+            "  attempt {i}: scale {:.5}, {} extracted vertices, faces by degree {:?} -> {} predicted{}",
+            a.scale,
+            a.extracted_vertices,
+            a.extracted_faces_by_degree,
+            a.predicted_vertices,
+            if i == m.chosen_attempt { " (kept)" } else { "" }
+        );
+    }
+    println!(
+        "  output: {} vertices ({:+.1}% of target {}), {} faces, {:.1}% quads, closed {}, χ = {}",
+        o.vertices,
+        100.0 * m.vertex_count_error,
+        m.target_vertices,
+        o.faces,
+        100.0 * o.quad_fraction,
+        o.closed,
+        o.euler_characteristic
+    );
+    println!(
+        "  irregular vertices {} ({:.2}%), valences {:?}, flipped faces {}, non-manifold edges {}",
+        o.irregular_vertices,
+        100.0 * o.irregular_fraction,
+        o.valence_histogram,
+        o.flipped_faces,
+        o.nonmanifold_edges
+    );
+    println!(
+        "  corner angle deviation mean {:.1}°, p95 {:.1}°; edge length {:.4} (cv {:.2})",
+        o.angle_deviation_mean_deg, o.angle_deviation_p95_deg, o.edge_length_mean, o.edge_length_cv
+    );
+    if let Some(d) = &m.distance {
+        println!(
+            "  distance to input: RMS {} ({:.4}% of diagonal), max {}",
+            d.symmetric.rms.value, d.symmetric.rms.pct_of_diagonal, d.symmetric.max.value
+        );
+    }
+    println!("  seconds: {:?}", m.seconds);
 }
 
 fn print_json<T: serde::Serialize>(v: &T) {

@@ -206,3 +206,41 @@ pub fn repair_file(
     }
     Ok(RepairFileReport { input_file: input.to_path_buf(), output_file: output.to_path_buf(), repair: report })
 }
+
+/// What `scanstation remesh` reports.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RemeshFileReport {
+    /// Input path.
+    pub input_file: PathBuf,
+    /// Output path.
+    pub output_file: PathBuf,
+    /// The stage's report.
+    #[serde(flatten)]
+    pub remesh: crate::stages::remesh::RemeshReport,
+}
+
+/// Read a closed mesh (polygons are fan-triangulated), remesh it into pure quads and write OBJ (`.obj`) or
+/// binary PLY.
+///
+/// # Errors
+/// Reader errors; `input.no-geometry` for a point cloud; `remesh.input-not-closed`; `remesh.failed`;
+/// `resource.output` when the output cannot be written or names the input.
+pub fn remesh_file(
+    input: &Path,
+    output: &Path,
+    read: &ReadOptions,
+    opts: &crate::stages::remesh::RemeshOptions,
+    progress: &dyn Progress,
+) -> Result<RemeshFileReport> {
+    ensure_not_input(output, &[input])?;
+    let mesh = crate::geometry::io::read_mesh(input, read)?;
+    let (tri, _) = mesh.triangulate();
+    let (out, report) = crate::stages::remesh::remesh(&tri, opts, progress).map_err(|e| e.in_file(input))?;
+    let is_obj = output.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj"));
+    if is_obj {
+        crate::geometry::io::write_obj(output, &out)?;
+    } else {
+        crate::geometry::io::write_ply(output, &out, &Default::default(), &["remeshed by scanstation"])?;
+    }
+    Ok(RemeshFileReport { input_file: input.to_path_buf(), output_file: output.to_path_buf(), remesh: report })
+}

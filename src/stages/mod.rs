@@ -5,6 +5,7 @@
 //! remesh, surface, brep/step, fea and reconstruction arrive with their issues.
 
 pub mod quality;
+pub mod remesh;
 pub mod repair;
 
 /// Receives progress from a running stage: `fraction` in [0, 1], never decreasing within one stage call,

@@ -1,0 +1,262 @@
+//! Extrinsic 4-RoSy orientation field and 4-PoSy position field (Jakob et al. 2015, §4–5).
+//!
+//! Each vertex carries a unit tangent `q` (defined up to rotations by 90° about its normal) and a
+//! lattice origin `o` in its tangent plane (defined up to integer steps of `scale` along `q` and `n × q`).
+//! Both are smoothed by Gauss–Seidel sweeps over colour classes, coarse to fine, comparing neighbours
+//! directly in 3D ("extrinsic"), which lets the field follow curvature.
+
+use rayon::prelude::*;
+
+use super::hierarchy::Level;
+use crate::geometry::sampling::Rng;
+use crate::geometry::vec3::{self, V3, add, cross, dot, scale, sub};
+
+/// Project `v` to the plane with unit normal `n` and normalise; a fallback tangent when `v` ∥ `n`.
+#[inline]
+pub fn tangent_unit(v: V3, n: V3) -> V3 {
+    let t = sub(v, scale(n, dot(n, v)));
+    let l = vec3::norm(t);
+    if l > 1e-12 {
+        return scale(t, 1.0 / l);
+    }
+    let a = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+    let t = cross(n, a);
+    scale(t, 1.0 / vec3::norm(t))
+}
+
+/// `q` rotated by `k` quarter turns about `n`.
+#[inline]
+pub fn rotate90(q: V3, n: V3, k: u32) -> V3 {
+    match k & 3 {
+        0 => q,
+        1 => cross(n, q),
+        2 => scale(q, -1.0),
+        _ => scale(cross(n, q), -1.0),
+    }
+}
+
+/// Of the 4 representatives of (`q1`, `n1`), the number of quarter turns that best matches `q0`.
+#[inline]
+pub fn best_rotation(q0: V3, q1: V3, n1: V3) -> u32 {
+    let t1 = cross(n1, q1);
+    let (a, b) = (dot(q0, q1), dot(q0, t1));
+    if a.abs() >= b.abs() {
+        if a >= 0.0 { 0 } else { 2 }
+    } else if b >= 0.0 {
+        1
+    } else {
+        3
+    }
+}
+
+/// Among {q0, n0×q0} × {q1, n1×q1}, the best-aligned pair with signs matched.
+#[inline]
+fn compat_orientation(q0: V3, n0: V3, q1: V3, n1: V3) -> (V3, V3) {
+    let a = [q0, cross(n0, q0)];
+    let b = [q1, cross(n1, q1)];
+    let mut best = (-1.0, 0, 0);
+    for (i, ai) in a.iter().enumerate() {
+        for (j, bj) in b.iter().enumerate() {
+            let s = dot(*ai, *bj).abs();
+            if s > best.0 {
+                best = (s, i, j);
+            }
+        }
+    }
+    let (ai, bj) = (a[best.1], b[best.2]);
+    (ai, if dot(ai, bj) < 0.0 { scale(bj, -1.0) } else { bj })
+}
+
+/// Smooth the orientation field of `level` in place: `iterations` sweeps. `bias`, when given, pulls each
+/// vertex toward a preferred direction with the given weight (principal curvature alignment).
+pub fn smooth_orientation(level: &Level, q: &mut [V3], iterations: usize, bias: Option<&[(V3, f64)]>) {
+    for _ in 0..iterations {
+        for class in &level.colours {
+            let updates: Vec<V3> = class
+                .par_iter()
+                .map(|&i| {
+                    let i = i as usize;
+                    let ni = level.n[i];
+                    let mut sum = q[i];
+                    let mut wsum = 0.0;
+                    let mut step = |qj: V3, nj: V3, w: f64, sum: &mut V3| {
+                        let (a, b) = compat_orientation(*sum, ni, qj, nj);
+                        *sum = add(scale(a, wsum), scale(b, w));
+                        wsum += w;
+                        *sum = tangent_unit(*sum, ni);
+                    };
+                    for (j, w) in level.neighbours(i) {
+                        step(q[j], level.n[j], w, &mut sum);
+                    }
+                    if let Some(bias) = bias {
+                        let (d, w) = bias[i];
+                        if w > 0.0 {
+                            step(d, ni, w, &mut sum);
+                        }
+                    }
+                    sum
+                })
+                .collect();
+            for (&i, u) in class.iter().zip(updates) {
+                q[i as usize] = u;
+            }
+        }
+    }
+}
+
+/// The least-squares point on both tangent planes of an edge (Instant Meshes' `middle_point`).
+#[inline]
+pub fn middle_point(p0: V3, n0: V3, p1: V3, n1: V3) -> V3 {
+    let n0p0 = dot(n0, p0);
+    let n0p1 = dot(n0, p1);
+    let n1p0 = dot(n1, p0);
+    let n1p1 = dot(n1, p1);
+    let n0n1 = dot(n0, n1);
+    let denom = 1.0 / (1.0 - n0n1 * n0n1 + 1e-4);
+    let l0 = 2.0 * (n0p1 - n0p0 - n0n1 * (n1p0 - n1p1)) * denom;
+    let l1 = 2.0 * (n1p0 - n1p1 - n0n1 * (n0p1 - n0p0)) * denom;
+    sub(scale(add(p0, p1), 0.5), scale(add(scale(n0, l0), scale(n1, l1)), 0.25))
+}
+
+/// Integer lattice coordinates (floor) of `p` in the frame (`o`, `q`, `n×q`) with spacing `s`.
+#[inline]
+fn lattice_floor(o: V3, q: V3, t: V3, p: V3, inv_s: f64) -> [i64; 2] {
+    let d = sub(p, o);
+    [(dot(q, d) * inv_s).floor() as i64, (dot(t, d) * inv_s).floor() as i64]
+}
+
+#[inline]
+fn lattice_point(o: V3, q: V3, t: V3, c: [i64; 2], s: f64) -> V3 {
+    add(o, add(scale(q, c[0] as f64 * s), scale(t, c[1] as f64 * s)))
+}
+
+/// The vertex data one position-compatibility test needs.
+#[derive(Copy, Clone, Debug)]
+pub struct Frame {
+    pub p: V3,
+    pub n: V3,
+    pub q: V3,
+    pub o: V3,
+}
+
+/// Closest pair of lattice points of two frames near their edge's middle point, as integer coordinates
+/// relative to each frame's origin (frame 1 rotated to match frame 0 first).
+#[inline]
+pub fn compat_position_index(f0: &Frame, f1: &Frame, s: f64) -> ([i64; 2], [i64; 2]) {
+    let inv_s = 1.0 / s;
+    let q1 = rotate90(f1.q, f1.n, best_rotation(f0.q, f1.q, f1.n));
+    let t0 = cross(f0.n, f0.q);
+    let t1 = cross(f1.n, q1);
+    let m = middle_point(f0.p, f0.n, f1.p, f1.n);
+    let b0 = lattice_floor(f0.o, f0.q, t0, m, inv_s);
+    let b1 = lattice_floor(f1.o, q1, t1, m, inv_s);
+    let mut best = (f64::INFINITY, b0, b1);
+    for i in 0..4 {
+        let c0 = [b0[0] + (i & 1), b0[1] + (i >> 1)];
+        let x0 = lattice_point(f0.o, f0.q, t0, c0, s);
+        for j in 0..4 {
+            let c1 = [b1[0] + (j & 1), b1[1] + (j >> 1)];
+            let x1 = lattice_point(f1.o, q1, t1, c1, s);
+            let d = vec3::norm2(sub(x0, x1));
+            if d < best.0 {
+                best = (d, c0, c1);
+            }
+        }
+    }
+    (best.1, best.2)
+}
+
+#[inline]
+fn compat_position(f0: &Frame, f1: &Frame, s: f64) -> (V3, V3) {
+    let (c0, c1) = compat_position_index(f0, f1, s);
+    let q1 = rotate90(f1.q, f1.n, best_rotation(f0.q, f1.q, f1.n));
+    (lattice_point(f0.o, f0.q, cross(f0.n, f0.q), c0, s), lattice_point(f1.o, q1, cross(f1.n, q1), c1, s))
+}
+
+/// The lattice point of (`o`, `q`) nearest `p` (rounding), within the tangent plane at `p`.
+#[inline]
+pub fn lattice_round(o: V3, q: V3, n: V3, p: V3, s: f64) -> V3 {
+    let t = cross(n, q);
+    let d = sub(p, o);
+    let inv_s = 1.0 / s;
+    let c = [(dot(q, d) * inv_s).round() as i64, (dot(t, d) * inv_s).round() as i64];
+    lattice_point(o, q, t, c, s)
+}
+
+/// Smooth the position field of `level` in place (`o` holds lattice origins) with lattice spacing `s`.
+pub fn smooth_position(level: &Level, q: &[V3], o: &mut [V3], s: f64, iterations: usize) {
+    for _ in 0..iterations {
+        for class in &level.colours {
+            let updates: Vec<V3> = class
+                .par_iter()
+                .map(|&i| {
+                    let i = i as usize;
+                    let (pi, ni, qi) = (level.p[i], level.n[i], q[i]);
+                    let mut sum = o[i];
+                    let mut wsum = 0.0;
+                    for (j, w) in level.neighbours(i) {
+                        let f0 = Frame { p: pi, n: ni, q: qi, o: sum };
+                        let f1 = Frame { p: level.p[j], n: level.n[j], q: q[j], o: o[j] };
+                        let (a, b) = compat_position(&f0, &f1, s);
+                        sum = scale(add(scale(a, wsum), scale(b, w)), 1.0 / (wsum + w));
+                        wsum += w;
+                        sum = sub(sum, scale(ni, dot(ni, sub(sum, pi))));
+                    }
+                    lattice_round(sum, qi, ni, pi, s)
+                })
+                .collect();
+            for (&i, u) in class.iter().zip(updates) {
+                o[i as usize] = u;
+            }
+        }
+    }
+}
+
+/// Solve the orientation field on all levels, coarsest first; returns every level's field, finest first.
+pub fn solve_orientation(levels: &[Level], iterations: usize, seed: u64, bias: Option<&[(V3, f64)]>) -> Vec<Vec<V3>> {
+    let mut rng = Rng::new(seed);
+    let coarse = levels.last().expect("non-empty hierarchy");
+    let mut q: Vec<V3> = coarse
+        .n
+        .iter()
+        .map(|&n| tangent_unit([rng.next_f64() - 0.5, rng.next_f64() - 0.5, rng.next_f64() - 0.5], n))
+        .collect();
+    let mut all = vec![Vec::new(); levels.len()];
+    for l in (0..levels.len()).rev() {
+        let level = &levels[l];
+        if l + 1 < levels.len() {
+            q = (0..level.len()).map(|i| tangent_unit(q[level.parent[i] as usize], level.n[i])).collect();
+        }
+        smooth_orientation(level, &mut q, iterations, if l == 0 { bias } else { None });
+        all[l] = q.clone();
+    }
+    all
+}
+
+/// Solve the position field on all levels (needs each level's orientation: `qs[l]`), coarsest first.
+pub fn solve_position(levels: &[Level], qs: &[Vec<V3>], s: f64, iterations: usize, seed: u64) -> Vec<V3> {
+    let mut rng = Rng::new(seed ^ 0x9e37_79b9_7f4a_7c15);
+    let last = levels.len() - 1;
+    let coarse = &levels[last];
+    let mut o: Vec<V3> = (0..coarse.len())
+        .map(|i| {
+            let (p, n, q) = (coarse.p[i], coarse.n[i], qs[last][i]);
+            let t = cross(n, q);
+            add(p, add(scale(q, (rng.next_f64() - 0.5) * s), scale(t, (rng.next_f64() - 0.5) * s)))
+        })
+        .collect();
+    for l in (0..levels.len()).rev() {
+        let level = &levels[l];
+        if l < last {
+            o = (0..level.len())
+                .map(|i| {
+                    let op = o[level.parent[i] as usize];
+                    let (p, n) = (level.p[i], level.n[i]);
+                    sub(op, scale(n, dot(n, sub(op, p))))
+                })
+                .collect();
+        }
+        smooth_position(level, &qs[l], &mut o, s, iterations);
+    }
+    o
+}

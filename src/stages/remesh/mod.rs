@@ -1,0 +1,540 @@
+//! **remesh** — field-aligned pure-quad remeshing (the Instant Meshes core, Jakob et al. 2015, followed by a
+//! clean-up that guarantees a closed pure-quad mesh).
+//!
+//! Steps, each counted in [`RemeshReport`]:
+//! 1. a working copy of the input at a resolution suited to the target: very dense inputs are decimated
+//!    (QEM) to about [`WORK_PER_COARSE`] vertices per coarse output vertex, coarse ones are subdivided;
+//! 2. a multi-resolution hierarchy ([`hierarchy`]);
+//! 3. the extrinsic 4-RoSy orientation field, coarse to fine, pulled toward principal curvature directions
+//!    where the curvature is clearly anisotropic ([`field`]);
+//! 4. the 4-PoSy position field at lattice spacing `scale`;
+//! 5. extraction of a quad-dominant mesh ([`extract`]), closed by construction;
+//! 6. clean-up to a pure-quad mesh ([`quadify`]): large faces cut, triangle pairs merged, one regular split;
+//! 7. projection onto the input surface and tangential relaxation.
+//!
+//! **How the vertex count is matched.** The split in step 6 turns a quad-dominant mesh with V vertices,
+//! E edges and F faces into a pure-quad mesh with exactly V + E + F vertices (≈ 4V). The field is therefore
+//! solved at a quarter of the target, and the extraction is repeated with the spacing scaled by
+//! √(predicted / target) until the predicted count is within [`COUNT_TOLERANCE`] of the target (at most
+//! [`MAX_ATTEMPTS`] extractions; the closest attempt wins).
+//!
+//! The stage needs a closed 2-manifold triangle mesh (`remesh.input-not-closed` otherwise: run `repair`
+//! first). It is deterministic for a fixed seed, whatever the number of threads: the fields are updated by
+//! colour classes, each class in parallel from the previous values of the other classes.
+
+pub mod extract;
+pub mod field;
+pub mod hierarchy;
+pub mod quadify;
+
+use std::collections::{BTreeMap, HashMap};
+use std::time::Instant;
+
+use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::bvh::TriangleBvh;
+use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
+use crate::geometry::topology::TopologyReport;
+use crate::geometry::vec3::{self, V3, cross, dot, sub, wide};
+use crate::stages::Progress;
+use crate::stages::quality::{CompareOptions, DistanceReport, compare, percentile};
+use crate::stages::repair::decimate::decimate;
+
+/// Working vertices per coarse (pre-split) output vertex the working mesh is decimated to.
+pub const WORK_PER_COARSE: usize = 24;
+/// Relative tolerance on the final vertex count before another extraction is tried.
+pub const COUNT_TOLERANCE: f64 = 0.03;
+/// Most extractions tried while matching the vertex count.
+pub const MAX_ATTEMPTS: usize = 5;
+
+/// Settings of [`remesh`].
+#[derive(Clone, Debug)]
+pub struct RemeshOptions {
+    /// Final vertex count wanted (of the pure-quad mesh).
+    pub target_vertices: usize,
+    /// Seed of the random initial fields.
+    pub seed: u64,
+    /// Gauss–Seidel sweeps per hierarchy level, for each field.
+    pub iterations: usize,
+    /// Tangential relaxation rounds after projection.
+    pub relax_iterations: usize,
+    /// Weight of the principal-curvature pull (0 disables it).
+    pub curvature_weight: f64,
+    /// Samples per side for the distance to the input (0 skips it).
+    pub compare_samples: usize,
+    /// Most bytes the stage may allocate.
+    pub memory_budget: u64,
+}
+
+impl Default for RemeshOptions {
+    fn default() -> Self {
+        RemeshOptions {
+            target_vertices: 10_000,
+            seed: 0,
+            iterations: 6,
+            relax_iterations: 3,
+            curvature_weight: 1.0,
+            compare_samples: 200_000,
+            memory_budget: 8 << 30,
+        }
+    }
+}
+
+/// Quality figures of a quad(-dominant) mesh.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct QuadStats {
+    pub vertices: usize,
+    pub faces: usize,
+    /// Faces by degree, e.g. `{"4": 9998}`.
+    pub faces_by_degree: BTreeMap<usize, usize>,
+    /// Share of faces that are quads.
+    pub quad_fraction: f64,
+    /// Vertices by valence (number of edges).
+    pub valence_histogram: BTreeMap<usize, usize>,
+    /// Vertices of valence ≠ 4.
+    pub irregular_vertices: usize,
+    /// `irregular_vertices / vertices`.
+    pub irregular_fraction: f64,
+    /// Smallest valence.
+    pub min_valence: usize,
+    pub closed: bool,
+    pub boundary_edges: usize,
+    pub boundary_loops: usize,
+    pub nonmanifold_edges: usize,
+    pub nonmanifold_vertices: usize,
+    pub components: usize,
+    pub euler_characteristic: i64,
+    /// Faces whose normal points against the input surface's normal at the face centre.
+    pub flipped_faces: usize,
+    /// |corner angle − 90°| over all quad corners: mean and 95th percentile, degrees.
+    pub angle_deviation_mean_deg: f64,
+    pub angle_deviation_p95_deg: f64,
+    /// Edge length: mean and coefficient of variation.
+    pub edge_length_mean: f64,
+    pub edge_length_cv: f64,
+}
+
+/// One extraction while the vertex count was matched.
+#[derive(Clone, Debug, Serialize)]
+pub struct Attempt {
+    /// Lattice spacing of the quad-dominant mesh.
+    pub scale: f64,
+    /// Vertices of the quad-dominant mesh.
+    pub extracted_vertices: usize,
+    /// Faces of the quad-dominant mesh by degree, before clean-up.
+    pub extracted_faces_by_degree: BTreeMap<usize, usize>,
+    /// Vertices after the pure-quad split (V + E + F).
+    pub predicted_vertices: usize,
+}
+
+use serde::Serialize;
+
+/// What [`remesh`] did and measured. Keys are the JSON keys.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct RemeshReport {
+    pub target_vertices: usize,
+    pub input_vertices: usize,
+    pub input_faces: usize,
+    pub input_area: f64,
+    pub input_euler_characteristic: i64,
+    /// Vertices of the working copy the fields were solved on.
+    pub working_vertices: usize,
+    /// "as-is", "decimated" or "subdivided ×k".
+    pub working_mesh: String,
+    pub hierarchy_levels: usize,
+    pub attempts: Vec<Attempt>,
+    /// Index of the attempt kept.
+    pub chosen_attempt: usize,
+    pub snapped_vertices: usize,
+    pub low_valence_vertices_removed: usize,
+    pub dangling_edges_removed: usize,
+    pub cleanup: quadify::CleanupCounts,
+    /// The final pure-quad mesh.
+    pub output: QuadStats,
+    /// Vertex count error: (output − target) / target.
+    pub vertex_count_error: f64,
+    /// Two-sided distance of the output (its quads split into triangles) to the input.
+    pub distance: Option<DistanceReport>,
+    /// Seconds per phase.
+    pub seconds: BTreeMap<String, f64>,
+}
+
+/// Remesh a closed 2-manifold triangle mesh into a pure-quad mesh of about `opts.target_vertices` vertices.
+///
+/// # Errors
+/// `remesh.input-not-closed` for an open, non-manifold or inconsistently oriented input;
+/// `input.bad-argument` for a target below 8 or above 10⁷ vertices; `resource.memory-budget` when the
+/// estimate exceeds `opts.memory_budget`; `remesh.failed` when no attempt yields a closed 2-manifold quad mesh.
+///
+/// Cost: O(V_work · iterations · levels) for the fields, O(V_out log F_in) for projection; memory about
+/// 600 bytes per working vertex plus 80 bytes per input triangle.
+pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> Result<(PolyMesh, RemeshReport)> {
+    let mut report = RemeshReport { target_vertices: opts.target_vertices, ..Default::default() };
+    let mut clock = Instant::now();
+    if !(8..=10_000_000).contains(&opts.target_vertices) {
+        return Err(Error::new(
+            ErrorCode::InputBadArgument,
+            format!("target of {} vertices is outside 8 ..= 10,000,000", opts.target_vertices),
+        ));
+    }
+    let poly = PolyMesh::from(mesh.clone());
+    let topo = TopologyReport::compute(&poly);
+    if !topo.closed || topo.nonmanifold_edges > 0 || topo.nonmanifold_vertices > 0 || !topo.consistently_oriented {
+        return Err(Error::new(
+            ErrorCode::RemeshInputNotClosed,
+            format!(
+                "remesh needs a closed, oriented 2-manifold; this mesh has {} boundary edges, {} non-manifold \
+                 edges, {} non-manifold vertices, {} orientation conflicts",
+                topo.boundary_edges, topo.nonmanifold_edges, topo.nonmanifold_vertices, topo.orientation_conflicts
+            ),
+        )
+        .with_hint("run `scanstation repair IN -o OUT` first"));
+    }
+    let work_estimate = 600 * (WORK_PER_COARSE as u64 * opts.target_vertices as u64 / 4).max(mesh.positions.len() as u64)
+        + 80 * mesh.triangles.len() as u64;
+    if work_estimate > opts.memory_budget {
+        return Err(Error::new(
+            ErrorCode::ResourceMemoryBudget,
+            format!("remesh needs about {work_estimate} bytes; the budget is {}", opts.memory_budget),
+        ));
+    }
+    report.input_vertices = topo.referenced_vertices;
+    report.input_faces = topo.faces;
+    report.input_area = topo.area;
+    report.input_euler_characteristic = topo.euler_characteristic;
+    let area = topo.area;
+    let coarse_target = opts.target_vertices as f64 / 4.0;
+
+    // 1. Working mesh.
+    progress.report(0.0, "working mesh");
+    let mut p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
+    let mut tris = mesh.triangles.clone();
+    drop_unreferenced(&mut p, &mut tris);
+    let want = (WORK_PER_COARSE as f64 * coarse_target) as usize;
+    report.working_mesh = "as-is".into();
+    if p.len() > want * 3 / 2 {
+        decimate(&mut p, &mut tris, want, opts.seed);
+        report.working_mesh = "decimated".into();
+    } else {
+        let mut k = 0;
+        while p.len() * 2 < want && k < 4 {
+            subdivide_midpoints(&mut p, &mut tris);
+            k += 1;
+        }
+        if k > 0 {
+            report.working_mesh = format!("subdivided ×{k}");
+        }
+    }
+    report.working_vertices = p.len();
+    lap(&mut clock, "working_mesh", &mut report);
+
+    // 2–3. Hierarchy and orientation field.
+    progress.report(0.1, "hierarchy");
+    let levels = hierarchy::build(&p, &tris);
+    report.hierarchy_levels = levels.len();
+    lap(&mut clock, "hierarchy", &mut report);
+    progress.report(0.2, "orientation field");
+    let bias = (opts.curvature_weight > 0.0).then(|| curvature_directions(&levels[0], opts.curvature_weight));
+    let qs = field::solve_orientation(&levels, opts.iterations, opts.seed, bias.as_deref());
+    lap(&mut clock, "orientation", &mut report);
+
+    // 4–6. Position field and extraction, steering the vertex count.
+    let target = opts.target_vertices as f64;
+    let mut s = (area / coarse_target).sqrt();
+    let mut best: Option<(f64, extract::Extracted, Vec<Vec<u32>>, quadify::CleanupCounts)> = None;
+    let mut t_pos = 0.0;
+    let mut t_ext = 0.0;
+    for attempt in 0..MAX_ATTEMPTS {
+        progress.report(0.3 + 0.1 * attempt as f64, "position field");
+        let t0 = Instant::now();
+        let o = field::solve_position(&levels, &qs, s, opts.iterations, opts.seed);
+        t_pos += t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let ex = extract::extract(&levels[0], &qs[0], &o, s);
+        let mut by_degree = BTreeMap::new();
+        for f in &ex.faces {
+            *by_degree.entry(f.len()).or_insert(0) += 1;
+        }
+        let mut faces = ex.faces.clone();
+        let mut counts = quadify::CleanupCounts::default();
+        quadify::split_pinched(&mut faces, &mut counts);
+        quadify::cut_large_faces(&ex.positions, &mut faces, &mut counts);
+        quadify::merge_triangle_pairs(&ex.positions, &mut faces, &mut counts);
+        let predicted = quadify::split_vertex_count(ex.positions.len(), &faces);
+        t_ext += t0.elapsed().as_secs_f64();
+        report.attempts.push(Attempt {
+            scale: s,
+            extracted_vertices: ex.positions.len(),
+            extracted_faces_by_degree: by_degree,
+            predicted_vertices: predicted,
+        });
+        let err = (predicted as f64 / target - 1.0).abs();
+        if best.as_ref().is_none_or(|b| err < b.0) {
+            report.chosen_attempt = attempt;
+            best = Some((err, ex, faces, counts));
+        }
+        if err <= COUNT_TOLERANCE || predicted == 0 {
+            break;
+        }
+        s *= (predicted as f64 / target).sqrt();
+    }
+    report.seconds.insert("position".into(), t_pos);
+    report.seconds.insert("extraction".into(), t_ext);
+    clock = Instant::now();
+    let (_, ex, faces, counts) = best.expect("at least one attempt");
+    report.snapped_vertices = ex.snapped;
+    report.low_valence_vertices_removed = ex.low_valence_removed;
+    report.dangling_edges_removed = ex.dangling_edges_removed;
+    report.cleanup = counts;
+    if faces.is_empty() {
+        return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no face was extracted")
+            .with_hint("the target may be too small for this shape; try more vertices"));
+    }
+
+    // 7. Pure quads on the input surface.
+    progress.report(0.8, "projection");
+    let (mut qp, quads) = quadify::split_to_quads(&ex.positions, &faces);
+    let bvh = TriangleBvh::new(mesh);
+    quadify::relax_and_project(&mut qp, &quads, &bvh, opts.relax_iterations, 0.5);
+    let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
+    let qfaces: Vec<Vec<u32>> = quads.iter().map(|q| q.to_vec()).collect();
+    let out = PolyMesh::new(positions, &qfaces)?;
+    lap(&mut clock, "projection", &mut report);
+
+    progress.report(0.9, "measure");
+    report.output = quad_stats(&out, Some((mesh, &bvh)));
+    report.vertex_count_error = report.output.vertices as f64 / target - 1.0;
+    if opts.compare_samples > 0 {
+        let copts = CompareOptions { samples: opts.compare_samples, seed: opts.seed, ..Default::default() };
+        let d = compare(&Geometry::Mesh(out.clone()), &Geometry::Mesh(poly), &copts, &crate::stages::NoProgress)?;
+        report.distance = Some(d);
+    }
+    lap(&mut clock, "measure", &mut report);
+    if !report.output.closed || report.output.nonmanifold_edges > 0 {
+        return Err(Error::new(
+            ErrorCode::RemeshFailed,
+            format!(
+                "clean-up: the quad mesh has {} boundary edges and {} non-manifold edges",
+                report.output.boundary_edges, report.output.nonmanifold_edges
+            ),
+        ));
+    }
+    progress.report(1.0, "done");
+    Ok((out, report))
+}
+
+fn lap(clock: &mut Instant, name: &str, report: &mut RemeshReport) {
+    report.seconds.insert(name.to_string(), clock.elapsed().as_secs_f64());
+    *clock = Instant::now();
+}
+
+/// Drop vertices no triangle uses, renumbering the triangles.
+fn drop_unreferenced(p: &mut Vec<V3>, tris: &mut [[u32; 3]]) {
+    let mut map = vec![u32::MAX; p.len()];
+    let mut next = 0u32;
+    let mut kept = Vec::with_capacity(p.len());
+    for t in tris.iter_mut() {
+        for v in t.iter_mut() {
+            if map[*v as usize] == u32::MAX {
+                map[*v as usize] = next;
+                kept.push(p[*v as usize]);
+                next += 1;
+            }
+            *v = map[*v as usize];
+        }
+    }
+    *p = kept;
+}
+
+/// Split every triangle into four at its edge midpoints (the surface is unchanged).
+fn subdivide_midpoints(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) {
+    let mut mid: HashMap<(u32, u32), u32> = HashMap::with_capacity(tris.len() * 3 / 2);
+    let mut out = Vec::with_capacity(tris.len() * 4);
+    for &t in tris.iter() {
+        let mut m = [0u32; 3];
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            m[k] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                p.push(vec3::scale(vec3::add(p[a as usize], p[b as usize]), 0.5));
+                (p.len() - 1) as u32
+            });
+        }
+        out.push([t[0], m[0], m[2]]);
+        out.push([t[1], m[1], m[0]]);
+        out.push([t[2], m[2], m[1]]);
+        out.push(m);
+    }
+    *tris = out;
+}
+
+/// Principal direction of largest |curvature| per vertex with a weight for how anisotropic the curvature
+/// is (0 where it is umbilic or flat). Estimated from normal variation along the 1-ring edges.
+fn curvature_directions(level: &hierarchy::Level, weight: f64) -> Vec<(V3, f64)> {
+    (0..level.len())
+        .map(|i| {
+            let (pi, ni) = (level.p[i], level.n[i]);
+            let x = field::tangent_unit([1.0, 0.3, 0.2], ni);
+            let y = cross(ni, x);
+            // Fit the 2×2 shape operator S from dn ≈ S dp over the ring (least squares via normal equations
+            // of the symmetric form [a b; b c]).
+            let mut m = [[0.0f64; 3]; 3];
+            let mut r = [0.0f64; 3];
+            let mut count = 0;
+            for (j, _) in level.neighbours(i) {
+                let dp = sub(level.p[j], pi);
+                let dn = sub(level.n[j], ni);
+                let (u, v) = (dot(dp, x), dot(dp, y));
+                let (du, dv) = (dot(dn, x), dot(dn, y));
+                // du = a u + b v ; dv = b u + c v
+                let rows = [([u, v, 0.0], du), ([0.0, u, v], dv)];
+                for (a, rhs) in rows {
+                    for r0 in 0..3 {
+                        for c0 in 0..3 {
+                            m[r0][c0] += a[r0] * a[c0];
+                        }
+                        r[r0] += a[r0] * rhs;
+                    }
+                }
+                count += 1;
+            }
+            if count < 3 {
+                return (x, 0.0);
+            }
+            let Some([a, b, c]) = solve3(m, r) else { return (x, 0.0) };
+            // Eigen-decomposition of [a b; b c].
+            let half_diff = 0.5 * (a - c);
+            let disc = (half_diff * half_diff + b * b).sqrt();
+            let mean = 0.5 * (a + c);
+            let (k1, k2) = (mean + disc, mean - disc);
+            let theta = 0.5 * (2.0 * b).atan2(a - c);
+            let dir = vec3::add(vec3::scale(x, theta.cos()), vec3::scale(y, theta.sin()));
+            let aniso = (k1.abs() - k2.abs()).abs() / (k1.abs() + k2.abs() + 1e-30);
+            let strength = (k1.abs().max(k2.abs()) * level.area[i].sqrt()).min(1.0);
+            let w = weight * aniso * aniso * strength;
+            (dir, if w > 0.05 * weight { w } else { 0.0 })
+        })
+        .collect()
+}
+
+fn solve3(m: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(m);
+    let scale_ = m.iter().flatten().map(|x| x.abs()).fold(0.0, f64::max);
+    if d.abs() <= 1e-12 * scale_.powi(3) || d == 0.0 {
+        return None;
+    }
+    let mut out = [0.0; 3];
+    for k in 0..3 {
+        let mut mk = m;
+        for row in 0..3 {
+            mk[row][k] = r[row];
+        }
+        out[k] = det(mk) / d;
+    }
+    Some(out)
+}
+
+/// Quality figures of a polygon mesh; with `input` (mesh and its BVH) also the flipped-face count.
+///
+/// Cost: O(H log H) for H corners, plus one closest-point query per face with `input`.
+pub fn quad_stats(mesh: &PolyMesh, input: Option<(&TriMesh, &TriangleBvh)>) -> QuadStats {
+    let topo = TopologyReport::compute(mesh);
+    let p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
+    let mut st = QuadStats {
+        vertices: topo.referenced_vertices,
+        faces: topo.faces,
+        faces_by_degree: topo.faces_by_degree.clone(),
+        closed: topo.closed,
+        boundary_edges: topo.boundary_edges,
+        boundary_loops: topo.boundary_loops,
+        nonmanifold_edges: topo.nonmanifold_edges,
+        nonmanifold_vertices: topo.nonmanifold_vertices,
+        components: topo.components,
+        euler_characteristic: topo.euler_characteristic,
+        ..Default::default()
+    };
+    st.quad_fraction = *topo.faces_by_degree.get(&4).unwrap_or(&0) as f64 / topo.faces.max(1) as f64;
+    let mut edges: Vec<(u32, u32)> = Vec::with_capacity(mesh.corner_count());
+    for f in mesh.faces() {
+        for k in 0..f.len() {
+            let (a, b) = (f[k], f[(k + 1) % f.len()]);
+            edges.push((a.min(b), a.max(b)));
+        }
+    }
+    edges.sort_unstable();
+    edges.dedup();
+    let mut valence = vec![0usize; p.len()];
+    let mut lengths = Vec::with_capacity(edges.len());
+    for &(a, b) in &edges {
+        valence[a as usize] += 1;
+        valence[b as usize] += 1;
+        lengths.push(vec3::norm(sub(p[a as usize], p[b as usize])));
+    }
+    let mut referenced = vec![false; p.len()];
+    for &v in mesh.corner_indices() {
+        referenced[v as usize] = true;
+    }
+    st.min_valence = usize::MAX;
+    for (v, &k) in valence.iter().enumerate() {
+        if referenced[v] {
+            *st.valence_histogram.entry(k).or_insert(0) += 1;
+            st.min_valence = st.min_valence.min(k);
+            if k != 4 {
+                st.irregular_vertices += 1;
+            }
+        }
+    }
+    if st.min_valence == usize::MAX {
+        st.min_valence = 0;
+    }
+    st.irregular_fraction = st.irregular_vertices as f64 / st.vertices.max(1) as f64;
+    let mut dev = Vec::new();
+    for f in mesh.faces() {
+        if f.len() != 4 {
+            continue;
+        }
+        for k in 0..4 {
+            let c = p[f[k] as usize];
+            let a = sub(p[f[(k + 3) % 4] as usize], c);
+            let b = sub(p[f[(k + 1) % 4] as usize], c);
+            let (na, nb) = (vec3::norm(a), vec3::norm(b));
+            if na > 0.0 && nb > 0.0 {
+                let cos = (dot(a, b) / (na * nb)).clamp(-1.0, 1.0);
+                dev.push((cos.acos().to_degrees() - 90.0).abs());
+            }
+        }
+    }
+    if !dev.is_empty() {
+        st.angle_deviation_mean_deg = dev.iter().sum::<f64>() / dev.len() as f64;
+        st.angle_deviation_p95_deg = percentile(&mut dev, 0.95);
+    }
+    if !lengths.is_empty() {
+        let mean = lengths.iter().sum::<f64>() / lengths.len() as f64;
+        let var = lengths.iter().map(|l| (l - mean) * (l - mean)).sum::<f64>() / lengths.len() as f64;
+        st.edge_length_mean = mean;
+        st.edge_length_cv = if mean > 0.0 { var.sqrt() / mean } else { 0.0 };
+    }
+    if let Some((input, bvh)) = input {
+        let ip: Vec<V3> = input.positions.iter().map(|&x| wide(x)).collect();
+        for f in mesh.faces() {
+            // Polygon normal (Newell) and centre.
+            let mut nrm = [0.0; 3];
+            let mut c = [0.0; 3];
+            for k in 0..f.len() {
+                let (a, b) = (p[f[k] as usize], p[f[(k + 1) % f.len()] as usize]);
+                nrm = vec3::add(nrm, cross(a, b));
+                c = vec3::add(c, a);
+            }
+            c = vec3::scale(c, 1.0 / f.len() as f64);
+            if let Some(cl) = bvh.closest(c) {
+                let tn = vec3::tri_cross(&ip, input.triangles[cl.index as usize]);
+                if dot(tn, nrm) < 0.0 {
+                    st.flipped_faces += 1;
+                }
+            }
+        }
+    }
+    st
+}
