@@ -76,6 +76,9 @@ enum Command {
         /// Gauss–Seidel sweeps per hierarchy level for each field.
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().iterations)]
         iterations: usize,
+        /// Working-mesh vertices per output vertex.
+        #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex)]
+        work_per_vertex: f64,
         /// Weight of the pull toward principal curvature directions (0 = off).
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight)]
         curvature_weight: f64,
@@ -134,11 +137,21 @@ fn main() -> ExitCode {
             pipeline::repair_file(input, output, &read, &opts, &NoProgress)
                 .map(|r| if cli.json { print_json(&r) } else { print_repair(&r) })
         }
-        Command::Remesh { input, output, vertices, edge_length, seed, iterations, curvature_weight } => {
+        Command::Remesh {
+            input,
+            output,
+            vertices,
+            edge_length,
+            seed,
+            iterations,
+            curvature_weight,
+            work_per_vertex,
+        } => {
             let opts = scanstation::stages::remesh::RemeshOptions {
                 seed: *seed,
                 iterations: *iterations,
                 curvature_weight: *curvature_weight,
+                work_per_vertex: *work_per_vertex,
                 memory_budget: cli.memory_budget,
                 ..Default::default()
             };
@@ -192,15 +205,21 @@ fn print_remesh(r: &pipeline::RemeshFileReport) {
     println!("{} -> {}", r.input_file.display(), r.output_file.display());
     println!(
         "  input: {} vertices, {} faces, χ = {}; working mesh {} ({} vertices), {} levels",
-        m.input_vertices, m.input_faces, m.input_euler_characteristic, m.working_mesh, m.working_vertices,
+        m.input_vertices,
+        m.input_faces,
+        m.input_euler_characteristic,
+        m.working_mesh,
+        m.working_vertices,
         m.hierarchy_levels
     );
     for (i, a) in m.attempts.iter().enumerate() {
         println!(
-            "  attempt {i}: scale {:.5}, {} extracted vertices, faces by degree {:?} -> {} predicted{}",
+            "  attempt {i} ({:?}): scale {:.5}, {} extracted vertices, faces by degree {:?}, {} unpaired -> {} predicted{}",
+            a.mode,
             a.scale,
             a.extracted_vertices,
             a.extracted_faces_by_degree,
+            a.triangles_unpaired,
             a.predicted_vertices,
             if i == m.chosen_attempt { " (kept)" } else { "" }
         );

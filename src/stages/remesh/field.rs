@@ -213,7 +213,12 @@ pub fn smooth_position(level: &Level, q: &[V3], o: &mut [V3], s: f64, iterations
 }
 
 /// Solve the orientation field on all levels, coarsest first; returns every level's field, finest first.
-pub fn solve_orientation(levels: &[Level], iterations: usize, seed: u64, bias: Option<&[(V3, f64)]>) -> Vec<Vec<V3>> {
+pub fn solve_orientation(
+    levels: &[Level],
+    iterations: usize,
+    seed: u64,
+    bias: Option<&[Vec<(V3, f64)>]>,
+) -> Vec<Vec<V3>> {
     let mut rng = Rng::new(seed);
     let coarse = levels.last().expect("non-empty hierarchy");
     let mut q: Vec<V3> = coarse
@@ -227,7 +232,7 @@ pub fn solve_orientation(levels: &[Level], iterations: usize, seed: u64, bias: O
         if l + 1 < levels.len() {
             q = (0..level.len()).map(|i| tangent_unit(q[level.parent[i] as usize], level.n[i])).collect();
         }
-        smooth_orientation(level, &mut q, iterations, if l == 0 { bias } else { None });
+        smooth_orientation(level, &mut q, iterations, bias.map(|b| b[l].as_slice()));
         all[l] = q.clone();
     }
     all

@@ -128,7 +128,13 @@ pub fn coarsen(fine: &mut Level) -> Level {
         for (j, _) in fine.neighbours(i) {
             if j > i {
                 let (ai, aj) = (fine.area[i], fine.area[j]);
-                let balance = if ai > aj { aj / ai } else if aj > 0.0 { ai / aj } else { 1.0 };
+                let balance = if ai > aj {
+                    aj / ai
+                } else if aj > 0.0 {
+                    ai / aj
+                } else {
+                    1.0
+                };
                 cand.push((vec3::dot(fine.n[i], fine.n[j]) * balance, i as u32, j as u32));
             }
         }

@@ -39,8 +39,9 @@ use crate::stages::Progress;
 use crate::stages::quality::{CompareOptions, DistanceReport, compare, percentile};
 use crate::stages::repair::decimate::decimate;
 
-/// Working vertices per coarse (pre-split) output vertex the working mesh is decimated to.
-pub const WORK_PER_COARSE: usize = 24;
+/// Working vertices per output vertex the working mesh is decimated to (Instant Meshes needs input edges
+/// shorter than half the spacing, i.e. at least 4).
+pub const WORK_PER_VERTEX: f64 = 6.0;
 /// Relative tolerance on the final vertex count before another extraction is tried.
 pub const COUNT_TOLERANCE: f64 = 0.03;
 /// Most extractions tried while matching the vertex count.
@@ -53,6 +54,11 @@ pub struct RemeshOptions {
     pub target_vertices: usize,
     /// Seed of the random initial fields.
     pub seed: u64,
+    /// Try direct extraction at the target spacing first (experimental: succeeds only when every triangle
+    /// pairs along a straight quad strip).
+    pub try_direct: bool,
+    /// Working-mesh vertices per output vertex (the working mesh is decimated or subdivided toward this).
+    pub work_per_vertex: f64,
     /// Gauss–Seidel sweeps per hierarchy level, for each field.
     pub iterations: usize,
     /// Tangential relaxation rounds after projection.
@@ -70,8 +76,10 @@ impl Default for RemeshOptions {
         RemeshOptions {
             target_vertices: 10_000,
             seed: 0,
+            work_per_vertex: WORK_PER_VERTEX,
+            try_direct: false,
             iterations: 6,
-            relax_iterations: 3,
+            relax_iterations: 10,
             curvature_weight: 1.0,
             compare_samples: 200_000,
             memory_budget: 8 << 30,
@@ -113,17 +121,87 @@ pub struct QuadStats {
     pub edge_length_cv: f64,
 }
 
+/// How the pure-quad mesh was made.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mode {
+    /// Extracted at the target spacing; triangles paired along quad strips.
+    Direct,
+    /// Extracted at twice the spacing, then every n-gon split into n quads (fallback).
+    Split,
+}
+
 /// One extraction while the vertex count was matched.
 #[derive(Clone, Debug, Serialize)]
 pub struct Attempt {
+    pub mode: Mode,
     /// Lattice spacing of the quad-dominant mesh.
     pub scale: f64,
     /// Vertices of the quad-dominant mesh.
     pub extracted_vertices: usize,
     /// Faces of the quad-dominant mesh by degree, before clean-up.
     pub extracted_faces_by_degree: BTreeMap<usize, usize>,
-    /// Vertices after the pure-quad split (V + E + F).
+    /// Triangles left after pairing (direct mode; the attempt is unusable when > 0).
+    pub triangles_unpaired: usize,
+    /// Vertices of the pure-quad mesh (split mode: V + E + F).
     pub predicted_vertices: usize,
+}
+
+/// Below this curvature anisotropy ((|k1| − |k2|) / (|k1| + |k2|)) no principal direction is imposed.
+pub const ANISOTROPY_MIN: f64 = 0.3;
+
+/// Scale of the first attempt relative to √(area / count): extraction loses a few vertices to snapping
+/// and pruning, so start slightly finer.
+pub const START_SCALE: f64 = 0.975;
+
+struct Candidate {
+    mode: Mode,
+    ex: extract::Extracted,
+    faces: Vec<Vec<u32>>,
+    counts: quadify::CleanupCounts,
+    by_degree: BTreeMap<usize, usize>,
+    predicted: usize,
+}
+
+fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode) -> Candidate {
+    let ex = extract::extract(level, q, o, s);
+    let mut by_degree = BTreeMap::new();
+    for f in &ex.faces {
+        *by_degree.entry(f.len()).or_insert(0) += 1;
+    }
+    let mut faces = ex.faces.clone();
+    let mut counts = quadify::CleanupCounts::default();
+    quadify::split_pinched(&mut faces, &mut counts);
+    quadify::cut_large_faces(&ex.positions, &mut faces, &mut counts);
+    let predicted = match mode {
+        Mode::Split => {
+            let mut extra = Vec::new();
+            quadify::cut_pentagons(&ex.positions, &mut faces, &mut extra, &mut counts);
+            faces.extend(extra);
+            quadify::pair_triangles(&mut faces, 12, 8, &mut counts);
+            counts.doublets_removed += quadify::remove_doublets(&mut faces);
+            quadify::split_vertex_count(ex.positions.len(), &faces)
+        }
+        Mode::Direct => {
+            let mut extra = Vec::new();
+            quadify::cut_pentagons(&ex.positions, &mut faces, &mut extra, &mut counts);
+            faces.extend(extra);
+            counts.doublets_removed += quadify::remove_doublets(&mut faces);
+            counts.triangles_unpaired = quadify::pair_triangles(&mut faces, 12, 8, &mut counts);
+            counts.doublets_removed += quadify::remove_doublets(&mut faces);
+            if faces.iter().any(|f| f.len() != 4) {
+                counts.triangles_unpaired = counts.triangles_unpaired.max(1);
+            }
+            let mut used = vec![false; ex.positions.len()];
+            for f in &faces {
+                for &v in f {
+                    used[v as usize] = true;
+                }
+            }
+            used.iter().filter(|&&u| u).count()
+        }
+    };
+    Candidate { mode, ex, faces, counts, by_degree, predicted }
 }
 
 use serde::Serialize;
@@ -141,6 +219,10 @@ pub struct RemeshReport {
     /// "as-is", "decimated" or "subdivided ×k".
     pub working_mesh: String,
     pub hierarchy_levels: usize,
+    /// Working-mesh triangles around which the orientation field turns by a non-zero multiple of 90°.
+    pub orientation_singularities: usize,
+    /// The mode of the attempt kept.
+    pub mode: Option<Mode>,
     pub attempts: Vec<Attempt>,
     /// Index of the attempt kept.
     pub chosen_attempt: usize,
@@ -189,7 +271,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         )
         .with_hint("run `scanstation repair IN -o OUT` first"));
     }
-    let work_estimate = 600 * (WORK_PER_COARSE as u64 * opts.target_vertices as u64 / 4).max(mesh.positions.len() as u64)
+    let work_estimate = 600
+        * ((opts.work_per_vertex * opts.target_vertices as f64) as u64).max(mesh.positions.len() as u64)
         + 80 * mesh.triangles.len() as u64;
     if work_estimate > opts.memory_budget {
         return Err(Error::new(
@@ -202,21 +285,20 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.input_area = topo.area;
     report.input_euler_characteristic = topo.euler_characteristic;
     let area = topo.area;
-    let coarse_target = opts.target_vertices as f64 / 4.0;
 
     // 1. Working mesh.
     progress.report(0.0, "working mesh");
     let mut p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
     let mut tris = mesh.triangles.clone();
     drop_unreferenced(&mut p, &mut tris);
-    let want = (WORK_PER_COARSE as f64 * coarse_target) as usize;
+    let want = (opts.work_per_vertex * opts.target_vertices as f64) as usize;
     report.working_mesh = "as-is".into();
     if p.len() > want * 3 / 2 {
         decimate(&mut p, &mut tris, want, opts.seed);
         report.working_mesh = "decimated".into();
     } else {
         let mut k = 0;
-        while p.len() * 2 < want && k < 4 {
+        while p.len() * 4 <= want * 3 / 2 && k < 4 {
             subdivide_midpoints(&mut p, &mut tris);
             k += 1;
         }
@@ -233,54 +315,63 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.hierarchy_levels = levels.len();
     lap(&mut clock, "hierarchy", &mut report);
     progress.report(0.2, "orientation field");
-    let bias = (opts.curvature_weight > 0.0).then(|| curvature_directions(&levels[0], opts.curvature_weight));
+    let bias: Option<Vec<Vec<(V3, f64)>>> = (opts.curvature_weight > 0.0)
+        .then(|| levels.iter().map(|l| curvature_directions(l, opts.curvature_weight)).collect());
     let qs = field::solve_orientation(&levels, opts.iterations, opts.seed, bias.as_deref());
+    report.orientation_singularities = orientation_singularities(&levels[0], &qs[0], &tris);
     lap(&mut clock, "orientation", &mut report);
 
-    // 4–6. Position field and extraction, steering the vertex count.
+    // 4–6. Position field and extraction, steering the vertex count: direct mode first, the split route
+    // (quarter count, then one regular split) only when triangles stay unpaired.
     let target = opts.target_vertices as f64;
-    let mut s = (area / coarse_target).sqrt();
-    let mut best: Option<(f64, extract::Extracted, Vec<Vec<u32>>, quadify::CleanupCounts)> = None;
+    let mut best: Option<(f64, Candidate)> = None;
     let mut t_pos = 0.0;
     let mut t_ext = 0.0;
-    for attempt in 0..MAX_ATTEMPTS {
-        progress.report(0.3 + 0.1 * attempt as f64, "position field");
-        let t0 = Instant::now();
-        let o = field::solve_position(&levels, &qs, s, opts.iterations, opts.seed);
-        t_pos += t0.elapsed().as_secs_f64();
-        let t0 = Instant::now();
-        let ex = extract::extract(&levels[0], &qs[0], &o, s);
-        let mut by_degree = BTreeMap::new();
-        for f in &ex.faces {
-            *by_degree.entry(f.len()).or_insert(0) += 1;
+    let modes: &[Mode] = if opts.try_direct { &[Mode::Direct, Mode::Split] } else { &[Mode::Split] };
+    for &mode in modes {
+        let per_vertex = if mode == Mode::Direct { 1.0 } else { 4.0 };
+        let mut s = START_SCALE * (area * per_vertex / target).sqrt();
+        for _ in 0..MAX_ATTEMPTS {
+            progress.report((0.3 + 0.1 * report.attempts.len() as f64).min(0.75), "position field");
+            let t0 = Instant::now();
+            let o = field::solve_position(&levels, &qs, s, opts.iterations, opts.seed);
+            t_pos += t0.elapsed().as_secs_f64();
+            let t0 = Instant::now();
+            let c = candidate(&levels[0], &qs[0], &o, s, mode);
+            t_ext += t0.elapsed().as_secs_f64();
+            let predicted = c.predicted;
+            let valid = c.counts.triangles_unpaired == 0;
+            report.attempts.push(Attempt {
+                mode,
+                scale: s,
+                extracted_vertices: c.ex.positions.len(),
+                extracted_faces_by_degree: c.by_degree.clone(),
+                triangles_unpaired: c.counts.triangles_unpaired,
+                predicted_vertices: predicted,
+            });
+            let err = (predicted as f64 / target - 1.0).abs();
+            if valid && best.as_ref().is_none_or(|b| err < b.0) {
+                report.chosen_attempt = report.attempts.len() - 1;
+                best = Some((err, c));
+            }
+            if predicted == 0 || (err <= COUNT_TOLERANCE && valid) || !valid {
+                break;
+            }
+            s *= (predicted as f64 / target).sqrt();
         }
-        let mut faces = ex.faces.clone();
-        let mut counts = quadify::CleanupCounts::default();
-        quadify::split_pinched(&mut faces, &mut counts);
-        quadify::cut_large_faces(&ex.positions, &mut faces, &mut counts);
-        quadify::merge_triangle_pairs(&ex.positions, &mut faces, &mut counts);
-        let predicted = quadify::split_vertex_count(ex.positions.len(), &faces);
-        t_ext += t0.elapsed().as_secs_f64();
-        report.attempts.push(Attempt {
-            scale: s,
-            extracted_vertices: ex.positions.len(),
-            extracted_faces_by_degree: by_degree,
-            predicted_vertices: predicted,
-        });
-        let err = (predicted as f64 / target - 1.0).abs();
-        if best.as_ref().is_none_or(|b| err < b.0) {
-            report.chosen_attempt = attempt;
-            best = Some((err, ex, faces, counts));
-        }
-        if err <= COUNT_TOLERANCE || predicted == 0 {
+        if best.as_ref().is_some_and(|b| b.0 <= 0.1) {
             break;
         }
-        s *= (predicted as f64 / target).sqrt();
     }
     report.seconds.insert("position".into(), t_pos);
     report.seconds.insert("extraction".into(), t_ext);
     clock = Instant::now();
-    let (_, ex, faces, counts) = best.expect("at least one attempt");
+    let Some((_, chosen)) = best else {
+        return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no attempt gave a closed quad mesh")
+            .with_hint("the target may be too small for this shape; try more vertices"));
+    };
+    let Candidate { ex, faces, counts, mode, .. } = chosen;
+    report.mode = Some(mode);
     report.snapped_vertices = ex.snapped;
     report.low_valence_vertices_removed = ex.low_valence_removed;
     report.dangling_edges_removed = ex.dangling_edges_removed;
@@ -292,12 +383,18 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
 
     // 7. Pure quads on the input surface.
     progress.report(0.8, "projection");
-    let (mut qp, quads) = quadify::split_to_quads(&ex.positions, &faces);
     let bvh = TriangleBvh::new(mesh);
+    let mut coarse = ex.positions.clone();
+    quadify::relax_and_project(&mut coarse, &faces, &bvh, opts.relax_iterations, 0.5);
+    let (qp, mut quads) = match mode {
+        Mode::Split => quadify::split_to_quads(&coarse, &faces),
+        Mode::Direct => (coarse, faces),
+    };
+    report.cleanup.doublets_removed += quadify::remove_doublets(&mut quads);
+    let mut qp = compact(qp, &mut quads);
     quadify::relax_and_project(&mut qp, &quads, &bvh, opts.relax_iterations, 0.5);
     let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
-    let qfaces: Vec<Vec<u32>> = quads.iter().map(|q| q.to_vec()).collect();
-    let out = PolyMesh::new(positions, &qfaces)?;
+    let out = PolyMesh::new(positions, &quads)?;
     lap(&mut clock, "projection", &mut report);
 
     progress.report(0.9, "measure");
@@ -325,6 +422,34 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
 fn lap(clock: &mut Instant, name: &str, report: &mut RemeshReport) {
     report.seconds.insert(name.to_string(), clock.elapsed().as_secs_f64());
     *clock = Instant::now();
+}
+
+/// Triangles of the working mesh around which the 4-RoSy field has a non-zero index.
+fn orientation_singularities(level: &hierarchy::Level, q: &[V3], tris: &[[u32; 3]]) -> usize {
+    tris.iter()
+        .filter(|t| {
+            let [a, b, c] = t.map(|v| v as usize);
+            let k = |i: usize, j: usize| field::best_rotation(q[i], q[j], level.n[j]);
+            // Rotation taking j's representative to i's, composed around a → b → c → a.
+            (k(a, b) + k(b, c) + k(c, a)) % 4 != 0
+        })
+        .count()
+}
+
+/// Keep only the vertices some face uses, renumbering the faces.
+fn compact(p: Vec<V3>, faces: &mut [Vec<u32>]) -> Vec<V3> {
+    let mut map = vec![u32::MAX; p.len()];
+    let mut out = Vec::with_capacity(p.len());
+    for f in faces.iter_mut() {
+        for v in f.iter_mut() {
+            if map[*v as usize] == u32::MAX {
+                map[*v as usize] = out.len() as u32;
+                out.push(p[*v as usize]);
+            }
+            *v = map[*v as usize];
+        }
+    }
+    out
 }
 
 /// Drop vertices no triangle uses, renumbering the triangles.
@@ -407,10 +532,9 @@ fn curvature_directions(level: &hierarchy::Level, weight: f64) -> Vec<(V3, f64)>
             let (k1, k2) = (mean + disc, mean - disc);
             let theta = 0.5 * (2.0 * b).atan2(a - c);
             let dir = vec3::add(vec3::scale(x, theta.cos()), vec3::scale(y, theta.sin()));
+            // Scale-free: how much one principal curvature dominates (0 umbilic/flat … 1 cylinder-like).
             let aniso = (k1.abs() - k2.abs()).abs() / (k1.abs() + k2.abs() + 1e-30);
-            let strength = (k1.abs().max(k2.abs()) * level.area[i].sqrt()).min(1.0);
-            let w = weight * aniso * aniso * strength;
-            (dir, if w > 0.05 * weight { w } else { 0.0 })
+            (dir, if aniso > ANISOTROPY_MIN { weight * aniso * aniso } else { 0.0 })
         })
         .collect()
 }

@@ -23,6 +23,14 @@ pub struct CleanupCounts {
     pub triangle_pairs_merged: usize,
     /// Faces that repeated a vertex (pinched) and were split at it.
     pub pinched_faces_split: usize,
+    /// Pentagons cut into a quad and a triangle.
+    pub pentagons_cut: usize,
+    /// Quads re-diagonalised between paired triangles.
+    pub strip_quads_rediagonalised: usize,
+    /// Triangles no strip could pair (they force the split fallback).
+    pub triangles_unpaired: usize,
+    /// Valence-2 vertices removed by merging their two faces.
+    pub doublets_removed: usize,
 }
 
 /// Split faces that visit a vertex twice into simple cycles.
@@ -140,7 +148,7 @@ pub fn split_vertex_count(nv: usize, faces: &[Vec<u32>]) -> usize {
 }
 
 /// Split every n-gon into n quads around its centre. Returns positions and quads.
-pub fn split_to_quads(p: &[V3], faces: &[Vec<u32>]) -> (Vec<V3>, Vec<[u32; 4]>) {
+pub fn split_to_quads(p: &[V3], faces: &[Vec<u32>]) -> (Vec<V3>, Vec<Vec<u32>>) {
     let mut pos = p.to_vec();
     let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
     let mut quads = Vec::with_capacity(faces.iter().map(Vec::len).sum());
@@ -163,18 +171,18 @@ pub fn split_to_quads(p: &[V3], faces: &[Vec<u32>]) -> (Vec<V3>, Vec<[u32; 4]>) 
         pos.push(scale(c, 1.0 / n as f64));
         let cid = (pos.len() - 1) as u32;
         for k in 0..n {
-            quads.push([f[k], ms[k], cid, ms[(k + n - 1) % n]]);
+            quads.push(vec![f[k], ms[k], cid, ms[(k + n - 1) % n]]);
         }
     }
     (pos, quads)
 }
 
-/// Unit vertex normals of a quad mesh (sum of the quads' diagonal cross products).
-pub fn quad_vertex_normals(p: &[V3], quads: &[[u32; 4]]) -> Vec<V3> {
+/// Unit vertex normals of a polygon mesh (sums of the faces' Newell normals).
+pub fn vertex_normals(p: &[V3], faces: &[Vec<u32>]) -> Vec<V3> {
     let mut nrm = vec![[0.0; 3]; p.len()];
-    for q in quads {
-        let c = quad_normal(p, q);
-        for &v in q {
+    for f in faces {
+        let c = polygon_normal(p, f);
+        for &v in f {
             nrm[v as usize] = add(nrm[v as usize], c);
         }
     }
@@ -187,19 +195,22 @@ pub fn quad_vertex_normals(p: &[V3], quads: &[[u32; 4]]) -> Vec<V3> {
     nrm
 }
 
-/// Twice the vector area of a quad: the cross product of its diagonals.
+/// Twice the vector area of a polygon (Newell).
 #[inline]
-pub fn quad_normal(p: &[V3], q: &[u32; 4]) -> V3 {
-    let [a, b, c, d] = q.map(|i| p[i as usize]);
-    cross(sub(c, a), sub(d, b))
+pub fn polygon_normal(p: &[V3], f: &[u32]) -> V3 {
+    let mut n = [0.0; 3];
+    for k in 0..f.len() {
+        n = add(n, cross(p[f[k] as usize], p[f[(k + 1) % f.len()] as usize]));
+    }
+    n
 }
 
-/// Vertex adjacency (edge neighbours) of a quad mesh as CSR.
-pub fn quad_adjacency(nv: usize, quads: &[[u32; 4]]) -> (Vec<u32>, Vec<u32>) {
-    let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(quads.len() * 8);
-    for q in quads {
-        for k in 0..4 {
-            let (a, b) = (q[k], q[(k + 1) % 4]);
+/// Vertex adjacency (edge neighbours) of a polygon mesh as CSR.
+pub fn adjacency(nv: usize, faces: &[Vec<u32>]) -> (Vec<u32>, Vec<u32>) {
+    let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(faces.len() * 8);
+    for f in faces {
+        for k in 0..f.len() {
+            let (a, b) = (f[k], f[(k + 1) % f.len()]);
             pairs.push((a, b));
             pairs.push((b, a));
         }
@@ -216,9 +227,9 @@ pub fn quad_adjacency(nv: usize, quads: &[[u32; 4]]) -> (Vec<u32>, Vec<u32>) {
     (off, pairs.into_iter().map(|(_, b)| b).collect())
 }
 
-/// Project every vertex onto the input surface, then `iterations` rounds of tangential Laplacian relaxation
-/// (Jacobi, step `lambda`) each followed by re-projection.
-pub fn relax_and_project(p: &mut [V3], quads: &[[u32; 4]], bvh: &TriangleBvh, iterations: usize, lambda: f64) {
+/// Project every vertex onto the surface of `bvh`, then `iterations` rounds of tangential Laplacian
+/// relaxation (Jacobi, step `lambda`) each followed by re-projection.
+pub fn relax_and_project(p: &mut [V3], faces: &[Vec<u32>], bvh: &TriangleBvh, iterations: usize, lambda: f64) {
     let project = |p: &mut [V3]| {
         p.par_iter_mut().for_each(|x| {
             if let Some(c) = bvh.closest(*x) {
@@ -227,9 +238,9 @@ pub fn relax_and_project(p: &mut [V3], quads: &[[u32; 4]], bvh: &TriangleBvh, it
         });
     };
     project(p);
-    let (off, adj) = quad_adjacency(p.len(), quads);
+    let (off, adj) = adjacency(p.len(), faces);
     for _ in 0..iterations {
-        let nrm = quad_vertex_normals(p, quads);
+        let nrm = vertex_normals(p, faces);
         let cur: &[V3] = p;
         let next: Vec<V3> = (0..cur.len())
             .into_par_iter()
@@ -251,5 +262,251 @@ pub fn relax_and_project(p: &mut [V3], quads: &[[u32; 4]], bvh: &TriangleBvh, it
             .collect();
         p.copy_from_slice(&next);
         project(p);
+    }
+}
+
+/// Cut pentagons into a quad and a triangle along their shortest diagonal.
+pub fn cut_pentagons(p: &[V3], faces: &mut [Vec<u32>], extra: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
+    for f in faces.iter_mut() {
+        if f.len() != 5 {
+            continue;
+        }
+        counts.pentagons_cut += 1;
+        let k = (0..5)
+            .min_by(|&a, &b| {
+                let d = |k: usize| vec3::norm2(sub(p[f[k] as usize], p[f[(k + 3) % 5] as usize]));
+                d(a).total_cmp(&d(b)).then(a.cmp(&b))
+            })
+            .expect("five corners");
+        let quad: Vec<u32> = (0..4).map(|i| f[(k + i) % 5]).collect();
+        let tri = vec![f[(k + 3) % 5], f[(k + 4) % 5], f[k]];
+        *f = quad;
+        extra.push(tri);
+    }
+}
+
+/// A straight strip between two triangles: apexes, the two side chains and the faces it covers.
+struct Strip {
+    a: u32,
+    b: u32,
+    x: Vec<u32>,
+    y: Vec<u32>,
+    faces: Vec<u32>,
+}
+
+/// The new quads of a strip with the rungs shifted to (x[i+1], y[i]) (see [`pair_triangles`]).
+fn strip_quads(a: u32, b: u32, x: &[u32], y: &[u32]) -> Vec<Vec<u32>> {
+    let k = x.len() - 1;
+    (0..=k)
+        .map(|i| {
+            let mut q = if i == 0 { vec![a, x[0]] } else { vec![y[i - 1], x[i]] };
+            if i == k {
+                q.extend([b, y[k]]);
+            } else {
+                q.extend([x[i + 1], y[i]]);
+            }
+            q
+        })
+        .collect()
+}
+
+/// Pair triangles along straight quad strips of at most `max_len` quads and re-diagonalise each strip, so
+/// that the two triangles and the k quads between them become k + 1 quads. Euler characteristic and all
+/// other faces are unchanged; two vertices at the strip's ends lose one edge each (the variant whose ends
+/// have the higher valence is chosen, and no vertex drops below valence 3). Returns the triangles left.
+pub fn pair_triangles(faces: &mut Vec<Vec<u32>>, max_len: usize, rounds: usize, counts: &mut CleanupCounts) -> usize {
+    for _ in 0..rounds {
+        let mut half: HashMap<(u32, u32), u32> = HashMap::with_capacity(faces.len() * 4);
+        let mut valence: HashMap<u32, u32> = HashMap::new();
+        for (fi, f) in faces.iter().enumerate() {
+            for k in 0..f.len() {
+                let (a, b) = (f[k], f[(k + 1) % f.len()]);
+                half.insert((a, b), fi as u32);
+                if a < b {
+                    *valence.entry(a).or_insert(0) += 1;
+                    *valence.entry(b).or_insert(0) += 1;
+                }
+            }
+        }
+        let tris: Vec<u32> = (0..faces.len() as u32).filter(|&f| faces[f as usize].len() == 3).collect();
+        if tris.is_empty() {
+            return 0;
+        }
+        // Candidate strips from every triangle in all three directions.
+        let mut cands: Vec<Strip> = Vec::new();
+        for &t in &tris {
+            let f = &faces[t as usize];
+            for k in 0..3 {
+                let (mut xv, mut yv) = (f[k], f[(k + 1) % 3]);
+                let a = f[(k + 2) % 3];
+                let mut strip = Strip { a, b: u32::MAX, x: vec![xv], y: vec![yv], faces: vec![t] };
+                for _ in 0..=max_len {
+                    let Some(&g) = half.get(&(yv, xv)) else { break };
+                    if strip.faces.contains(&g) {
+                        break;
+                    }
+                    let gf = &faces[g as usize];
+                    let j = gf.iter().position(|&v| v == yv).expect("half-edge face has the vertex");
+                    strip.faces.push(g);
+                    if gf.len() == 3 {
+                        strip.b = gf[(j + 2) % 3];
+                        break;
+                    }
+                    if gf.len() != 4 {
+                        break;
+                    }
+                    let (nx, ny) = (gf[(j + 2) % 4], gf[(j + 3) % 4]);
+                    strip.x.push(nx);
+                    strip.y.push(ny);
+                    xv = nx;
+                    yv = ny;
+                }
+                if strip.b != u32::MAX && strip.faces.last() > Some(&t) {
+                    cands.push(strip);
+                }
+            }
+        }
+        cands.sort_by_key(|s| (s.faces.len(), s.faces[0], s.faces[s.faces.len() - 1]));
+        let mut used = vec![false; faces.len()];
+        let mut new_edges: std::collections::HashSet<(u32, u32)> = std::collections::HashSet::new();
+        let mut replaced: Vec<(Vec<u32>, Vec<Vec<u32>>)> = Vec::new();
+        for s in cands {
+            if s.faces.iter().any(|&f| used[f as usize]) {
+                continue;
+            }
+            // All strip vertices distinct.
+            let mut vs: Vec<u32> = s.x.iter().chain(&s.y).copied().chain([s.a, s.b]).collect();
+            vs.sort_unstable();
+            if vs.windows(2).any(|w| w[0] == w[1]) {
+                continue;
+            }
+            let val = |v: u32| *valence.get(&v).unwrap_or(&0) as i64;
+            let k = s.x.len() - 1;
+            // Variant A: x[0] and y[k] lose an edge; variant B: y[0] and x[k].
+            let gain = |u: u32, w: u32| -> Option<i64> {
+                let (vu, vw) = (val(u), val(w));
+                if vu <= 3 || vw <= 3 {
+                    return None;
+                }
+                Some(((vu - 4).abs() - (vu - 5).abs()) + ((vw - 4).abs() - (vw - 5).abs()))
+            };
+            let ga = gain(s.x[0], s.y[k]);
+            let gb = gain(s.y[0], s.x[k]);
+            let quads = match (ga, gb) {
+                (None, None) => continue,
+                (Some(a), Some(b)) if b > a => variant_b(&s),
+                (Some(_), _) => strip_quads(s.a, s.b, &s.x, &s.y),
+                (None, Some(_)) => variant_b(&s),
+            };
+            // The new diagonals must not exist yet.
+            let mut ok = true;
+            let mut diag = Vec::new();
+            for q in &quads {
+                for i in 0..4 {
+                    let (u, w) = (q[i], q[(i + 1) % 4]);
+                    if !half.contains_key(&(u, w)) && !half.contains_key(&(w, u)) {
+                        let e = (u.min(w), u.max(w));
+                        if new_edges.contains(&e) {
+                            ok = false;
+                        }
+                        diag.push(e);
+                    }
+                }
+            }
+            if !ok {
+                continue;
+            }
+            new_edges.extend(diag);
+            for &f in &s.faces {
+                used[f as usize] = true;
+            }
+            counts.triangle_pairs_merged += 1;
+            counts.strip_quads_rediagonalised += s.faces.len() - 2;
+            replaced.push((s.faces.clone(), quads));
+            // Valences change at the ends; refresh them for later candidates of this round.
+            let ends = if quads_is_variant_a(&replaced.last().expect("pushed").1, &s) {
+                [s.x[0], s.y[k]]
+            } else {
+                [s.y[0], s.x[k]]
+            };
+            for v in ends {
+                *valence.get_mut(&v).expect("strip vertex has edges") -= 1;
+            }
+        }
+        if replaced.is_empty() {
+            break;
+        }
+        let mut out: Vec<Vec<u32>> = faces.iter().zip(&used).filter(|(_, u)| !**u).map(|(f, _)| f.clone()).collect();
+        for (_, quads) in replaced {
+            out.extend(quads);
+        }
+        *faces = out;
+    }
+    faces.iter().filter(|f| f.len() == 3).count()
+}
+
+fn variant_b(s: &Strip) -> Vec<Vec<u32>> {
+    strip_quads(s.a, s.b, &s.y, &s.x)
+        .into_iter()
+        .map(|mut q| {
+            q.reverse();
+            q
+        })
+        .collect()
+}
+
+fn quads_is_variant_a(quads: &[Vec<u32>], s: &Strip) -> bool {
+    quads.first() == strip_quads(s.a, s.b, &s.x, &s.y).first()
+}
+
+/// Remove valence-2 vertices shared by exactly two faces ("doublets"): the two faces merge into one.
+/// Returns how many were removed.
+pub fn remove_doublets(faces: &mut Vec<Vec<u32>>) -> usize {
+    let mut removed = 0;
+    loop {
+        let mut vf: HashMap<u32, Vec<u32>> = HashMap::new();
+        let mut nb: HashMap<u32, std::collections::BTreeSet<u32>> = HashMap::new();
+        for (fi, f) in faces.iter().enumerate() {
+            for k in 0..f.len() {
+                vf.entry(f[k]).or_default().push(fi as u32);
+                let (a, b) = (f[k], f[(k + 1) % f.len()]);
+                nb.entry(a).or_default().insert(b);
+                nb.entry(b).or_default().insert(a);
+            }
+        }
+        let mut doublets: Vec<u32> = nb.iter().filter(|(_, s)| s.len() == 2).map(|(&v, _)| v).collect();
+        doublets.sort_unstable();
+        let mut used = vec![false; faces.len()];
+        let mut merged = Vec::new();
+        for v in doublets {
+            let fs = &vf[&v];
+            if fs.len() != 2 || used[fs[0] as usize] || used[fs[1] as usize] {
+                continue;
+            }
+            let rot = |f: &Vec<u32>| -> Vec<u32> {
+                let i = f.iter().position(|&x| x == v).expect("face has v");
+                f[i..].iter().chain(&f[..i]).copied().collect()
+            };
+            let (f1, f2) = (rot(&faces[fs[0] as usize]), rot(&faces[fs[1] as usize]));
+            // f1 = (v, b, …, a), f2 = (v, a, …, b).
+            if f1[1] != *f2.last().expect("≥3") || f2[1] != *f1.last().expect("≥3") {
+                continue;
+            }
+            let mut m: Vec<u32> = f1[1..].to_vec();
+            m.extend_from_slice(&f2[2..f2.len() - 1]);
+            if m.len() < 3 {
+                continue;
+            }
+            used[fs[0] as usize] = true;
+            used[fs[1] as usize] = true;
+            merged.push(m);
+            removed += 1;
+        }
+        if merged.is_empty() {
+            return removed;
+        }
+        let mut out: Vec<Vec<u32>> = faces.iter().zip(&used).filter(|(_, u)| !**u).map(|(f, _)| f.clone()).collect();
+        out.extend(merged);
+        *faces = out;
     }
 }

@@ -1,0 +1,122 @@
+//! The remesh stage: field oracles (valence deficit 0 on a torus and exactly 8 on a sphere),
+//! invariants of every output (closed, pure quads, χ kept, valence ≥ 3, count within 10 %), determinism,
+//! and bad input.
+
+use proptest::prelude::*;
+use scanstation::geometry::shapes::{icosphere, torus};
+use scanstation::stages::NoProgress;
+use scanstation::stages::remesh::{QuadStats, RemeshOptions, RemeshReport, remesh};
+use scanstation::{ErrorCode, PolyMesh, TriMesh};
+
+fn opts(target: usize) -> RemeshOptions {
+    RemeshOptions { target_vertices: target, compare_samples: 20_000, ..Default::default() }
+}
+
+fn run(mesh: &TriMesh, target: usize) -> (PolyMesh, RemeshReport) {
+    remesh(mesh, &opts(target), &NoProgress).unwrap_or_else(|e| panic!("remesh failed: {e}"))
+}
+
+/// Every output must be a closed pure-quad 2-manifold with the input's Euler characteristic, no vertex of
+/// valence below 3, no flipped face and a vertex count within 10 % of the target.
+fn assert_valid(o: &QuadStats, r: &RemeshReport, what: &str) {
+    assert_eq!(o.quad_fraction, 1.0, "{what}: faces by degree {:?}", o.faces_by_degree);
+    assert!(o.closed, "{what}: {} boundary edges", o.boundary_edges);
+    assert_eq!((o.nonmanifold_edges, o.nonmanifold_vertices), (0, 0), "{what}: non-manifold");
+    assert_eq!(o.euler_characteristic, r.input_euler_characteristic, "{what}: Euler characteristic");
+    assert!(o.min_valence >= 3, "{what}: valences {:?}", o.valence_histogram);
+    assert_eq!(o.flipped_faces, 0, "{what}: flipped faces");
+    assert!(r.vertex_count_error.abs() <= 0.10, "{what}: {} vertices for target {}", o.vertices, r.target_vertices);
+}
+
+#[test]
+fn torus_field_is_nearly_regular() {
+    // A torus admits a singularity-free cross field (along the principal directions). Its valences sum to
+    // exactly 4V. The isotropic lattice cannot tile rings of lengths 0.6·2π … 1.4·2π without position
+    // singularities, so irregular vertices remain (measured: 70–90 of 2000); the bound guards against
+    // regressions, the target of ≈ 0 needs an anisotropic or integer-optimised position field.
+    let t = torus(1.0, 0.4, 200, 80);
+    let (_, r) = run(&t, 2000);
+    let o = &r.output;
+    assert_valid(o, &r, "torus");
+    assert_eq!(o.euler_characteristic, 0);
+    let deficit: i64 = o.valence_histogram.iter().map(|(&k, &n)| (4 - k as i64) * n as i64).sum();
+    assert_eq!(deficit, 0, "torus: valences {:?}", o.valence_histogram);
+    println!(
+        "torus: {} orientation singularities, irregular {} valences {:?}",
+        r.orientation_singularities, o.irregular_vertices, o.valence_histogram
+    );
+    assert!(r.orientation_singularities <= 20, "torus: {} orientation singularities", r.orientation_singularities);
+    assert!(
+        o.irregular_fraction <= 0.05,
+        "torus: {} irregular vertices {:?}",
+        o.irregular_vertices,
+        o.valence_histogram
+    );
+}
+
+#[test]
+fn sphere_field_has_eight_valence_deficits() {
+    // Σ(4 − valence) = 4χ = 8 on a closed genus-0 quad mesh: at least 8 valence-3 vertices.
+    let s = icosphere(1.0, 5, [0.0; 3]);
+    let (q, r) = run(&s, 2000);
+    let o = &r.output;
+    assert_valid(o, &r, "sphere");
+    let deficit: i64 = o.valence_histogram.iter().map(|(&k, &n)| (4 - k as i64) * n as i64).sum();
+    assert_eq!(deficit, 8, "sphere: valences {:?}", o.valence_histogram);
+    println!("sphere: irregular {} valences {:?}", o.irregular_vertices, o.valence_histogram);
+    // Measured 61 of 2000 (position singularities come in 3–5 pairs); the target is 8 ± a few.
+    assert!(o.irregular_fraction <= 0.035, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
+    // Analytic oracle: every vertex lies on the unit sphere up to the icosphere's chordal error.
+    let worst = q.positions.iter().map(|p| (p.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt() - 1.0).abs());
+    let worst = worst.fold(0.0, f64::max);
+    assert!(worst < 2e-3, "sphere: a vertex is {worst} off the sphere");
+    let d = r.distance.as_ref().expect("measured");
+    assert!(d.symmetric.rms.pct_of_diagonal < 0.1, "sphere: RMS {}% of diagonal", d.symmetric.rms.pct_of_diagonal);
+}
+
+#[test]
+fn remesh_is_deterministic() {
+    let t = torus(1.0, 0.3, 120, 40);
+    let (a, _) = run(&t, 1500);
+    let (b, _) = run(&t, 1500);
+    assert_eq!(a, b);
+}
+
+#[test]
+fn vertex_count_follows_the_target() {
+    let s = icosphere(1.0, 5, [0.0; 3]);
+    for target in [500, 1000, 4000] {
+        let (_, r) = run(&s, target);
+        assert_valid(&r.output, &r, &format!("sphere at {target}"));
+    }
+}
+
+#[test]
+fn open_input_is_refused_with_a_stable_code() {
+    let mut s = icosphere(1.0, 3, [0.0; 3]);
+    s.triangles.pop();
+    let e = remesh(&s, &opts(500), &NoProgress).unwrap_err();
+    assert_eq!(e.code, ErrorCode::RemeshInputNotClosed);
+    assert!(e.to_string().contains("boundary edges"), "{e}");
+}
+
+#[test]
+fn absurd_targets_and_budgets_are_refused() {
+    let s = icosphere(1.0, 3, [0.0; 3]);
+    assert_eq!(remesh(&s, &opts(3), &NoProgress).unwrap_err().code, ErrorCode::InputBadArgument);
+    assert_eq!(remesh(&s, &opts(20_000_000), &NoProgress).unwrap_err().code, ErrorCode::InputBadArgument);
+    let tight = RemeshOptions { memory_budget: 1000, ..opts(500) };
+    assert_eq!(remesh(&s, &tight, &NoProgress).unwrap_err().code, ErrorCode::ResourceMemoryBudget);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 6, ..ProptestConfig::default() })]
+    /// Tori of any proportions and targets give valid pure-quad meshes.
+    #[test]
+    fn tori_remesh_validly(minor in 0.25f64..0.5, target in 600usize..2000, seed in 0u64..1000) {
+        let t = torus(1.0, minor, 120, 48);
+        let o = RemeshOptions { seed, ..opts(target) };
+        let (_, r) = remesh(&t, &o, &NoProgress).unwrap();
+        assert_valid(&r.output, &r, &format!("torus minor {minor} target {target} seed {seed}"));
+    }
+}
