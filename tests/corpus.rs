@@ -231,3 +231,62 @@ fn every_shared_mesh_repairs_to_a_closed_manifold() {
         );
     }
 }
+
+/// Every closed shared mesh, plus the repaired bunny and dragon, remeshes at a 10k-vertex target into a
+/// closed, 2-manifold, pure-quad mesh with valences ≥ 3 and a count within 10 %, keeping the Euler
+/// characteristic. Known limitation, asserted as such: the dragon loses handles thinner than the quad
+/// spacing (χ −40 → 0 or 2).
+#[test]
+fn every_closed_shared_mesh_remeshes_to_pure_quads() {
+    use scanstation::stages::remesh::{RemeshOptions, remesh};
+    use scanstation::stages::repair::{RepairOptions, repair};
+    let dir = data_dir();
+    let readme = std::fs::read_to_string(dir.join("README.md")).unwrap();
+    let wanted = |f: &str| f.contains("bun_zipper.ply") || f.contains("dragon");
+    for row in mesh_table(&readme).into_iter().filter(|r| r.closed || wanted(&r.file)) {
+        let f = &row.file;
+        let read = scanstation::geometry::io::read_mesh(&dir.join(f), &ReadOptions::default()).unwrap();
+        // The bunny has holes; the dragon is closed only by index (coincident vertices, zero-area faces).
+        let mesh = if !wanted(f) {
+            read.triangulate().0
+        } else {
+            let opts = RepairOptions { compare_samples: 1_000, ..Default::default() };
+            repair(&read, &opts, &NoProgress).unwrap_or_else(|e| panic!("{f}: repair: {e}")).0
+        };
+        let opts = RemeshOptions { target_vertices: 10_000, compare_samples: 100_000, ..Default::default() };
+        let (_, r) = remesh(&mesh, &opts, &NoProgress).unwrap_or_else(|e| panic!("{f}: {e}"));
+        let o = &r.output;
+        assert_eq!(o.quad_fraction, 1.0, "{f}: faces by degree {:?}", o.faces_by_degree);
+        assert!(o.closed, "{f}: {} boundary edges", o.boundary_edges);
+        assert_eq!((o.nonmanifold_edges, o.nonmanifold_vertices), (0, 0), "{f}: non-manifold");
+        assert!(o.min_valence >= 3, "{f}: valences {:?}", o.valence_histogram);
+        assert!(r.vertex_count_error.abs() <= 0.10, "{f}: {} vertices", o.vertices);
+        if f.contains("dragon") {
+            assert!(r.euler_characteristic_changed, "{f}: a χ change must be flagged");
+            assert!(o.euler_characteristic >= r.input_euler_characteristic, "{f}: χ {}", o.euler_characteristic);
+        } else {
+            assert!(!r.euler_characteristic_changed, "{f}: χ flagged as changed");
+            assert_eq!(o.euler_characteristic, r.input_euler_characteristic, "{f}: Euler characteristic");
+        }
+        // Open point of the issue (target 0): thin parts (armadillo fingers, dragon claws) still flip a few.
+        assert!(o.flipped_faces * 200 <= o.faces, "{f}: {} flipped faces", o.flipped_faces);
+        let d = r.distance.as_ref().expect("measured");
+        // Target 0.07 % on the dragon (open); the bound only catches gross failures (armadillo: 0.63 %).
+        assert!(d.symmetric.rms.pct_of_diagonal <= 1.0, "{f}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
+        println!(
+            "{f}: {} vertices, irregular {} ({:.2} %), χ {} → {}, flipped {}, angle dev mean {:.1}° p95 {:.1}°, RMS {:.4} % (quad→input {:.4} %, input→quad {:.4} %), {:.1} s",
+            o.vertices,
+            o.irregular_vertices,
+            100.0 * o.irregular_fraction,
+            r.input_euler_characteristic,
+            o.euler_characteristic,
+            o.flipped_faces,
+            o.angle_deviation_mean_deg,
+            o.angle_deviation_p95_deg,
+            d.symmetric.rms.pct_of_diagonal,
+            d.test_to_reference.rms.pct_of_diagonal,
+            d.reference_to_test.rms.pct_of_diagonal,
+            r.seconds.values().sum::<f64>()
+        );
+    }
+}

@@ -8,7 +8,8 @@
 //! 3. Faces come from a rotation system: the neighbours of each output vertex are sorted by angle in its
 //!    tangent plane and faces are traced by always taking the next edge clockwise. Any rotation system
 //!    traces a closed, oriented surface, so the result has no boundary and no non-manifold edge by
-//!    construction; edges with the same face on both sides are removed and the tracing repeated.
+//!    construction; edges with the same face on both sides and vertices a face visits twice are removed
+//!    and the tracing repeated.
 
 use rayon::prelude::*;
 
@@ -32,6 +33,8 @@ pub struct Extracted {
     pub snapped: usize,
     /// Edges removed because the same face lay on both sides.
     pub dangling_edges_removed: usize,
+    /// Vertices removed because a face visited them twice (a pinch).
+    pub pinch_vertices_removed: usize,
 }
 
 /// Extract from level 0 with orientation `q`, lattice origins `o` and spacing `s`.
@@ -96,11 +99,25 @@ pub fn extract(level: &Level, q: &[V3], o: &[V3], s: f64) -> Extracted {
         alive_edges = edges;
         let (f, dangling) = trace_faces(&graph.p, &graph.n, &alive_edges);
         faces = f;
-        if dangling.is_empty() {
+        // A face that visits a vertex twice pinches the surface there: drop that vertex, merging its faces.
+        let mut pinched: Vec<u32> = Vec::new();
+        for face in &faces {
+            let mut vs = face.clone();
+            vs.sort_unstable();
+            pinched.extend(vs.windows(2).filter(|w| w[0] == w[1]).map(|w| w[0]));
+        }
+        pinched.sort_unstable();
+        pinched.dedup();
+        if dangling.is_empty() && pinched.is_empty() {
             break;
         }
         out.dangling_edges_removed += dangling.len();
-        alive_edges.retain(|e| dangling.binary_search(e).is_err());
+        out.pinch_vertices_removed += pinched.len();
+        alive_edges.retain(|e| {
+            dangling.binary_search(e).is_err()
+                && pinched.binary_search(&e.0).is_err()
+                && pinched.binary_search(&e.1).is_err()
+        });
     }
     // Compact vertices.
     let mut used = vec![u32::MAX; nv];

@@ -181,7 +181,7 @@ pub fn coarsen(fine: &mut Level) -> Level {
             }
         }
     }
-    pairs.sort_unstable_by(|x, y| (x.0, x.1).cmp(&(y.0, y.1)));
+    pairs.sort_unstable_by_key(|x| (x.0, x.1));
     let mut merged: Vec<(u32, u32)> = Vec::with_capacity(pairs.len());
     let mut w: Vec<f32> = Vec::with_capacity(pairs.len());
     for (a, b, wt) in pairs {

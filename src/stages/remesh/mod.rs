@@ -45,7 +45,7 @@ pub const WORK_PER_VERTEX: f64 = 6.0;
 /// Relative tolerance on the final vertex count before another extraction is tried.
 pub const COUNT_TOLERANCE: f64 = 0.03;
 /// Most extractions tried while matching the vertex count.
-pub const MAX_ATTEMPTS: usize = 5;
+pub const MAX_ATTEMPTS: usize = 8;
 
 /// Settings of [`remesh`].
 #[derive(Clone, Debug)]
@@ -145,6 +145,8 @@ pub struct Attempt {
     pub triangles_unpaired: usize,
     /// Vertices of the pure-quad mesh (split mode: V + E + F).
     pub predicted_vertices: usize,
+    /// The quad-dominant mesh is closed, edge-manifold and has the input's Euler characteristic.
+    pub topology_ok: bool,
 }
 
 /// Below this curvature anisotropy ((|k1| − |k2|) / (|k1| + |k2|)) no principal direction is imposed.
@@ -161,6 +163,7 @@ struct Candidate {
     counts: quadify::CleanupCounts,
     by_degree: BTreeMap<usize, usize>,
     predicted: usize,
+    topology_ok: bool,
 }
 
 fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode) -> Candidate {
@@ -201,7 +204,7 @@ fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode) -
             used.iter().filter(|&&u| u).count()
         }
     };
-    Candidate { mode, ex, faces, counts, by_degree, predicted }
+    Candidate { mode, ex, faces, counts, by_degree, predicted, topology_ok: false }
 }
 
 use serde::Serialize;
@@ -221,6 +224,10 @@ pub struct RemeshReport {
     pub hierarchy_levels: usize,
     /// Working-mesh triangles around which the orientation field turns by a non-zero multiple of 90°.
     pub orientation_singularities: usize,
+    /// True when no attempt kept the input's Euler characteristic and a closed 2-manifold quad mesh with
+    /// another one was returned (handles or gaps thinner than the quad spacing closed or opened); a
+    /// warning is logged too.
+    pub euler_characteristic_changed: bool,
     /// The mode of the attempt kept.
     pub mode: Option<Mode>,
     pub attempts: Vec<Attempt>,
@@ -229,6 +236,7 @@ pub struct RemeshReport {
     pub snapped_vertices: usize,
     pub low_valence_vertices_removed: usize,
     pub dangling_edges_removed: usize,
+    pub pinch_vertices_removed: usize,
     pub cleanup: quadify::CleanupCounts,
     /// The final pure-quad mesh.
     pub output: QuadStats,
@@ -245,7 +253,9 @@ pub struct RemeshReport {
 /// # Errors
 /// `remesh.input-not-closed` for an open, non-manifold or inconsistently oriented input;
 /// `input.bad-argument` for a target below 8 or above 10⁷ vertices; `resource.memory-budget` when the
-/// estimate exceeds `opts.memory_budget`; `remesh.failed` when no attempt yields a closed 2-manifold quad mesh.
+/// estimate exceeds `opts.memory_budget`; `remesh.failed` when no attempt yields a closed 2-manifold quad
+/// mesh. An attempt with the input's Euler characteristic is preferred; when none has it, the closest
+/// closed manifold one is returned with `euler_characteristic_changed` set.
 ///
 /// Cost: O(V_work · iterations · levels) for the fields, O(V_out log F_in) for projection; memory about
 /// 600 bytes per working vertex plus 80 bytes per input triangle.
@@ -324,7 +334,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     // 4–6. Position field and extraction, steering the vertex count: direct mode first, the split route
     // (quarter count, then one regular split) only when triangles stay unpaired.
     let target = opts.target_vertices as f64;
-    let mut best: Option<(f64, Candidate)> = None;
+    let mut best: Option<(f64, usize, Candidate)> = None;
+    // Closed and manifold but with another Euler characteristic (handles thinner than the spacing lost).
+    let mut fallback: Option<(f64, usize, Candidate)> = None;
     let mut t_pos = 0.0;
     let mut t_ext = 0.0;
     let modes: &[Mode] = if opts.try_direct { &[Mode::Direct, Mode::Split] } else { &[Mode::Split] };
@@ -337,27 +349,35 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             let o = field::solve_position(&levels, &qs, s, opts.iterations, opts.seed);
             t_pos += t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let c = candidate(&levels[0], &qs[0], &o, s, mode);
+            let mut c = candidate(&levels[0], &qs[0], &o, s, mode);
+            let (chi, manifold) = quadify::polygon_check(&c.faces);
+            c.topology_ok = manifold && chi == report.input_euler_characteristic;
+            let usable = manifold && c.counts.triangles_unpaired == 0;
             t_ext += t0.elapsed().as_secs_f64();
             let predicted = c.predicted;
-            let valid = c.counts.triangles_unpaired == 0;
+            let c_unpaired = c.counts.triangles_unpaired > 0;
+            let valid = !c_unpaired && c.topology_ok;
             report.attempts.push(Attempt {
                 mode,
                 scale: s,
                 extracted_vertices: c.ex.positions.len(),
                 extracted_faces_by_degree: c.by_degree.clone(),
                 triangles_unpaired: c.counts.triangles_unpaired,
+                topology_ok: c.topology_ok,
                 predicted_vertices: predicted,
             });
             let err = (predicted as f64 / target - 1.0).abs();
+            let index = report.attempts.len() - 1;
             if valid && best.as_ref().is_none_or(|b| err < b.0) {
-                report.chosen_attempt = report.attempts.len() - 1;
-                best = Some((err, c));
+                best = Some((err, index, c));
+            } else if !valid && usable && fallback.as_ref().is_none_or(|b| err < b.0) {
+                fallback = Some((err, index, c));
             }
-            if predicted == 0 || (err <= COUNT_TOLERANCE && valid) || !valid {
+            if predicted == 0 || (mode == Mode::Direct && c_unpaired) || (valid && err <= COUNT_TOLERANCE) {
                 break;
             }
-            s *= (predicted as f64 / target).sqrt();
+            // Steer the count; an attempt with the wrong topology is retried at a slightly different spacing.
+            s *= (predicted as f64 / target).sqrt() * if valid { 1.0 } else { 0.985 };
         }
         if best.as_ref().is_some_and(|b| b.0 <= 0.1) {
             break;
@@ -366,15 +386,35 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.seconds.insert("position".into(), t_pos);
     report.seconds.insert("extraction".into(), t_ext);
     clock = Instant::now();
-    let Some((_, chosen)) = best else {
-        return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no attempt gave a closed quad mesh")
-            .with_hint("the target may be too small for this shape; try more vertices"));
+    if best.is_none() {
+        if let Some(f) = fallback.take() {
+            tracing::warn!(
+                input_chi = report.input_euler_characteristic,
+                "remesh: no attempt kept the Euler characteristic; keeping a closed manifold one that does not"
+            );
+            report.euler_characteristic_changed = true;
+            best = Some(f);
+        }
+    }
+    let Some((_, chosen_index, chosen)) = best else {
+        return Err(Error::new(
+            ErrorCode::RemeshFailed,
+            format!(
+                "extraction: none of {} attempts gave a closed 2-manifold quad mesh with the input's Euler \
+                 characteristic {} (features thinner than the quad spacing?)",
+                report.attempts.len(),
+                report.input_euler_characteristic
+            ),
+        )
+        .with_hint("try more vertices (a finer spacing) or another --seed"));
     };
+    report.chosen_attempt = chosen_index;
     let Candidate { ex, faces, counts, mode, .. } = chosen;
     report.mode = Some(mode);
     report.snapped_vertices = ex.snapped;
     report.low_valence_vertices_removed = ex.low_valence_removed;
     report.dangling_edges_removed = ex.dangling_edges_removed;
+    report.pinch_vertices_removed = ex.pinch_vertices_removed;
     report.cleanup = counts;
     if faces.is_empty() {
         return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no face was extracted")
@@ -406,12 +446,14 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         report.distance = Some(d);
     }
     lap(&mut clock, "measure", &mut report);
-    if !report.output.closed || report.output.nonmanifold_edges > 0 {
+    let o = &report.output;
+    if !o.closed || o.nonmanifold_edges > 0 || o.nonmanifold_vertices > 0 || o.quad_fraction < 1.0 {
         return Err(Error::new(
             ErrorCode::RemeshFailed,
             format!(
-                "clean-up: the quad mesh has {} boundary edges and {} non-manifold edges",
-                report.output.boundary_edges, report.output.nonmanifold_edges
+                "clean-up: the quad mesh has {} boundary edges, {} non-manifold edges, {} non-manifold vertices, \
+                 faces by degree {:?}",
+                o.boundary_edges, o.nonmanifold_edges, o.nonmanifold_vertices, o.faces_by_degree
             ),
         ));
     }

@@ -36,7 +36,7 @@ pub struct CleanupCounts {
 /// Split faces that visit a vertex twice into simple cycles.
 pub fn split_pinched(faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
     let mut out = Vec::with_capacity(faces.len());
-    let mut stack: Vec<Vec<u32>> = faces.drain(..).collect();
+    let mut stack: Vec<Vec<u32>> = std::mem::take(faces);
     while let Some(f) = stack.pop() {
         let mut split = None;
         'outer: for i in 0..f.len() {
@@ -65,8 +65,32 @@ pub fn split_pinched(faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
     *faces = out;
 }
 
+#[inline]
+fn key(a: u32, b: u32) -> (u32, u32) {
+    (a.min(b), a.max(b))
+}
+
+fn edge_set(faces: &[Vec<u32>]) -> std::collections::HashSet<(u32, u32)> {
+    faces.iter().flat_map(|f| (0..f.len()).map(move |k| key(f[k], f[(k + 1) % f.len()]))).collect()
+}
+
+/// Euler characteristic V − E + F of a polygon mesh over its referenced vertices, and whether every
+/// directed edge occurs once with its twin once (closed, edge-manifold, consistently oriented).
+pub fn polygon_check(faces: &[Vec<u32>]) -> (i64, bool) {
+    let mut half: Vec<(u32, u32)> =
+        faces.iter().flat_map(|f| (0..f.len()).map(move |k| (f[k], f[(k + 1) % f.len()]))).collect();
+    half.sort_unstable();
+    let dup = half.windows(2).any(|w| w[0] == w[1]);
+    let twins = half.iter().all(|&(a, b)| half.binary_search(&(b, a)).is_ok());
+    let mut vs: Vec<u32> = faces.iter().flatten().copied().collect();
+    vs.sort_unstable();
+    vs.dedup();
+    (vs.len() as i64 - (half.len() / 2) as i64 + faces.len() as i64, !dup && twins)
+}
+
 /// Cut faces of degree ≥ 6 into quads (plus at most one triangle or pentagon) along short diagonals.
 pub fn cut_large_faces(p: &[V3], faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
+    let mut edges = edge_set(faces);
     let mut out = Vec::with_capacity(faces.len());
     for f in faces.drain(..) {
         if f.len() < 6 {
@@ -78,12 +102,14 @@ pub fn cut_large_faces(p: &[V3], faces: &mut Vec<Vec<u32>>, counts: &mut Cleanup
         while poly.len() >= 6 {
             let n = poly.len();
             // Cut off the quad (k, k+1, k+2, k+3) with the shortest closing diagonal k+3 → k.
-            let k = (0..n)
-                .min_by(|&a, &b| {
-                    let d = |k: usize| vec3::norm2(sub(p[poly[k] as usize], p[poly[(k + 3) % n] as usize]));
-                    d(a).total_cmp(&d(b)).then(a.cmp(&b))
-                })
-                .expect("n ≥ 6");
+            let free = |k: usize| !edges.contains(&key(poly[k], poly[(k + 3) % n]));
+            let Some(k) = (0..n).filter(|&k| free(k)).min_by(|&a, &b| {
+                let d = |k: usize| vec3::norm2(sub(p[poly[k] as usize], p[poly[(k + 3) % n] as usize]));
+                d(a).total_cmp(&d(b)).then(a.cmp(&b))
+            }) else {
+                break; // every cut would duplicate an edge: leave the polygon (the split handles any n-gon)
+            };
+            edges.insert(key(poly[k], poly[(k + 3) % n]));
             let quad: Vec<u32> = (0..4).map(|i| poly[(k + i) % n]).collect();
             let rest: Vec<u32> = (0..n - 2).map(|i| poly[(k + 3 + i) % n]).collect();
             out.push(quad);
@@ -267,17 +293,20 @@ pub fn relax_and_project(p: &mut [V3], faces: &[Vec<u32>], bvh: &TriangleBvh, it
 
 /// Cut pentagons into a quad and a triangle along their shortest diagonal.
 pub fn cut_pentagons(p: &[V3], faces: &mut [Vec<u32>], extra: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
+    let mut edges = edge_set(faces);
     for f in faces.iter_mut() {
         if f.len() != 5 {
             continue;
         }
+        let free = |k: usize| !edges.contains(&key(f[k], f[(k + 3) % 5]));
+        let Some(k) = (0..5).filter(|&k| free(k)).min_by(|&a, &b| {
+            let d = |k: usize| vec3::norm2(sub(p[f[k] as usize], p[f[(k + 3) % 5] as usize]));
+            d(a).total_cmp(&d(b)).then(a.cmp(&b))
+        }) else {
+            continue;
+        };
+        edges.insert(key(f[k], f[(k + 3) % 5]));
         counts.pentagons_cut += 1;
-        let k = (0..5)
-            .min_by(|&a, &b| {
-                let d = |k: usize| vec3::norm2(sub(p[f[k] as usize], p[f[(k + 3) % 5] as usize]));
-                d(a).total_cmp(&d(b)).then(a.cmp(&b))
-            })
-            .expect("five corners");
         let quad: Vec<u32> = (0..4).map(|i| f[(k + i) % 5]).collect();
         let tri = vec![f[(k + 3) % 5], f[(k + 4) % 5], f[k]];
         *f = quad;
