@@ -1,8 +1,9 @@
 //! **Stages** — the steps of the scan-to-solid chain, each a plain, deterministic function over geometry
 //! with a progress callback and a memory budget. Stages use the geometry core and nothing above it.
 //!
-//! Present so far: [`quality`] (the two-sided surface distance every other stage reports with). Repair,
-//! remesh, surface, brep/step, fea and reconstruction arrive with their issues.
+//! Present so far: [`quality`] (the two-sided surface distance every other stage reports with),
+//! [`repair`] (closed 2-manifold without self-intersections) and [`remesh`] (field-aligned pure quads).
+//! Surface, brep/step, fea and reconstruction arrive with their issues.
 
 pub mod quality;
 pub mod remesh;

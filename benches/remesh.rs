@@ -1,0 +1,96 @@
+//! Remesh benchmark against the peer, Instant Meshes (`pyinstantmeshes`, via
+//! `../shared/validators/quad_peer.py` in `.venv-validators`, see `scripts/setup-validators.sh`): the repaired
+//! dragon and igea at a 10k-vertex target, one run each, same input file. Reports wall time, peak RSS,
+//! vertex count, quad share and irregular vertices for both, and the time ratio ours/peer.
+//! Run: `cargo bench --bench remesh` (data: `SCANSTATION_SHARED_DATA`; kit: `SCANSTATION_VALIDATORS`).
+
+mod common;
+
+use common::{data_dir, peak_mib, reset_peak};
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use scanstation::geometry::io::{ReadOptions, read_mesh, write_ply};
+use scanstation::stages::NoProgress;
+use scanstation::stages::remesh::{RemeshOptions, remesh};
+use scanstation::stages::repair::{RepairOptions, repair};
+use scanstation::{PolyMesh, TriMesh};
+
+const TARGET: usize = 10_000;
+
+fn peer(input: &Path, out: &Path) -> serde_json::Value {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let kit = std::env::var_os("SCANSTATION_VALIDATORS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| root.join("../shared/validators"));
+    let python = root.join(".venv-validators/bin/python");
+    assert!(python.is_file(), "{} missing: run `bash scripts/setup-validators.sh`", python.display());
+    let o = Command::new(&python)
+        .arg(kit.join("quad_peer.py"))
+        .arg(input)
+        .args(["--vertices", &TARGET.to_string(), "--out"])
+        .arg(out)
+        .args(["--samples", "100000"])
+        .output()
+        .expect("run quad_peer.py");
+    assert!(o.status.success(), "quad_peer.py failed: {}", String::from_utf8_lossy(&o.stdout));
+    serde_json::from_slice(&o.stdout).expect("quad_peer.py prints JSON")
+}
+
+fn main() {
+    let data = data_dir();
+    let tmp = std::env::temp_dir().join(format!("scanstation-bench-remesh-{}", std::process::id()));
+    std::fs::create_dir_all(&tmp).unwrap();
+    let cases: [(&str, &str, bool); 2] =
+        [("dragon (repaired)", "large/dragon_vrip_draco.ply.gz", true), ("igea", "meshes/igea.ply", false)];
+    println!(
+        "| input | tool | wall s | peak MiB | vertices | quads % | irregular | irregular % | two-sided RMS % diag |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let mut ratios = Vec::new();
+    for (name, file, needs_repair) in cases {
+        let mesh = read_mesh(&data.join(file), &ReadOptions::default()).expect("read");
+        let tri: TriMesh = if needs_repair {
+            let o = RepairOptions { compare_samples: 1_000, ..Default::default() };
+            repair(&mesh, &o, &NoProgress).expect("repair").0
+        } else {
+            mesh.triangulate().0
+        };
+        let input = tmp.join("input.ply");
+        write_ply(&input, &PolyMesh::from(tri.clone()), &Default::default(), &[]).unwrap();
+        reset_peak();
+        let opts = RemeshOptions { target_vertices: TARGET, compare_samples: 100_000, ..Default::default() };
+        let t = Instant::now();
+        let (_, r) = remesh(&tri, &opts, &NoProgress).expect("remesh");
+        let ours_s = t.elapsed().as_secs_f64() - r.seconds.get("measure").copied().unwrap_or(0.0);
+        let peak = peak_mib();
+        let o = &r.output;
+        let rms = r.distance.as_ref().map_or(f64::NAN, |d| d.symmetric.rms.pct_of_diagonal);
+        println!(
+            "| {name} | scanstation (pure quad) | {ours_s:.2} | {peak:.0} | {} | {:.1} | {} | {:.2} | {rms:.4} |",
+            o.vertices,
+            100.0 * o.quad_fraction,
+            o.irregular_vertices,
+            100.0 * o.irregular_fraction
+        );
+        let p = peer(&input, &tmp.join("peer.obj"));
+        let f = |k: &str| p.pointer(k).and_then(|v| v.as_f64()).unwrap_or(f64::NAN);
+        let peer_s = f("/wall_time_s");
+        let peer_rms = f("/distance_to_input/symmetric/rms_pct");
+        println!(
+            "| {name} | Instant Meshes 1.0.0 (quad-dominant) | {peer_s:.2} | n/a | {} | {:.1} | {} | {:.2} | {peer_rms:.4} |",
+            f("/output/vertices_referenced"),
+            100.0 * f("/output/quad_fraction"),
+            f("/output/irregular_vertices"),
+            100.0 * f("/output/irregular_fraction")
+        );
+        ratios.push((name, ours_s / peer_s, o.irregular_vertices as f64 / f("/output/irregular_vertices")));
+    }
+    println!();
+    for (name, t, irr) in ratios {
+        println!("{name}: time ratio ours/peer {t:.2}, irregular-vertex ratio ours/peer {irr:.2}");
+    }
+    let _ = std::fs::remove_dir_all(&tmp);
+}
