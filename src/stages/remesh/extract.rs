@@ -18,6 +18,10 @@ use super::hierarchy::Level;
 use crate::geometry::topology::UnionFind;
 use crate::geometry::vec3::{self, V3, add, cross, dot, scale, sub};
 
+/// Vertices with fewer edges are pruned before faces are traced (a valence-2 vertex between two quads is a
+/// doublet; keeping them instead was tried and caused more pinches on the dragon).
+pub const MIN_DEGREE: u32 = 3;
+
 /// Output vertices closer than this many lattice spacings are merged.
 pub const SNAP: f64 = 0.3;
 
@@ -207,10 +211,10 @@ fn prune_low_valence(nv: usize, edges: &[(u32, u32)]) -> (Vec<(u32, u32)>, usize
         incident[a as usize].push(e as u32);
         incident[b as usize].push(e as u32);
     }
-    let mut stack: Vec<u32> = (0..nv as u32).filter(|&v| deg[v as usize] > 0 && deg[v as usize] < 3).collect();
+    let mut stack: Vec<u32> = (0..nv as u32).filter(|&v| deg[v as usize] > 0 && deg[v as usize] < MIN_DEGREE).collect();
     let mut removed = 0;
     while let Some(v) = stack.pop() {
-        if deg[v as usize] == 0 || deg[v as usize] >= 3 {
+        if deg[v as usize] == 0 || deg[v as usize] >= MIN_DEGREE {
             continue;
         }
         removed += 1;
@@ -223,7 +227,7 @@ fn prune_low_valence(nv: usize, edges: &[(u32, u32)]) -> (Vec<(u32, u32)>, usize
             let other = if a == v { b } else { a };
             deg[v as usize] -= 1;
             deg[other as usize] -= 1;
-            if deg[other as usize] > 0 && deg[other as usize] < 3 {
+            if deg[other as usize] > 0 && deg[other as usize] < MIN_DEGREE {
                 stack.push(other);
             }
         }

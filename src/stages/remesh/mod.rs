@@ -174,6 +174,7 @@ fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode) -
     }
     let mut faces = ex.faces.clone();
     let mut counts = quadify::CleanupCounts::default();
+    counts.doublets_removed += quadify::remove_doublets(&mut faces);
     quadify::split_pinched(&mut faces, &mut counts);
     quadify::cut_large_faces(&ex.positions, &mut faces, &mut counts);
     let predicted = match mode {
@@ -409,6 +410,15 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         .with_hint("try more vertices (a finer spacing) or another --seed"));
     };
     report.chosen_attempt = chosen_index;
+    if let Some(path) = std::env::var_os("DEBUG_DUMP") {
+        let pos: Vec<[f32; 3]> = chosen.ex.positions.iter().map(|x| x.map(|c| c as f32)).collect();
+        let raw = PolyMesh::new(pos.clone(), &chosen.ex.faces).unwrap();
+        crate::geometry::io::write_obj(std::path::Path::new(&path), &raw).unwrap();
+        let clean = PolyMesh::new(pos, &chosen.faces).unwrap();
+        let mut p2 = std::path::PathBuf::from(&path);
+        p2.set_extension("clean.obj");
+        crate::geometry::io::write_obj(&p2, &clean).unwrap();
+    }
     let Candidate { ex, faces, counts, mode, .. } = chosen;
     report.mode = Some(mode);
     report.snapped_vertices = ex.snapped;

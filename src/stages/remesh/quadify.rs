@@ -523,8 +523,11 @@ pub fn remove_doublets(faces: &mut Vec<Vec<u32>>) -> usize {
             }
             let mut m: Vec<u32> = f1[1..].to_vec();
             m.extend_from_slice(&f2[2..f2.len() - 1]);
-            if m.len() < 3 {
-                continue;
+            let mut distinct = m.clone();
+            distinct.sort_unstable();
+            distinct.dedup();
+            if m.len() < 3 || distinct.len() != m.len() {
+                continue; // the merged face would visit a vertex twice
             }
             used[fs[0] as usize] = true;
             used[fs[1] as usize] = true;
