@@ -137,3 +137,29 @@ fn repair_writes_a_closed_mesh_and_reports_every_step() {
     assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")));
     assert_eq!(std::fs::read(&holed).unwrap(), before);
 }
+
+#[test]
+fn remesh_writes_pure_quads_of_the_bundled_sample() {
+    let dir = scratch("cli_remesh");
+    let out = dir.join("spot-quads.obj");
+    let (code, v) = json(&["remesh", SPOT, "-o", out.to_str().unwrap(), "--vertices", "3000", "--json"]);
+    assert_eq!(code, 0, "{v}");
+    assert_eq!(v["output"]["quad_fraction"], 1.0);
+    assert_eq!(v["output"]["closed"], true);
+    let n = v["output"]["vertices"].as_f64().unwrap();
+    assert!((n / 3000.0 - 1.0).abs() <= 0.1, "{n} vertices");
+    let m = common::read_mesh(&out);
+    assert!(m.faces().all(|f| f.len() == 4), "the OBJ keeps quads");
+    assert_eq!(m.face_count() as u64, v["output"]["faces"].as_u64().unwrap());
+    // --edge-length gives the count from the area.
+    let (code, v) = json(&["remesh", SPOT, "-o", out.to_str().unwrap(), "--edge-length", "0.05", "--json"]);
+    assert_eq!(code, 0, "{v}");
+    // An open mesh is refused with exit code 2 and a hint to repair first.
+    let mut t = icosphere(1.0, 3, [0.0; 3]);
+    t.triangles.pop();
+    let open = dir.join("open.ply");
+    write_ply(&open, &PolyMesh::from(t), &VertexAttributes::default(), &[]).unwrap();
+    let (code, v) = json(&["remesh", open.to_str().unwrap(), "-o", out.to_str().unwrap(), "--vertices", "500", "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (2, Some("remesh.input-not-closed")), "{v}");
+    assert!(v["error"]["hint"].as_str().unwrap().contains("repair"), "{v}");
+}

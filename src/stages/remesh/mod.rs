@@ -410,15 +410,6 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         .with_hint("try more vertices (a finer spacing) or another --seed"));
     };
     report.chosen_attempt = chosen_index;
-    if let Some(path) = std::env::var_os("DEBUG_DUMP") {
-        let pos: Vec<[f32; 3]> = chosen.ex.positions.iter().map(|x| x.map(|c| c as f32)).collect();
-        let raw = PolyMesh::new(pos.clone(), &chosen.ex.faces).unwrap();
-        crate::geometry::io::write_obj(std::path::Path::new(&path), &raw).unwrap();
-        let clean = PolyMesh::new(pos, &chosen.faces).unwrap();
-        let mut p2 = std::path::PathBuf::from(&path);
-        p2.set_extension("clean.obj");
-        crate::geometry::io::write_obj(&p2, &clean).unwrap();
-    }
     let Candidate { ex, faces, counts, mode, .. } = chosen;
     report.mode = Some(mode);
     report.snapped_vertices = ex.snapped;
