@@ -159,7 +159,8 @@ fn remesh_writes_pure_quads_of_the_bundled_sample() {
     t.triangles.pop();
     let open = dir.join("open.ply");
     write_ply(&open, &PolyMesh::from(t), &VertexAttributes::default(), &[]).unwrap();
-    let (code, v) = json(&["remesh", open.to_str().unwrap(), "-o", out.to_str().unwrap(), "--vertices", "500", "--json"]);
+    let (code, v) =
+        json(&["remesh", open.to_str().unwrap(), "-o", out.to_str().unwrap(), "--vertices", "500", "--json"]);
     assert_eq!((code, v["error_code"].as_str()), (2, Some("remesh.input-not-closed")), "{v}");
     assert!(v["error"]["hint"].as_str().unwrap().contains("repair"), "{v}");
 }

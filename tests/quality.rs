@@ -207,3 +207,18 @@ fn hausdorff_inside_a_triangle_is_found_not_sampled() {
 fn square_positions() -> Vec<[f32; 3]> {
     vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]
 }
+
+/// `closest_facing` skips triangles that face away: on a thin plate (a flat box 0.01 thick) a point just
+/// below the top face, asked for an upward-facing triangle, lands on the top face, not the nearer bottom.
+#[test]
+fn closest_facing_picks_the_sheet_facing_the_same_way() {
+    let plate = scanstation::geometry::shapes::cuboid([0.0, 0.0, 0.0], [1.0, 1.0, 0.01]);
+    let bvh = TriangleBvh::new(&plate);
+    let p = [0.5, 0.5, 0.002];
+    let plain = bvh.closest(p).unwrap();
+    assert!(plain.point[2].abs() < 1e-12, "plain closest is the bottom face: {:?}", plain.point);
+    let up = bvh.closest_facing(p, [0.0, 0.0, 1.0]).unwrap();
+    assert!((up.point[2] - 0.01).abs() < 1e-6, "facing +z gives the top face: {:?}", up.point);
+    assert!((up.distance - 0.008).abs() < 1e-6, "distance {}", up.distance);
+    assert!(bvh.closest_facing(p, [0.0, 0.0, 0.0]).is_none(), "no triangle faces a zero vector");
+}

@@ -254,16 +254,15 @@ pub fn adjacency(nv: usize, faces: &[Vec<u32>]) -> (Vec<u32>, Vec<u32>) {
 }
 
 /// Project every vertex onto the surface of `bvh`, then `iterations` rounds of tangential Laplacian
-/// relaxation (Jacobi, step `lambda`) each followed by re-projection.
+/// relaxation (Jacobi, step `lambda`) each followed by re-projection. After the first round a vertex is
+/// projected onto the nearest input triangle that faces the same way as the mesh at that vertex, so that
+/// vertices on thin parts do not jump to the opposite sheet (which would flip faces).
 pub fn relax_and_project(p: &mut [V3], faces: &[Vec<u32>], bvh: &TriangleBvh, iterations: usize, lambda: f64) {
-    let project = |p: &mut [V3]| {
-        p.par_iter_mut().for_each(|x| {
-            if let Some(c) = bvh.closest(*x) {
-                *x = c.point;
-            }
-        });
-    };
-    project(p);
+    p.par_iter_mut().for_each(|x| {
+        if let Some(c) = bvh.closest(*x) {
+            *x = c.point;
+        }
+    });
     let (off, adj) = adjacency(p.len(), faces);
     for _ in 0..iterations {
         let nrm = vertex_normals(p, faces);
@@ -272,22 +271,22 @@ pub fn relax_and_project(p: &mut [V3], faces: &[Vec<u32>], bvh: &TriangleBvh, it
             .into_par_iter()
             .map(|v| {
                 let (lo, hi) = (off[v] as usize, off[v + 1] as usize);
-                if hi == lo {
-                    return cur[v];
-                }
-                let mut avg = [0.0; 3];
-                for &u in &adj[lo..hi] {
-                    avg = add(avg, cur[u as usize]);
-                }
-                avg = scale(avg, 1.0 / (hi - lo) as f64);
-                let d = sub(avg, cur[v]);
                 let n = nrm[v];
-                let t = sub(d, scale(n, dot(d, n)));
-                add(cur[v], scale(t, lambda))
+                let mut x = cur[v];
+                if hi > lo {
+                    let mut avg = [0.0; 3];
+                    for &u in &adj[lo..hi] {
+                        avg = add(avg, cur[u as usize]);
+                    }
+                    avg = scale(avg, 1.0 / (hi - lo) as f64);
+                    let d = sub(avg, x);
+                    x = add(x, scale(sub(d, scale(n, dot(d, n))), lambda));
+                }
+                let hit = if vec3::norm2(n) > 0.0 { bvh.closest_facing(x, n) } else { None };
+                hit.or_else(|| bvh.closest(x)).map_or(x, |c| c.point)
             })
             .collect();
         p.copy_from_slice(&next);
-        project(p);
     }
 }
 
