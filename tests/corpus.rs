@@ -268,13 +268,16 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             assert!(!r.euler_characteristic_changed, "{f}: χ flagged as changed");
             assert_eq!(o.euler_characteristic, r.input_euler_characteristic, "{f}: Euler characteristic");
         }
-        // Open point of the issue (target 0): thin parts (armadillo fingers, dragon claws) still flip a few.
-        assert!(o.flipped_faces * 200 <= o.faces, "{f}: {} flipped faces", o.flipped_faces);
+        // Open point of the issue (target 0): a few faces still flip (measured 0–4 per mesh).
+        assert!(o.flipped_faces * 1000 <= o.faces, "{f}: {} flipped faces", o.flipped_faces);
         let d = r.distance.as_ref().expect("measured");
-        // Target 0.07 % on the dragon (open); the bound only catches gross failures (armadillo: 0.63 %).
-        assert!(d.symmetric.rms.pct_of_diagonal <= 1.0, "{f}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
+        // Measured ≤ 0.068 % except the dragon (0.16 %, whose narrow slot is capped; target 0.07 %, open).
+        // The armadillo needs the direct route: the split route loses its thin parts (0.63 %).
+        let bound = if f.contains("dragon") { 0.25 } else { 0.1 };
+        assert!(d.symmetric.rms.pct_of_diagonal <= bound, "{f}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
         println!(
-            "{f}: {} vertices, irregular {} ({:.2} %), χ {} → {}, flipped {}, angle dev mean {:.1}° p95 {:.1}°, RMS {:.4} % (quad→input {:.4} %, input→quad {:.4} %), {:.1} s",
+            "{f}: {:?} route, {} vertices, irregular {} ({:.2} %), χ {} → {}, flipped {}, angle dev mean {:.1}° p95 {:.1}°, RMS {:.4} % (quad→input {:.4} %, input→quad {:.4} %), {:.1} s",
+            r.mode.expect("chosen"),
             o.vertices,
             o.irregular_vertices,
             100.0 * o.irregular_fraction,

@@ -9,14 +9,20 @@
 //!    where the curvature is clearly anisotropic ([`field`]);
 //! 4. the 4-PoSy position field at lattice spacing `scale`;
 //! 5. extraction of a quad-dominant mesh ([`extract`]), closed by construction;
-//! 6. clean-up to a pure-quad mesh ([`quadify`]): large faces cut, triangle pairs merged, one regular split;
-//! 7. projection onto the input surface and tangential relaxation.
+//! 6. clean-up to a pure-quad mesh ([`quadify`]) by two routes: the *split* route extracts at a quarter of
+//!    the count, pairs triangles along straight strips and splits every n-gon into n quads (regular, but
+//!    features thinner than twice the spacing can vanish); the *direct* route extracts at the full count
+//!    and pairs every triangle along straight strips or bent paths. The direct result is kept when the
+//!    split one is more than [`FIDELITY_RATIO`] times farther from the input;
+//! 7. projection onto the input surface (onto triangles facing the same way) and tangential relaxation.
 //!
 //! **How the vertex count is matched.** The split in step 6 turns a quad-dominant mesh with V vertices,
-//! E edges and F faces into a pure-quad mesh with exactly V + E + F vertices (≈ 4V). The field is therefore
-//! solved at a quarter of the target, and the extraction is repeated with the spacing scaled by
-//! √(predicted / target) until the predicted count is within [`COUNT_TOLERANCE`] of the target (at most
-//! [`MAX_ATTEMPTS`] extractions; the closest attempt wins).
+//! E edges and F faces into a pure-quad mesh with exactly V + E + F vertices (≈ 4V). The split route
+//! therefore extracts at a quarter of the target; both routes repeat the extraction with the spacing
+//! scaled by √(predicted / target) until the count is within [`COUNT_TOLERANCE`] (at most [`MAX_ATTEMPTS`] /
+//! [`MAX_DIRECT_ATTEMPTS`] extractions). Attempts must be closed, edge-manifold and keep the input's Euler
+//! characteristic; after [`PATIENCE`] attempts, or when none does, one that changes it is accepted and
+//! flagged (`euler_characteristic_changed`).
 //!
 //! The stage needs a closed 2-manifold triangle mesh (`remesh.input-not-closed` otherwise: run `repair`
 //! first). It is deterministic for a fixed seed, whatever the number of threads: the fields are updated by
@@ -54,8 +60,9 @@ pub struct RemeshOptions {
     pub target_vertices: usize,
     /// Seed of the random initial fields.
     pub seed: u64,
-    /// Try direct extraction at the target spacing first (experimental: succeeds only when every triangle
-    /// pairs along a straight quad strip).
+    /// Also extract at the full target spacing (triangles paired along quad strips and bent paths) and keep
+    /// that result when it is much closer to the input than the split route's ([`FIDELITY_RATIO`]). Keeps
+    /// thin features; costs a second field solve and more irregular vertices where it wins.
     pub try_direct: bool,
     /// Working-mesh vertices per output vertex (the working mesh is decimated or subdivided toward this).
     pub work_per_vertex: f64,
@@ -77,7 +84,7 @@ impl Default for RemeshOptions {
             target_vertices: 10_000,
             seed: 0,
             work_per_vertex: WORK_PER_VERTEX,
-            try_direct: false,
+            try_direct: true,
             iterations: 6,
             relax_iterations: 10,
             curvature_weight: 1.0,
@@ -152,6 +159,25 @@ pub struct Attempt {
 /// Below this curvature anisotropy ((|k1| − |k2|) / (|k1| + |k2|)) no principal direction is imposed.
 pub const ANISOTROPY_MIN: f64 = 0.3;
 
+/// The direct candidate replaces the split one when the split one's two-sided RMS to the input is more
+/// than this many times the direct one's.
+pub const FIDELITY_RATIO: f64 = 1.5;
+
+/// Attempts per mode after which a closed manifold attempt that changes χ is accepted.
+pub const PATIENCE: usize = 3;
+
+/// Most direct-mode extractions tried.
+pub const MAX_DIRECT_ATTEMPTS: usize = 4;
+
+/// Figures of the candidate not kept (when both routes ran).
+#[derive(Clone, Debug, Serialize)]
+pub struct Alternative {
+    pub mode: Mode,
+    pub rms_pct_of_diagonal: f64,
+    pub irregular_fraction: f64,
+    pub euler_characteristic: i64,
+}
+
 /// Scale of the first attempt relative to √(area / count): extraction loses a few vertices to snapping
 /// and pruning, so start slightly finer.
 pub const START_SCALE: f64 = 0.975;
@@ -191,8 +217,12 @@ fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode) -
             quadify::cut_pentagons(&ex.positions, &mut faces, &mut extra, &mut counts);
             faces.extend(extra);
             counts.doublets_removed += quadify::remove_doublets(&mut faces);
-            counts.triangles_unpaired = quadify::pair_triangles(&mut faces, 12, 8, &mut counts);
+            quadify::pair_triangles(&mut faces, 12, 8, &mut counts);
+            for _ in 0..2 {
+                quadify::pair_triangles_along_paths(&ex.positions, &mut faces, 60, &mut counts);
+            }
             counts.doublets_removed += quadify::remove_doublets(&mut faces);
+            counts.triangles_unpaired = faces.iter().filter(|f| f.len() == 3).count();
             if faces.iter().any(|f| f.len() != 4) {
                 counts.triangles_unpaired = counts.triangles_unpaired.max(1);
             }
@@ -229,6 +259,8 @@ pub struct RemeshReport {
     /// another one was returned (handles or gaps thinner than the quad spacing closed or opened); a
     /// warning is logged too.
     pub euler_characteristic_changed: bool,
+    /// The other route's result when both ran (`try_direct`), for comparison.
+    pub alternative: Option<Alternative>,
     /// The mode of the attempt kept.
     pub mode: Option<Mode>,
     pub attempts: Vec<Attempt>,
@@ -332,20 +364,23 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.orientation_singularities = orientation_singularities(&levels[0], &qs[0], &tris);
     lap(&mut clock, "orientation", &mut report);
 
-    // 4–6. Position field and extraction, steering the vertex count: direct mode first, the split route
-    // (quarter count, then one regular split) only when triangles stay unpaired.
+    // 4–6. Position field and extraction, steering the vertex count. The split route (quarter count, then
+    // one regular split) always runs; with `try_direct`, extraction at the full count is the alternative,
+    // kept when it is much closer to the input (it keeps features the coarser split route loses).
     let target = opts.target_vertices as f64;
-    let mut best: Option<(f64, usize, Candidate)> = None;
-    // Closed and manifold but with another Euler characteristic (handles thinner than the spacing lost).
-    let mut fallback: Option<(f64, usize, Candidate)> = None;
     let mut t_pos = 0.0;
     let mut t_ext = 0.0;
-    let modes: &[Mode] = if opts.try_direct { &[Mode::Direct, Mode::Split] } else { &[Mode::Split] };
+    let modes: &[Mode] = if opts.try_direct { &[Mode::Split, Mode::Direct] } else { &[Mode::Split] };
+    // Per mode: the best attempt with the input's χ, and the best closed manifold one without it.
+    let mut finals: Vec<(usize, Candidate, bool)> = Vec::new();
     for &mode in modes {
         let per_vertex = if mode == Mode::Direct { 1.0 } else { 4.0 };
+        let max_attempts = if mode == Mode::Direct { MAX_DIRECT_ATTEMPTS } else { MAX_ATTEMPTS };
         let mut s = START_SCALE * (area * per_vertex / target).sqrt();
-        for _ in 0..MAX_ATTEMPTS {
-            progress.report((0.3 + 0.1 * report.attempts.len() as f64).min(0.75), "position field");
+        let mut best: Option<(f64, usize, Candidate)> = None;
+        let mut fallback: Option<(f64, usize, Candidate)> = None;
+        for _ in 0..max_attempts {
+            progress.report((0.3 + 0.04 * report.attempts.len() as f64).min(0.75), "position field");
             let t0 = Instant::now();
             let o = field::solve_position(&levels, &qs, s, opts.iterations, opts.seed);
             t_pos += t0.elapsed().as_secs_f64();
@@ -356,8 +391,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             let usable = manifold && c.counts.triangles_unpaired == 0;
             t_ext += t0.elapsed().as_secs_f64();
             let predicted = c.predicted;
-            let c_unpaired = c.counts.triangles_unpaired > 0;
-            let valid = !c_unpaired && c.topology_ok;
+            let valid = usable && c.topology_ok;
             report.attempts.push(Attempt {
                 mode,
                 scale: s,
@@ -374,68 +408,87 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             } else if !valid && usable && fallback.as_ref().is_none_or(|b| err < b.0) {
                 fallback = Some((err, index, c));
             }
-            if predicted == 0 || (mode == Mode::Direct && c_unpaired) || (valid && err <= COUNT_TOLERANCE) {
+            let tried = report.attempts.iter().filter(|a| a.mode == mode).count();
+            // Stop when the count is met; after PATIENCE attempts, a usable one without χ will do.
+            if predicted == 0
+                || (valid && err <= COUNT_TOLERANCE)
+                || (tried >= PATIENCE && usable && err <= COUNT_TOLERANCE)
+            {
                 break;
             }
-            // Steer the count; an attempt with the wrong topology is retried at a slightly different spacing.
+            // Steer the count; an unusable attempt is retried at a slightly different spacing.
             s *= (predicted as f64 / target).sqrt() * if valid { 1.0 } else { 0.985 };
         }
-        if best.as_ref().is_some_and(|b| b.0 <= 0.1) {
-            break;
+        match (best, fallback) {
+            (Some((_, i, c)), _) => finals.push((i, c, false)),
+            (None, Some((_, i, c))) => finals.push((i, c, true)),
+            (None, None) => {}
         }
+    }
+    // Attempts that keep χ win over those that do not.
+    if finals.iter().any(|f| !f.2) {
+        finals.retain(|f| !f.2);
     }
     report.seconds.insert("position".into(), t_pos);
     report.seconds.insert("extraction".into(), t_ext);
     clock = Instant::now();
-    if best.is_none() {
-        if let Some(f) = fallback.take() {
-            tracing::warn!(
-                input_chi = report.input_euler_characteristic,
-                "remesh: no attempt kept the Euler characteristic; keeping a closed manifold one that does not"
-            );
-            report.euler_characteristic_changed = true;
-            best = Some(f);
-        }
-    }
-    let Some((_, chosen_index, chosen)) = best else {
+    if finals.is_empty() {
         return Err(Error::new(
             ErrorCode::RemeshFailed,
             format!(
-                "extraction: none of {} attempts gave a closed 2-manifold quad mesh with the input's Euler \
-                 characteristic {} (features thinner than the quad spacing?)",
+                "extraction: none of {} attempts gave a closed 2-manifold quad mesh (input χ {})",
                 report.attempts.len(),
                 report.input_euler_characteristic
             ),
         )
         .with_hint("try more vertices (a finer spacing) or another --seed"));
-    };
+    }
+
+    // 7. Pure quads on the input surface; with two candidates, the closer one to the input unless the
+    // split route is within FIDELITY_RATIO of the direct one.
+    progress.report(0.8, "projection");
+    let bvh = TriangleBvh::new(mesh);
+    let input_geometry = Geometry::Mesh(poly);
+    let mut finished: Vec<(usize, Candidate, bool, PolyMesh, usize, f64)> = Vec::new();
+    for (index, c, changed) in finals {
+        let (out, doublets) = finish(&c, &bvh, opts.relax_iterations)?;
+        let rms = if modes.len() > 1 {
+            let copts = CompareOptions { samples: 50_000, seed: opts.seed, ..Default::default() };
+            let d = compare(&Geometry::Mesh(out.clone()), &input_geometry, &copts, &crate::stages::NoProgress)?;
+            d.symmetric.rms.value
+        } else {
+            0.0
+        };
+        finished.push((index, c, changed, out, doublets, rms));
+    }
+    let pick = if finished.len() == 2 && finished[0].5 > FIDELITY_RATIO * finished[1].5 { 1 } else { 0 };
+    if finished.len() == 2 {
+        let other = &finished[1 - pick];
+        let st = quad_stats(&other.3, None);
+        report.alternative = Some(Alternative {
+            mode: other.1.mode,
+            rms_pct_of_diagonal: 100.0 * other.5 / mesh.bbox().diagonal(),
+            irregular_fraction: st.irregular_fraction,
+            euler_characteristic: st.euler_characteristic,
+        });
+    }
+    let (chosen_index, chosen, changed, out, doublets, _) = finished.swap_remove(pick);
+    if changed {
+        tracing::warn!(
+            input_chi = report.input_euler_characteristic,
+            "remesh: no attempt kept the Euler characteristic; keeping a closed manifold one that does not"
+        );
+        report.euler_characteristic_changed = true;
+    }
     report.chosen_attempt = chosen_index;
-    let Candidate { ex, faces, counts, mode, .. } = chosen;
+    let Candidate { ex, counts, mode, .. } = chosen;
     report.mode = Some(mode);
     report.snapped_vertices = ex.snapped;
     report.low_valence_vertices_removed = ex.low_valence_removed;
     report.dangling_edges_removed = ex.dangling_edges_removed;
     report.pinch_vertices_removed = ex.pinch_vertices_removed;
     report.cleanup = counts;
-    if faces.is_empty() {
-        return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no face was extracted")
-            .with_hint("the target may be too small for this shape; try more vertices"));
-    }
-
-    // 7. Pure quads on the input surface.
-    progress.report(0.8, "projection");
-    let bvh = TriangleBvh::new(mesh);
-    let mut coarse = ex.positions.clone();
-    quadify::relax_and_project(&mut coarse, &faces, &bvh, opts.relax_iterations, 0.5);
-    let (qp, mut quads) = match mode {
-        Mode::Split => quadify::split_to_quads(&coarse, &faces),
-        Mode::Direct => (coarse, faces),
-    };
-    report.cleanup.doublets_removed += quadify::remove_doublets(&mut quads);
-    let mut qp = compact(qp, &mut quads);
-    quadify::relax_and_project(&mut qp, &quads, &bvh, opts.relax_iterations, 0.5);
-    let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
-    let out = PolyMesh::new(positions, &quads)?;
+    report.cleanup.doublets_removed += doublets;
     lap(&mut clock, "projection", &mut report);
 
     progress.report(0.9, "measure");
@@ -443,7 +496,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.vertex_count_error = report.output.vertices as f64 / target - 1.0;
     if opts.compare_samples > 0 {
         let copts = CompareOptions { samples: opts.compare_samples, seed: opts.seed, ..Default::default() };
-        let d = compare(&Geometry::Mesh(out.clone()), &Geometry::Mesh(poly), &copts, &crate::stages::NoProgress)?;
+        let d = compare(&Geometry::Mesh(out.clone()), &input_geometry, &copts, &crate::stages::NoProgress)?;
         report.distance = Some(d);
     }
     lap(&mut clock, "measure", &mut report);
@@ -460,6 +513,26 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     }
     progress.report(1.0, "done");
     Ok((out, report))
+}
+
+/// Relax the candidate's polygon mesh on the input, split it to quads (split mode), remove doublets and
+/// relax again. Returns the quad mesh and the doublets removed.
+fn finish(c: &Candidate, bvh: &TriangleBvh, relax: usize) -> Result<(PolyMesh, usize)> {
+    if c.faces.is_empty() {
+        return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no face was extracted")
+            .with_hint("the target may be too small for this shape; try more vertices"));
+    }
+    let mut coarse = c.ex.positions.clone();
+    quadify::relax_and_project(&mut coarse, &c.faces, bvh, relax, 0.5);
+    let (qp, mut quads) = match c.mode {
+        Mode::Split => quadify::split_to_quads(&coarse, &c.faces),
+        Mode::Direct => (coarse, c.faces.clone()),
+    };
+    let doublets = quadify::remove_doublets(&mut quads);
+    let mut qp = compact(qp, &mut quads);
+    quadify::relax_and_project(&mut qp, &quads, bvh, relax, 0.5);
+    let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
+    Ok((PolyMesh::new(positions, &quads)?, doublets))
 }
 
 fn lap(clock: &mut Instant, name: &str, report: &mut RemeshReport) {

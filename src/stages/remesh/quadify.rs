@@ -31,6 +31,9 @@ pub struct CleanupCounts {
     pub triangles_unpaired: usize,
     /// Valence-2 vertices removed by merging their two faces.
     pub doublets_removed: usize,
+    /// Triangle pairs joined along bent paths, and the steps walked.
+    pub path_pairs: usize,
+    pub path_steps: usize,
 }
 
 /// Split faces that visit a vertex twice into simple cycles.
@@ -540,4 +543,145 @@ pub fn remove_doublets(faces: &mut Vec<Vec<u32>>) -> usize {
         out.extend(merged);
         *faces = out;
     }
+}
+
+/// Pair the triangles left after [`pair_triangles`] along bent paths: a triangle walks toward the nearest
+/// other triangle (breadth-first over quads, at most `max_len` steps) by re-splitting, at each step, the
+/// pentagon it forms with the next quad so that the triangle ends up on that quad's far side; when the two
+/// triangles meet they merge into a quad. Every step keeps a closed, oriented polygon mesh with the same
+/// Euler characteristic. Returns the triangles left.
+pub fn pair_triangles_along_paths(
+    p: &[V3],
+    faces: &mut Vec<Vec<u32>>,
+    max_len: usize,
+    counts: &mut CleanupCounts,
+) -> usize {
+    let mut half: HashMap<(u32, u32), usize> = HashMap::with_capacity(faces.len() * 4);
+    for (fi, f) in faces.iter().enumerate() {
+        for k in 0..f.len() {
+            half.insert((f[k], f[(k + 1) % f.len()]), fi);
+        }
+    }
+    let set = |half: &mut HashMap<(u32, u32), usize>, faces: &mut Vec<Vec<u32>>, fi: usize, new: Vec<u32>| {
+        let old = std::mem::take(&mut faces[fi]);
+        for k in 0..old.len() {
+            let e = (old[k], old[(k + 1) % old.len()]);
+            if half.get(&e) == Some(&fi) {
+                half.remove(&e);
+            }
+        }
+        for k in 0..new.len() {
+            half.insert((new[k], new[(k + 1) % new.len()]), fi);
+        }
+        faces[fi] = new;
+    };
+    let has_edge =
+        |half: &HashMap<(u32, u32), usize>, a: u32, b: u32| half.contains_key(&(a, b)) || half.contains_key(&(b, a));
+    let mut tris: Vec<usize> = (0..faces.len()).filter(|&f| faces[f].len() == 3).collect();
+    tris.sort_unstable();
+    for t0 in tris {
+        if faces[t0].len() != 3 {
+            continue;
+        }
+        // Breadth-first search over quads to the nearest other triangle.
+        let mut prev: HashMap<usize, usize> = HashMap::new();
+        prev.insert(t0, usize::MAX);
+        let mut frontier = vec![t0];
+        let mut goal = None;
+        'bfs: for _ in 0..=max_len {
+            let mut next = Vec::new();
+            for &f in &frontier {
+                let face = &faces[f];
+                for k in 0..face.len() {
+                    let Some(&g) = half.get(&(face[(k + 1) % face.len()], face[k])) else { continue };
+                    if prev.contains_key(&g) {
+                        continue;
+                    }
+                    prev.insert(g, f);
+                    if faces[g].len() == 3 {
+                        goal = Some(g);
+                        break 'bfs;
+                    }
+                    if faces[g].len() == 4 {
+                        next.push(g);
+                    }
+                }
+            }
+            if next.is_empty() {
+                break;
+            }
+            frontier = next;
+        }
+        let Some(goal) = goal else { continue };
+        let mut path = vec![goal];
+        while let Some(&f) = prev.get(path.last().expect("non-empty")) {
+            if f == usize::MAX {
+                break;
+            }
+            path.push(f);
+        }
+        path.reverse(); // t0, quads…, goal
+        // Walk the triangle along the path.
+        let mut tri = t0;
+        let mut ok = true;
+        for w in 1..path.len() - 1 {
+            let (q, next) = (path[w], path[w + 1]);
+            let t = faces[tri].clone();
+            let qf = faces[q].clone();
+            // Shared edge: a→b in the triangle, b→a in the quad.
+            let Some(k) = (0..3).find(|&k| half.get(&(t[(k + 1) % 3], t[k])) == Some(&q)) else {
+                ok = false;
+                break;
+            };
+            let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+            let j = qf.iter().position(|&v| v == b).expect("quad has b");
+            let (x, y) = (qf[(j + 2) % 4], qf[(j + 3) % 4]);
+            let pent = [b, c, a, x, y];
+            // The edge of the pentagon shared with the next face.
+            let Some(i) = (0..5).find(|&i| half.get(&(pent[(i + 1) % 5], pent[i])) == Some(&next)) else {
+                ok = false;
+                break;
+            };
+            let opt = |s: usize| -> (Vec<u32>, Vec<u32>, (u32, u32)) {
+                // Triangle (pent[s], pent[s+1], pent[s+2]); quad = the other four, diagonal pent[s]–pent[s+2].
+                let tr = vec![pent[s % 5], pent[(s + 1) % 5], pent[(s + 2) % 5]];
+                let qd = vec![pent[(s + 2) % 5], pent[(s + 3) % 5], pent[(s + 4) % 5], pent[s % 5]];
+                (tr, qd, (pent[s % 5], pent[(s + 2) % 5]))
+            };
+            let mut choices: Vec<(f64, Vec<u32>, Vec<u32>)> = Vec::new();
+            for s in [i, (i + 4) % 5] {
+                let (tr, qd, (u, v)) = opt(s);
+                if has_edge(&half, u, v) {
+                    continue;
+                }
+                choices.push((vec3::norm2(sub(p[u as usize], p[v as usize])), tr, qd));
+            }
+            choices.sort_by(|l, r| l.0.total_cmp(&r.0));
+            let Some((_, tr, qd)) = choices.into_iter().next() else {
+                ok = false;
+                break;
+            };
+            set(&mut half, faces, tri, qd);
+            set(&mut half, faces, q, tr);
+            tri = q;
+            counts.path_steps += 1;
+        }
+        if !ok {
+            continue;
+        }
+        // Merge the two adjacent triangles into a quad.
+        let (t, g) = (faces[tri].clone(), faces[goal].clone());
+        let Some(k) = (0..3).find(|&k| half.get(&(t[(k + 1) % 3], t[k])) == Some(&goal)) else { continue };
+        let (u, v, w) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+        let Some(&xo) = g.iter().find(|&&z| z != u && z != v) else { continue };
+        if xo == w {
+            continue;
+        }
+        set(&mut half, faces, goal, Vec::new());
+        set(&mut half, faces, tri, vec![u, xo, v, w]);
+        counts.triangle_pairs_merged += 1;
+        counts.path_pairs += 1;
+    }
+    faces.retain(|f| !f.is_empty());
+    faces.iter().filter(|f| f.len() == 3).count()
 }
