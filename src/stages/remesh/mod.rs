@@ -3,7 +3,7 @@
 //!
 //! Steps, each counted in [`RemeshReport`]:
 //! 1. a working copy of the input at a resolution suited to the target: very dense inputs are decimated
-//!    (QEM) to about [`WORK_PER_COARSE`] vertices per coarse output vertex, coarse ones are subdivided;
+//!    (QEM) to about [`WORK_PER_VERTEX`] vertices per output vertex, coarse ones are subdivided;
 //! 2. a multi-resolution hierarchy ([`hierarchy`]);
 //! 3. the extrinsic 4-RoSy orientation field, coarse to fine, pulled toward principal curvature directions
 //!    where the curvature is clearly anisotropic ([`field`]);
