@@ -1,7 +1,8 @@
 //! Remesh benchmark against the peer, Instant Meshes (`pyinstantmeshes`, via
 //! `../shared/validators/quad_peer.py` in `.venv-validators`, see `scripts/setup-validators.sh`): the repaired
 //! dragon and igea at a 10k-vertex target, one run each, same input file. Reports wall time, peak RSS,
-//! vertex count, quad share and irregular vertices for both, and the time ratio ours/peer.
+//! vertex count, quad share, irregular vertices and two-sided RMS for our default (both routes) and
+//! `--split-only` settings and for the peer, and the ratios ours/peer.
 //! Run: `cargo bench --bench remesh` (data: `SCANSTATION_SHARED_DATA`; kit: `SCANSTATION_VALIDATORS`).
 
 mod common;
@@ -60,21 +61,27 @@ fn main() {
         };
         let input = tmp.join("input.ply");
         write_ply(&input, &PolyMesh::from(tri.clone()), &Default::default(), &[]).unwrap();
-        reset_peak();
-        let opts = RemeshOptions { target_vertices: TARGET, compare_samples: 100_000, ..Default::default() };
-        let t = Instant::now();
-        let (_, r) = remesh(&tri, &opts, &NoProgress).expect("remesh");
-        let ours_s = t.elapsed().as_secs_f64() - r.seconds.get("measure").copied().unwrap_or(0.0);
-        let peak = peak_mib();
-        let o = &r.output;
-        let rms = r.distance.as_ref().map_or(f64::NAN, |d| d.symmetric.rms.pct_of_diagonal);
-        println!(
-            "| {name} | scanstation (pure quad) | {ours_s:.2} | {peak:.0} | {} | {:.1} | {} | {:.2} | {rms:.4} |",
-            o.vertices,
-            100.0 * o.quad_fraction,
-            o.irregular_vertices,
-            100.0 * o.irregular_fraction
-        );
+        let mut ours = Vec::new();
+        for (label, try_direct) in [("default: both routes", true), ("--split-only", false)] {
+            reset_peak();
+            let opts =
+                RemeshOptions { target_vertices: TARGET, compare_samples: 100_000, try_direct, ..Default::default() };
+            let t = Instant::now();
+            let (_, r) = remesh(&tri, &opts, &NoProgress).expect("remesh");
+            let ours_s = t.elapsed().as_secs_f64() - r.seconds.get("measure").copied().unwrap_or(0.0);
+            let peak = peak_mib();
+            let o = &r.output;
+            let rms = r.distance.as_ref().map_or(f64::NAN, |d| d.symmetric.rms.pct_of_diagonal);
+            println!(
+                "| {name} | scanstation, {label} ({:?} kept) | {ours_s:.2} | {peak:.0} | {} | {:.1} | {} | {:.2} | {rms:.4} |",
+                r.mode.expect("chosen"),
+                o.vertices,
+                100.0 * o.quad_fraction,
+                o.irregular_vertices,
+                100.0 * o.irregular_fraction
+            );
+            ours.push((label, ours_s, o.irregular_vertices));
+        }
         let p = peer(&input, &tmp.join("peer.obj"));
         let f = |k: &str| p.pointer(k).and_then(|v| v.as_f64()).unwrap_or(f64::NAN);
         let peer_s = f("/wall_time_s");
@@ -86,11 +93,13 @@ fn main() {
             f("/output/irregular_vertices"),
             100.0 * f("/output/irregular_fraction")
         );
-        ratios.push((name, ours_s / peer_s, o.irregular_vertices as f64 / f("/output/irregular_vertices")));
+        for (label, ours_s, irregular) in ours {
+            ratios.push((name, label, ours_s / peer_s, irregular as f64 / f("/output/irregular_vertices")));
+        }
     }
     println!();
-    for (name, t, irr) in ratios {
-        println!("{name}: time ratio ours/peer {t:.2}, irregular-vertex ratio ours/peer {irr:.2}");
+    for (name, label, t, irr) in ratios {
+        println!("{name}, {label}: time ratio ours/peer {t:.2}, irregular-vertex ratio ours/peer {irr:.2}");
     }
     let _ = std::fs::remove_dir_all(&tmp);
 }
