@@ -120,3 +120,29 @@ proptest! {
         assert_valid(&r.output, &r, &format!("torus minor {minor} target {target} seed {seed}"));
     }
 }
+
+/// The valence pass never applies an operation that would take a vertex below valence 3: on a cube
+/// (eight valence-3 corners, the minimum for a closed genus-0 quad mesh) it changes nothing.
+#[test]
+fn valence_pass_leaves_a_cube_alone() {
+    use scanstation::stages::remesh::quadify::optimize_valence;
+    let mut p: Vec<[f64; 3]> = (0..8).map(|i| [(i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64]).collect();
+    let mut faces: Vec<Vec<u32>> = vec![
+        vec![0, 2, 3, 1],
+        vec![4, 5, 7, 6],
+        vec![0, 1, 5, 4],
+        vec![2, 6, 7, 3],
+        vec![0, 4, 6, 2],
+        vec![1, 3, 7, 5],
+    ];
+    // Faces as corner positions (the pass renumbers vertices in first-use order).
+    let corners = |p: &[[f64; 3]], faces: &[Vec<u32>]| -> Vec<Vec<[f64; 3]>> {
+        faces.iter().map(|f| f.iter().map(|&v| p[v as usize]).collect()).collect()
+    };
+    let before = corners(&p, &faces);
+    let c = optimize_valence(&mut p, &mut faces, 5);
+    assert_eq!((c.diagonal_collapses, c.edge_rotations), (0, 0));
+    assert_eq!((c.irregularity_before, c.irregularity_after), (8, 8));
+    assert_eq!(corners(&p, &faces), before);
+    assert_eq!(p.len(), 8);
+}

@@ -171,6 +171,9 @@ pub const PATIENCE: usize = 3;
 /// where nothing is lost and 0.27–0.63 % where thin parts vanish.
 pub const DIRECT_TRIGGER_PCT: f64 = 0.06;
 
+/// Passes of the valence optimisation (diagonal collapses and edge rotations) on the pure-quad mesh.
+pub const VALENCE_PASSES: usize = 10;
+
 /// Most direct-mode extractions tried.
 pub const MAX_DIRECT_ATTEMPTS: usize = 4;
 
@@ -264,6 +267,8 @@ pub struct RemeshReport {
     /// another one was returned (handles or gaps thinner than the quad spacing closed or opened); a
     /// warning is logged too.
     pub euler_characteristic_changed: bool,
+    /// What the valence pass changed on the kept result.
+    pub valence_optimization: quadify::ValenceCounts,
     /// The other route's result when both ran (`try_direct`), for comparison.
     pub alternative: Option<Alternative>,
     /// The mode of the attempt kept.
@@ -381,7 +386,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     let diagonal = mesh.bbox().diagonal();
     // Per mode: the best attempt with the input's χ (else the best closed manifold one), finished and
     // measured: (attempt index, candidate, χ changed, quad mesh, doublets removed, two-sided RMS).
-    let mut finished: Vec<(usize, Candidate, bool, PolyMesh, usize, f64)> = Vec::new();
+    #[allow(clippy::type_complexity)]
+    let mut finished: Vec<(usize, Candidate, bool, PolyMesh, usize, f64, quadify::ValenceCounts)> = Vec::new();
     let mut t_finish = 0.0;
     for &mode in modes {
         if mode == Mode::Direct {
@@ -443,7 +449,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         };
         progress.report(0.8, "projection");
         let t0 = Instant::now();
-        let (out, doublets) = finish(&c, &bvh, opts.relax_iterations)?;
+        let (out, doublets, valence) = finish(&c, &bvh, opts.relax_iterations)?;
         let rms = if opts.try_direct {
             let copts = CompareOptions { samples: 50_000, seed: opts.seed, ..Default::default() };
             let d = compare(&Geometry::Mesh(out.clone()), &input_geometry, &copts, &crate::stages::NoProgress)?;
@@ -452,7 +458,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             0.0
         };
         t_finish += t0.elapsed().as_secs_f64();
-        finished.push((index, c, changed, out, doublets, rms));
+        finished.push((index, c, changed, out, doublets, rms, valence));
     }
     report.seconds.insert("position".into(), t_pos);
     report.seconds.insert("extraction".into(), t_ext);
@@ -490,7 +496,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             euler_characteristic: st.euler_characteristic,
         });
     }
-    let (chosen_index, chosen, changed, out, doublets, _) = finished.swap_remove(pick);
+    let (chosen_index, chosen, changed, out, doublets, _, valence) = finished.swap_remove(pick);
+    report.valence_optimization = valence;
     if changed {
         tracing::warn!(
             input_chi = report.input_euler_characteristic,
@@ -534,7 +541,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
 
 /// Relax the candidate's polygon mesh on the input, split it to quads (split mode), remove doublets and
 /// relax again. Returns the quad mesh and the doublets removed.
-fn finish(c: &Candidate, bvh: &TriangleBvh, relax: usize) -> Result<(PolyMesh, usize)> {
+fn finish(c: &Candidate, bvh: &TriangleBvh, relax: usize) -> Result<(PolyMesh, usize, quadify::ValenceCounts)> {
     if c.faces.is_empty() {
         return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no face was extracted")
             .with_hint("the target may be too small for this shape; try more vertices"));
@@ -547,9 +554,10 @@ fn finish(c: &Candidate, bvh: &TriangleBvh, relax: usize) -> Result<(PolyMesh, u
     };
     let doublets = quadify::remove_doublets(&mut quads);
     let mut qp = compact(qp, &mut quads);
+    let valence = quadify::optimize_valence(&mut qp, &mut quads, VALENCE_PASSES);
     quadify::relax_and_project(&mut qp, &quads, bvh, relax, 0.5);
     let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
-    Ok((PolyMesh::new(positions, &quads)?, doublets))
+    Ok((PolyMesh::new(positions, &quads)?, doublets, valence))
 }
 
 fn lap(clock: &mut Instant, name: &str, report: &mut RemeshReport) {

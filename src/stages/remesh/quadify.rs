@@ -685,3 +685,188 @@ pub fn pair_triangles_along_paths(
     faces.retain(|f| !f.is_empty());
     faces.iter().filter(|f| f.len() == 3).count()
 }
+
+/// What [`optimize_valence`] did.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct ValenceCounts {
+    /// Quads removed by merging two opposite corners.
+    pub diagonal_collapses: usize,
+    /// Edges turned to the other diagonals of their two quads' hexagon.
+    pub edge_rotations: usize,
+    /// Σ|valence − 4| before and after.
+    pub irregularity_before: usize,
+    pub irregularity_after: usize,
+}
+
+/// Lower Σ|valence − 4| of a closed pure-quad mesh with two local operations, greedily, each applied only
+/// when it strictly improves its vertices and keeps every valence ≥ 3 and the mesh 2-manifold:
+/// - **diagonal collapse** of quad (a, b, c, d): a and c merge at their midpoint (needs N(a) ∩ N(c) =
+///   {b, d}); b and d lose an edge;
+/// - **edge rotation**: the edge shared by two quads is replaced by another diagonal of their hexagon.
+///
+/// Merged vertices are removed from `p` and `faces` renumbered. At most `passes` passes.
+pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usize) -> ValenceCounts {
+    let mut counts = ValenceCounts::default();
+    let cost = |v: i64| (v - 4).unsigned_abs() as usize;
+    for pass in 0..passes {
+        let nv = p.len();
+        let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); nv];
+        let mut half: HashMap<(u32, u32), usize> = HashMap::with_capacity(faces.len() * 4);
+        for (fi, f) in faces.iter().enumerate() {
+            for k in 0..4 {
+                let (a, b) = (f[k], f[(k + 1) % 4]);
+                half.insert((a, b), fi);
+                nbrs[a as usize].push(b);
+                nbrs[b as usize].push(a);
+            }
+        }
+        for n in &mut nbrs {
+            n.sort_unstable();
+            n.dedup();
+        }
+        let val = |v: u32| nbrs[v as usize].len() as i64;
+        if pass == 0 {
+            counts.irregularity_before = (0..nv as u32).filter(|&v| val(v) > 0).map(|v| cost(val(v))).sum();
+        }
+        // Candidates: (gain, kind, data).
+        enum Op {
+            Collapse { f: usize, a: u32, c: u32 },
+            Rotate { f1: usize, f2: usize, quads: [Vec<u32>; 2], u: u32, v: u32, x: u32, y: u32 },
+        }
+        let mut cands: Vec<(usize, usize, Op)> = Vec::new();
+        for (fi, f) in faces.iter().enumerate() {
+            for k in 0..2 {
+                let (a, b, c, d) = (f[k], f[k + 1], f[(k + 2) % 4], f[(k + 3) % 4]);
+                let m = val(a) + val(c) - 2;
+                if val(b) < 4 || val(d) < 4 || m < 3 {
+                    continue;
+                }
+                let common: Vec<u32> =
+                    nbrs[a as usize].iter().filter(|x| nbrs[c as usize].binary_search(x).is_ok()).copied().collect();
+                if common.len() != 2 || !common.contains(&b) || !common.contains(&d) {
+                    continue;
+                }
+                let before = cost(val(a)) + cost(val(b)) + cost(val(c)) + cost(val(d));
+                let after = cost(m) + cost(val(b) - 1) + cost(val(d) - 1);
+                if after < before {
+                    cands.push((before - after, fi, Op::Collapse { f: fi, a, c }));
+                }
+            }
+        }
+        for (&(u, v), &f1) in &half {
+            if u > v {
+                continue;
+            }
+            let Some(&f2) = half.get(&(v, u)) else { continue };
+            if val(u) < 4 || val(v) < 4 {
+                continue;
+            }
+            let rot = |f: &Vec<u32>, s: u32| -> Vec<u32> {
+                let i = f.iter().position(|&x| x == s).expect("face has vertex");
+                (0..4).map(|k| f[(i + k) % 4]).collect()
+            };
+            let g1 = rot(&faces[f1], u); // (u, v, a, b)
+            let g2 = rot(&faces[f2], v); // (v, u, c, d)
+            let (a, b, c, d) = (g1[2], g1[3], g2[2], g2[3]);
+            // Hexagon (v, a, b, u, c, d); the two other diagonals.
+            for (x, y, q1, q2) in
+                [(a, c, vec![a, b, u, c], vec![c, d, v, a]), (b, d, vec![b, u, c, d], vec![d, v, a, b])]
+            {
+                if x == y || nbrs[x as usize].binary_search(&y).is_ok() {
+                    continue;
+                }
+                let before = cost(val(u)) + cost(val(v)) + cost(val(x)) + cost(val(y));
+                let after = cost(val(u) - 1) + cost(val(v) - 1) + cost(val(x) + 1) + cost(val(y) + 1);
+                if after < before {
+                    cands.push((before - after, f1.min(f2), Op::Rotate { f1, f2, quads: [q1, q2], u, v, x, y }));
+                }
+            }
+        }
+        if cands.is_empty() {
+            break;
+        }
+        cands.sort_by(|l, r| r.0.cmp(&l.0).then(l.1.cmp(&r.1)));
+        let mut touched = vec![false; nv];
+        let mut merge: Vec<u32> = (0..nv as u32).collect();
+        let mut removed = vec![false; faces.len()];
+        let mut changed = vec![false; faces.len()];
+        let mut applied = 0;
+        let ring_free = |touched: &[bool], vs: &[u32]| {
+            vs.iter().all(|&v| !touched[v as usize] && nbrs[v as usize].iter().all(|&w| !touched[w as usize]))
+        };
+        for (_, _, op) in cands {
+            match op {
+                Op::Collapse { f, a, c } => {
+                    if removed[f] || changed[f] {
+                        continue;
+                    }
+                    let (b, d) = {
+                        let g = &faces[f];
+                        let i = g.iter().position(|&x| x == a).expect("has a");
+                        (g[(i + 1) % 4], g[(i + 3) % 4])
+                    };
+                    if removed[f] || !ring_free(&touched, &[a, b, c, d]) {
+                        continue;
+                    }
+                    for v in [a, b, c, d] {
+                        touched[v as usize] = true;
+                    }
+                    p[a as usize] = scale(add(p[a as usize], p[c as usize]), 0.5);
+                    merge[c as usize] = a;
+                    removed[f] = true;
+                    counts.diagonal_collapses += 1;
+                    applied += 1;
+                }
+                Op::Rotate { f1, f2, quads, u, v, x, y } => {
+                    if removed[f1] || removed[f2] || changed[f1] || changed[f2] || !ring_free(&touched, &[u, v, x, y]) {
+                        continue;
+                    }
+                    for w in [u, v, x, y] {
+                        touched[w as usize] = true;
+                    }
+                    let [q1, q2] = quads;
+                    faces[f1] = q1;
+                    faces[f2] = q2;
+                    changed[f1] = true;
+                    changed[f2] = true;
+                    counts.edge_rotations += 1;
+                    applied += 1;
+                }
+            }
+        }
+        if applied == 0 {
+            break;
+        }
+        let mut out: Vec<Vec<u32>> = Vec::with_capacity(faces.len());
+        for (fi, f) in faces.iter().enumerate() {
+            if !removed[fi] {
+                out.push(f.iter().map(|&v| merge[v as usize]).collect());
+            }
+        }
+        *faces = out;
+    }
+    // Drop merged-away vertices.
+    let mut map = vec![u32::MAX; p.len()];
+    let mut kept = Vec::with_capacity(p.len());
+    for f in faces.iter_mut() {
+        for v in f.iter_mut() {
+            if map[*v as usize] == u32::MAX {
+                map[*v as usize] = kept.len() as u32;
+                kept.push(p[*v as usize]);
+            }
+            *v = map[*v as usize];
+        }
+    }
+    *p = kept;
+    let mut valence = vec![0usize; p.len()];
+    let mut edges: Vec<(u32, u32)> =
+        faces.iter().flat_map(|f| (0..4).map(move |k| (f[k].min(f[(k + 1) % 4]), f[k].max(f[(k + 1) % 4])))).collect();
+    edges.sort_unstable();
+    edges.dedup();
+    for (a, b) in edges {
+        valence[a as usize] += 1;
+        valence[b as usize] += 1;
+    }
+    counts.irregularity_after = valence.iter().map(|&v| cost(v as i64)).sum();
+    counts
+}
