@@ -14,7 +14,8 @@
 //!    features thinner than twice the spacing can vanish); the *direct* route extracts at the full count
 //!    and pairs every triangle along straight strips or bent paths. The direct result is kept when the
 //!    split one is more than [`FIDELITY_RATIO`] times farther from the input;
-//! 7. projection onto the input surface (onto triangles facing the same way) and tangential relaxation.
+//! 7. a valence pass (diagonal collapses and edge rotations that lower Σ|valence − 4|), then projection
+//!    onto the input surface (onto triangles facing the same way) and tangential relaxation.
 //!
 //! **How the vertex count is matched.** The split in step 6 turns a quad-dominant mesh with V vertices,
 //! E edges and F faces into a pure-quad mesh with exactly V + E + F vertices (≈ 4V). The split route
