@@ -169,11 +169,14 @@ pub const PATIENCE: usize = 3;
 
 /// The direct route runs only when the split route's two-sided RMS exceeds this percentage of the bounding-box
 /// diagonal (or the split route changed χ): on the shared meshes the split route measures 0.033–0.058 %
-/// where nothing is lost and 0.27–0.63 % where thin parts vanish.
-pub const DIRECT_TRIGGER_PCT: f64 = 0.06;
+/// where nothing is lost and 0.27–0.63 % where thin parts vanish; the threshold sits between with margin.
+pub const DIRECT_TRIGGER_PCT: f64 = 0.1;
 
 /// Passes of the valence optimisation (diagonal collapses and edge rotations) on the pure-quad mesh.
 pub const VALENCE_PASSES: usize = 10;
+
+/// Rounds of unfolding flipped faces after relaxation.
+pub const UNTANGLE_ROUNDS: usize = 10;
 
 /// Most direct-mode extractions tried.
 pub const MAX_DIRECT_ATTEMPTS: usize = 4;
@@ -383,6 +386,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     let mut t_ext = 0.0;
     let modes: &[Mode] = if opts.try_direct { &[Mode::Split, Mode::Direct] } else { &[Mode::Split] };
     let bvh = TriangleBvh::new(mesh);
+    let input_p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
     let input_geometry = Geometry::Mesh(poly);
     let diagonal = mesh.bbox().diagonal();
     // Per mode: the best attempt with the input's χ (else the best closed manifold one), finished and
@@ -450,7 +454,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         };
         progress.report(0.8, "projection");
         let t0 = Instant::now();
-        let (out, doublets, valence) = finish(&c, &bvh, opts.relax_iterations)?;
+        let (out, doublets, valence) = finish(&c, mesh, &input_p, &bvh, opts.relax_iterations)?;
         let rms = if opts.try_direct {
             let copts = CompareOptions { samples: 50_000, seed: opts.seed, ..Default::default() };
             let d = compare(&Geometry::Mesh(out.clone()), &input_geometry, &copts, &crate::stages::NoProgress)?;
@@ -542,7 +546,13 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
 
 /// Relax the candidate's polygon mesh on the input, split it to quads (split mode), remove doublets and
 /// relax again. Returns the quad mesh and the doublets removed.
-fn finish(c: &Candidate, bvh: &TriangleBvh, relax: usize) -> Result<(PolyMesh, usize, quadify::ValenceCounts)> {
+fn finish(
+    c: &Candidate,
+    input: &TriMesh,
+    input_p: &[V3],
+    bvh: &TriangleBvh,
+    relax: usize,
+) -> Result<(PolyMesh, usize, quadify::ValenceCounts)> {
     if c.faces.is_empty() {
         return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no face was extracted")
             .with_hint("the target may be too small for this shape; try more vertices"));
@@ -557,6 +567,8 @@ fn finish(c: &Candidate, bvh: &TriangleBvh, relax: usize) -> Result<(PolyMesh, u
     let mut qp = compact(qp, &mut quads);
     let valence = quadify::optimize_valence(&mut qp, &mut quads, VALENCE_PASSES);
     quadify::relax_and_project(&mut qp, &quads, bvh, relax, 0.5);
+    let normal = |t: u32| vec3::tri_cross(input_p, input.triangles[t as usize]);
+    quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
     let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
     Ok((PolyMesh::new(positions, &quads)?, doublets, valence))
 }

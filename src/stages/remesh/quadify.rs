@@ -870,3 +870,71 @@ pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usiz
     counts.irregularity_after = valence.iter().map(|&v| cost(v as i64)).sum();
     counts
 }
+
+/// Unfold flipped faces: a face is flipped when its normal points against `surface_normal` at its centre.
+/// The vertices of flipped faces and their neighbours move to the average of their neighbours (not only
+/// tangentially) and back onto the surface, for at most `rounds` rounds; the positions with the fewest
+/// flipped faces seen are kept, so the result is never worse than the input. Returns the faces still
+/// flipped.
+pub fn untangle(
+    p: &mut [V3],
+    faces: &[Vec<u32>],
+    bvh: &TriangleBvh,
+    surface_normal: impl Fn(u32) -> V3 + Sync,
+    rounds: usize,
+) -> usize {
+    let (off, adj) = adjacency(p.len(), faces);
+    let flipped = |p: &[V3]| -> Vec<usize> {
+        (0..faces.len())
+            .into_par_iter()
+            .filter(|&fi| {
+                let f = &faces[fi];
+                let mut c = [0.0; 3];
+                for &v in f {
+                    c = add(c, p[v as usize]);
+                }
+                c = scale(c, 1.0 / f.len() as f64);
+                bvh.closest(c).is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
+            })
+            .collect()
+    };
+    let mut bad = flipped(p);
+    // Keep the positions with the fewest flipped faces seen (the start included): never worse.
+    let mut best = (bad.len(), p.to_vec());
+    for _ in 0..rounds {
+        if bad.is_empty() {
+            break;
+        }
+        let mut verts: Vec<u32> = bad.iter().flat_map(|&f| faces[f].iter().copied()).collect();
+        let ring: Vec<u32> = verts
+            .iter()
+            .flat_map(|&v| adj[off[v as usize] as usize..off[v as usize + 1] as usize].iter().copied())
+            .collect();
+        verts.extend(ring);
+        verts.sort_unstable();
+        verts.dedup();
+        let moved: Vec<V3> = verts
+            .iter()
+            .map(|&v| {
+                let nb = &adj[off[v as usize] as usize..off[v as usize + 1] as usize];
+                let mut avg = [0.0; 3];
+                for &u in nb {
+                    avg = add(avg, p[u as usize]);
+                }
+                avg = scale(avg, 1.0 / nb.len().max(1) as f64);
+                bvh.closest(avg).map_or(avg, |c| c.point)
+            })
+            .collect();
+        for (&v, x) in verts.iter().zip(moved) {
+            p[v as usize] = x;
+        }
+        bad = flipped(p);
+        if bad.len() < best.0 {
+            best = (bad.len(), p.to_vec());
+        }
+    }
+    if best.0 < bad.len() {
+        p.copy_from_slice(&best.1);
+    }
+    best.0.min(bad.len())
+}
