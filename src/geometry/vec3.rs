@@ -38,6 +38,13 @@ pub fn norm(a: V3) -> f64 {
     dot(a, a).sqrt()
 }
 
+/// `a` scaled to unit length, or `fallback` when its length is at most 1e-12.
+#[inline]
+pub fn unit_or(a: V3, fallback: V3) -> V3 {
+    let l = norm(a);
+    if l > 1e-12 { scale(a, 1.0 / l) } else { fallback }
+}
+
 /// An axis-aligned box in f64. An empty box has `min > max`.
 #[derive(Copy, Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Aabb {

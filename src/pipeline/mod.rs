@@ -197,14 +197,17 @@ pub fn repair_file(
     ensure_not_input(output, &[input])?;
     let mesh = crate::geometry::io::read_mesh(input, read)?;
     let (out, report) = crate::stages::repair::repair(&mesh, opts, progress).map_err(|e| e.in_file(input))?;
-    let out = crate::geometry::mesh::PolyMesh::from(out);
-    let is_obj = output.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj"));
-    if is_obj {
-        crate::geometry::io::write_obj(output, &out)?;
-    } else {
-        crate::geometry::io::write_ply(output, &out, &Default::default(), &["repaired by scanstation"])?;
-    }
+    write_mesh(output, &crate::geometry::mesh::PolyMesh::from(out), "repaired by scanstation")?;
     Ok(RepairFileReport { input_file: input.to_path_buf(), output_file: output.to_path_buf(), repair: report })
+}
+
+/// Write `mesh` as OBJ when `output` ends in `.obj` (polygons kept), else as binary PLY with `comment`.
+fn write_mesh(output: &Path, mesh: &crate::geometry::mesh::PolyMesh, comment: &str) -> Result<()> {
+    if output.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj")) {
+        crate::geometry::io::write_obj(output, mesh)
+    } else {
+        crate::geometry::io::write_ply(output, mesh, &Default::default(), &[comment])
+    }
 }
 
 /// What `scanstation remesh` reports.
@@ -236,11 +239,6 @@ pub fn remesh_file(
     let mesh = crate::geometry::io::read_mesh(input, read)?;
     let (tri, _) = mesh.triangulate();
     let (out, report) = crate::stages::remesh::remesh(&tri, opts, progress).map_err(|e| e.in_file(input))?;
-    let is_obj = output.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj"));
-    if is_obj {
-        crate::geometry::io::write_obj(output, &out)?;
-    } else {
-        crate::geometry::io::write_ply(output, &out, &Default::default(), &["remeshed by scanstation"])?;
-    }
+    write_mesh(output, &out, "remeshed by scanstation")?;
     Ok(RemeshFileReport { input_file: input.to_path_buf(), output_file: output.to_path_buf(), remesh: report })
 }

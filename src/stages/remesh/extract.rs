@@ -182,8 +182,7 @@ fn cluster_graph(level: &Level, o: &[V3], uf: &mut UnionFind, links: &[(u32, u32
     }
     for c in 0..m {
         p[c] = scale(p[c], 1.0 / w[c]);
-        let l = vec3::norm(nn[c]);
-        nn[c] = if l > 1e-12 { scale(nn[c], 1.0 / l) } else { [0.0, 0.0, 1.0] };
+        nn[c] = vec3::unit_or(nn[c], [0.0, 0.0, 1.0]);
     }
     let mut edges: Vec<(u32, u32)> = links
         .iter()
@@ -245,13 +244,7 @@ fn trace_faces(p: &[V3], n: &[V3], edges: &[(u32, u32)]) -> (Vec<Vec<u32>>, Vec<
         half.push((b, a));
     }
     half.sort_unstable();
-    let mut off = vec![0usize; nv + 1];
-    for &(a, _) in &half {
-        off[a as usize + 1] += 1;
-    }
-    for i in 0..nv {
-        off[i + 1] += off[i];
-    }
+    let off: Vec<usize> = super::hierarchy::csr(nv, &half).0.into_iter().map(|o| o as usize).collect();
     // Sort each vertex's outgoing half-edges counter-clockwise about its normal.
     for v in 0..nv {
         let (lo, hi) = (off[v], off[v + 1]);

@@ -67,41 +67,45 @@ fn compat_orientation(q0: V3, n0: V3, q1: V3, n1: V3) -> (V3, V3) {
     (ai, if dot(ai, bj) < 0.0 { scale(bj, -1.0) } else { bj })
 }
 
-/// Smooth the orientation field of `level` in place: `iterations` sweeps. `bias`, when given, pulls each
-/// vertex toward a preferred direction with the given weight (principal curvature alignment).
-pub fn smooth_orientation(level: &Level, q: &mut [V3], iterations: usize, bias: Option<&[(V3, f64)]>) {
+/// Gauss–Seidel over colour classes: `iterations` sweeps; within a class every vertex is updated in
+/// parallel by `update(i, values)` from the current values (no two vertices of a class are adjacent, so
+/// the result does not depend on the thread count).
+fn sweep(level: &Level, values: &mut [V3], iterations: usize, update: impl Fn(usize, &[V3]) -> V3 + Sync) {
     for _ in 0..iterations {
         for class in &level.colours {
-            let updates: Vec<V3> = class
-                .par_iter()
-                .map(|&i| {
-                    let i = i as usize;
-                    let ni = level.n[i];
-                    let mut sum = q[i];
-                    let mut wsum = 0.0;
-                    let mut step = |qj: V3, nj: V3, w: f64, sum: &mut V3| {
-                        let (a, b) = compat_orientation(*sum, ni, qj, nj);
-                        *sum = add(scale(a, wsum), scale(b, w));
-                        wsum += w;
-                        *sum = tangent_unit(*sum, ni);
-                    };
-                    for (j, w) in level.neighbours(i) {
-                        step(q[j], level.n[j], w, &mut sum);
-                    }
-                    if let Some(bias) = bias {
-                        let (d, w) = bias[i];
-                        if w > 0.0 {
-                            step(d, ni, w, &mut sum);
-                        }
-                    }
-                    sum
-                })
-                .collect();
+            let cur: &[V3] = values;
+            let updates: Vec<V3> = class.par_iter().map(|&i| update(i as usize, cur)).collect();
             for (&i, u) in class.iter().zip(updates) {
-                q[i as usize] = u;
+                values[i as usize] = u;
             }
         }
     }
+}
+
+/// Smooth the orientation field of `level` in place: `iterations` sweeps. `bias`, when given, pulls each
+/// vertex toward a preferred direction with the given weight (principal curvature alignment).
+pub fn smooth_orientation(level: &Level, q: &mut [V3], iterations: usize, bias: Option<&[(V3, f64)]>) {
+    sweep(level, q, iterations, |i, q| {
+        let ni = level.n[i];
+        let mut sum = q[i];
+        let mut wsum = 0.0;
+        let mut step = |qj: V3, nj: V3, w: f64, sum: &mut V3| {
+            let (a, b) = compat_orientation(*sum, ni, qj, nj);
+            *sum = add(scale(a, wsum), scale(b, w));
+            wsum += w;
+            *sum = tangent_unit(*sum, ni);
+        };
+        for (j, w) in level.neighbours(i) {
+            step(q[j], level.n[j], w, &mut sum);
+        }
+        if let Some(bias) = bias {
+            let (d, w) = bias[i];
+            if w > 0.0 {
+                step(d, ni, w, &mut sum);
+            }
+        }
+        sum
+    });
 }
 
 /// The least-squares point on both tangent planes of an edge (Instant Meshes' `middle_point`).
@@ -185,31 +189,20 @@ pub fn lattice_round(o: V3, q: V3, n: V3, p: V3, s: f64) -> V3 {
 
 /// Smooth the position field of `level` in place (`o` holds lattice origins) with lattice spacing `s`.
 pub fn smooth_position(level: &Level, q: &[V3], o: &mut [V3], s: f64, iterations: usize) {
-    for _ in 0..iterations {
-        for class in &level.colours {
-            let updates: Vec<V3> = class
-                .par_iter()
-                .map(|&i| {
-                    let i = i as usize;
-                    let (pi, ni, qi) = (level.p[i], level.n[i], q[i]);
-                    let mut sum = o[i];
-                    let mut wsum = 0.0;
-                    for (j, w) in level.neighbours(i) {
-                        let f0 = Frame { p: pi, n: ni, q: qi, o: sum };
-                        let f1 = Frame { p: level.p[j], n: level.n[j], q: q[j], o: o[j] };
-                        let (a, b) = compat_position(&f0, &f1, s);
-                        sum = scale(add(scale(a, wsum), scale(b, w)), 1.0 / (wsum + w));
-                        wsum += w;
-                        sum = sub(sum, scale(ni, dot(ni, sub(sum, pi))));
-                    }
-                    lattice_round(sum, qi, ni, pi, s)
-                })
-                .collect();
-            for (&i, u) in class.iter().zip(updates) {
-                o[i as usize] = u;
-            }
+    sweep(level, o, iterations, |i, o| {
+        let (pi, ni, qi) = (level.p[i], level.n[i], q[i]);
+        let mut sum = o[i];
+        let mut wsum = 0.0;
+        for (j, w) in level.neighbours(i) {
+            let f0 = Frame { p: pi, n: ni, q: qi, o: sum };
+            let f1 = Frame { p: level.p[j], n: level.n[j], q: q[j], o: o[j] };
+            let (a, b) = compat_position(&f0, &f1, s);
+            sum = scale(add(scale(a, wsum), scale(b, w)), 1.0 / (wsum + w));
+            wsum += w;
+            sum = sub(sum, scale(ni, dot(ni, sub(sum, pi))));
         }
-    }
+        lattice_round(sum, qi, ni, pi, s)
+    });
 }
 
 /// Solve the orientation field on all levels, coarsest first; returns every level's field, finest first.

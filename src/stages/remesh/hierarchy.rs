@@ -80,7 +80,8 @@ pub fn finest_level(p: &[V3], tris: &[[u32; 3]]) -> Level {
     level
 }
 
-fn csr(n: usize, sorted_pairs: &[(u32, u32)]) -> (Vec<u32>, Vec<u32>) {
+/// CSR form of sorted (source, target) pairs over `n` sources: offsets (`n + 1`) and targets.
+pub(crate) fn csr(n: usize, sorted_pairs: &[(u32, u32)]) -> (Vec<u32>, Vec<u32>) {
     let mut off = vec![0u32; n + 1];
     for &(a, _) in sorted_pairs {
         off[a as usize + 1] += 1;
@@ -169,8 +170,7 @@ pub fn coarsen(fine: &mut Level) -> Level {
     }
     for c in 0..m {
         p[c] = vec3::scale(p[c], 1.0 / area[c]);
-        let l = vec3::norm(nrm[c]);
-        nrm[c] = if l > 1e-12 { vec3::scale(nrm[c], 1.0 / l) } else { [0.0, 0.0, 1.0] };
+        nrm[c] = vec3::unit_or(nrm[c], [0.0, 0.0, 1.0]);
     }
     let mut pairs: Vec<(u32, u32, f32)> = Vec::with_capacity(fine.adj.len());
     for i in 0..n {

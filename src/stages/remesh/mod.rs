@@ -37,6 +37,8 @@ pub mod quadify;
 use std::collections::{BTreeMap, HashMap};
 use std::time::Instant;
 
+use serde::Serialize;
+
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
@@ -250,8 +252,6 @@ fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode) -
     Candidate { mode, ex, faces, counts, by_degree, predicted, topology_ok: false }
 }
 
-use serde::Serialize;
-
 /// What [`remesh`] did and measured. Keys are the JSON keys.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct RemeshReport {
@@ -347,7 +347,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     progress.report(0.0, "working mesh");
     let mut p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
     let mut tris = mesh.triangles.clone();
-    drop_unreferenced(&mut p, &mut tris);
+    p = quadify::compact(&p, &mut tris);
     let want = (opts.work_per_vertex * opts.target_vertices as f64) as usize;
     report.working_mesh = "as-is".into();
     if p.len() > want * 3 / 2 {
@@ -564,7 +564,7 @@ fn finish(
         Mode::Direct => (coarse, c.faces.clone()),
     };
     let doublets = quadify::remove_doublets(&mut quads);
-    let mut qp = compact(qp, &mut quads);
+    let mut qp = quadify::compact(&qp, &mut quads);
     let valence = quadify::optimize_valence(&mut qp, &mut quads, VALENCE_PASSES);
     quadify::relax_and_project(&mut qp, &quads, bvh, relax, 0.5);
     let normal = |t: u32| vec3::tri_cross(input_p, input.triangles[t as usize]);
@@ -588,40 +588,6 @@ fn orientation_singularities(level: &hierarchy::Level, q: &[V3], tris: &[[u32; 3
             (k(a, b) + k(b, c) + k(c, a)) % 4 != 0
         })
         .count()
-}
-
-/// Keep only the vertices some face uses, renumbering the faces.
-fn compact(p: Vec<V3>, faces: &mut [Vec<u32>]) -> Vec<V3> {
-    let mut map = vec![u32::MAX; p.len()];
-    let mut out = Vec::with_capacity(p.len());
-    for f in faces.iter_mut() {
-        for v in f.iter_mut() {
-            if map[*v as usize] == u32::MAX {
-                map[*v as usize] = out.len() as u32;
-                out.push(p[*v as usize]);
-            }
-            *v = map[*v as usize];
-        }
-    }
-    out
-}
-
-/// Drop vertices no triangle uses, renumbering the triangles.
-fn drop_unreferenced(p: &mut Vec<V3>, tris: &mut [[u32; 3]]) {
-    let mut map = vec![u32::MAX; p.len()];
-    let mut next = 0u32;
-    let mut kept = Vec::with_capacity(p.len());
-    for t in tris.iter_mut() {
-        for v in t.iter_mut() {
-            if map[*v as usize] == u32::MAX {
-                map[*v as usize] = next;
-                kept.push(p[*v as usize]);
-                next += 1;
-            }
-            *v = map[*v as usize];
-        }
-    }
-    *p = kept;
 }
 
 /// Split every triangle into four at its edge midpoints (the surface is unchanged).
@@ -734,15 +700,7 @@ pub fn quad_stats(mesh: &PolyMesh, input: Option<(&TriMesh, &TriangleBvh)>) -> Q
         ..Default::default()
     };
     st.quad_fraction = *topo.faces_by_degree.get(&4).unwrap_or(&0) as f64 / topo.faces.max(1) as f64;
-    let mut edges: Vec<(u32, u32)> = Vec::with_capacity(mesh.corner_count());
-    for f in mesh.faces() {
-        for k in 0..f.len() {
-            let (a, b) = (f[k], f[(k + 1) % f.len()]);
-            edges.push((a.min(b), a.max(b)));
-        }
-    }
-    edges.sort_unstable();
-    edges.dedup();
+    let edges = quadify::unique_edges(mesh.faces());
     let mut valence = vec![0usize; p.len()];
     let mut lengths = Vec::with_capacity(edges.len());
     for &(a, b) in &edges {

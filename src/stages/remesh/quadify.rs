@@ -1,11 +1,13 @@
 //! From the extracted quad-dominant mesh to a pure-quad mesh on the input surface.
 //!
 //! 1. Faces of degree ≥ 6 (holes the extraction left) are cut into quads along their shortest
-//!    quad-cutting diagonals, leaving at most one triangle or pentagon.
-//! 2. Adjacent triangles are paired into quads.
-//! 3. One regular split (face centre + edge midpoints): every n-gon becomes n quads. The final vertex
-//!    count is V + E + F of the quad-dominant mesh, which the caller steers to the target.
-//! 4. Vertices are moved onto the input surface and relaxed tangentially (closest-point projection).
+//!    quad-cutting diagonals, pentagons into a quad and a triangle.
+//! 2. Triangles are paired along straight quad strips ([`pair_triangles`]) and, in the direct route,
+//!    along bent paths ([`pair_triangles_along_paths`]); doublets are merged ([`remove_doublets`]).
+//! 3. Split route: one regular split (face centre + edge midpoints), every n-gon becomes n quads; the
+//!    vertex count is V + E + F of the quad-dominant mesh, which the caller steers to the target.
+//! 4. A valence pass ([`optimize_valence`]), projection onto the input surface with tangential relaxation
+//!    ([`relax_and_project`]), and unfolding of flipped faces ([`untangle`]).
 
 use std::collections::HashMap;
 
@@ -74,7 +76,7 @@ fn key(a: u32, b: u32) -> (u32, u32) {
 }
 
 fn edge_set(faces: &[Vec<u32>]) -> std::collections::HashSet<(u32, u32)> {
-    faces.iter().flat_map(|f| (0..f.len()).map(move |k| key(f[k], f[(k + 1) % f.len()]))).collect()
+    unique_edges(faces.iter().map(Vec::as_slice)).into_iter().collect()
 }
 
 /// Euler characteristic V − E + F of a polygon mesh over its referenced vertices, and whether every
@@ -123,51 +125,30 @@ pub fn cut_large_faces(p: &[V3], faces: &mut Vec<Vec<u32>>, counts: &mut Cleanup
     *faces = out;
 }
 
-/// Merge pairs of adjacent triangles into quads (greedy, shortest shared edge last so that the
-/// resulting quads are the most square-ish).
-pub fn merge_triangle_pairs(p: &[V3], faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
-    let mut edge_tris: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
-    for (fi, f) in faces.iter().enumerate() {
-        if f.len() == 3 {
-            for k in 0..3 {
-                let (a, b) = (f[k], f[(k + 1) % 3]);
-                edge_tris.entry((a.min(b), a.max(b))).or_default().push(fi as u32);
+/// Keep only the vertices some face uses (in first-use order), renumbering the faces; works for triangles
+/// (`[u32; 3]`) and polygons (`Vec<u32>`) alike.
+pub fn compact<F: AsMut<[u32]>>(p: &[V3], faces: &mut [F]) -> Vec<V3> {
+    let mut map = vec![u32::MAX; p.len()];
+    let mut out = Vec::with_capacity(p.len());
+    for f in faces.iter_mut() {
+        for v in f.as_mut() {
+            if map[*v as usize] == u32::MAX {
+                map[*v as usize] = out.len() as u32;
+                out.push(p[*v as usize]);
             }
+            *v = map[*v as usize];
         }
     }
-    let mut cand: Vec<(f64, u32, u32, (u32, u32))> = edge_tris
-        .iter()
-        .filter(|(_, t)| t.len() == 2)
-        .map(|(&(a, b), t)| (-vec3::norm2(sub(p[a as usize], p[b as usize])), t[0], t[1], (a, b)))
-        .collect();
-    cand.sort_unstable_by(|x, y| x.0.total_cmp(&y.0).then((x.1, x.2).cmp(&(y.1, y.2))));
-    let mut used = vec![false; faces.len()];
-    let mut merged: Vec<Vec<u32>> = Vec::new();
-    for (_, t0, t1, (a, b)) in cand {
-        if used[t0 as usize] || used[t1 as usize] {
-            continue;
-        }
-        let f0 = &faces[t0 as usize];
-        let f1 = &faces[t1 as usize];
-        // f0 = (x, y, z) with the shared edge somewhere; rotate so that f0 = (u, v, w) with (u, v) shared.
-        let k = (0..3).find(|&k| {
-            let (u, v) = (f0[k], f0[(k + 1) % 3]);
-            (u == a && v == b) || (u == b && v == a)
-        });
-        let Some(k) = k else { continue };
-        let (u, v, w) = (f0[k], f0[(k + 1) % 3], f0[(k + 2) % 3]);
-        let Some(&x) = f1.iter().find(|&&x| x != u && x != v) else { continue };
-        if x == w {
-            continue;
-        }
-        used[t0 as usize] = true;
-        used[t1 as usize] = true;
-        counts.triangle_pairs_merged += 1;
-        merged.push(vec![u, x, v, w]);
-    }
-    let mut out: Vec<Vec<u32>> = faces.iter().zip(&used).filter(|(_, u)| !**u).map(|(f, _)| f.clone()).collect();
-    out.extend(merged);
-    *faces = out;
+    out
+}
+
+/// The undirected edges (a < b) of a polygon mesh, sorted, each once.
+pub fn unique_edges<'a>(faces: impl IntoIterator<Item = &'a [u32]>) -> Vec<(u32, u32)> {
+    let mut edges: Vec<(u32, u32)> =
+        faces.into_iter().flat_map(|f| (0..f.len()).map(move |k| key(f[k], f[(k + 1) % f.len()]))).collect();
+    edges.sort_unstable();
+    edges.dedup();
+    edges
 }
 
 /// Number of vertices after [`split_to_quads`]: V + E + F.
@@ -246,14 +227,7 @@ pub fn adjacency(nv: usize, faces: &[Vec<u32>]) -> (Vec<u32>, Vec<u32>) {
     }
     pairs.sort_unstable();
     pairs.dedup();
-    let mut off = vec![0u32; nv + 1];
-    for &(a, _) in &pairs {
-        off[a as usize + 1] += 1;
-    }
-    for i in 0..nv {
-        off[i + 1] += off[i];
-    }
-    (off, pairs.into_iter().map(|(_, b)| b).collect())
+    super::hierarchy::csr(nv, &pairs)
 }
 
 /// Project every vertex onto the surface of `bvh`, then `iterations` rounds of tangential Laplacian
@@ -423,12 +397,13 @@ pub fn pair_triangles(faces: &mut Vec<Vec<u32>>, max_len: usize, rounds: usize, 
             };
             let ga = gain(s.x[0], s.y[k]);
             let gb = gain(s.y[0], s.x[k]);
-            let quads = match (ga, gb) {
+            let use_b = match (ga, gb) {
                 (None, None) => continue,
-                (Some(a), Some(b)) if b > a => variant_b(&s),
-                (Some(_), _) => strip_quads(s.a, s.b, &s.x, &s.y),
-                (None, Some(_)) => variant_b(&s),
+                (Some(a), Some(b)) => b > a,
+                (Some(_), None) => false,
+                (None, Some(_)) => true,
             };
+            let quads = if use_b { variant_b(&s) } else { strip_quads(s.a, s.b, &s.x, &s.y) };
             // The new diagonals must not exist yet.
             let mut ok = true;
             let mut diag = Vec::new();
@@ -455,11 +430,7 @@ pub fn pair_triangles(faces: &mut Vec<Vec<u32>>, max_len: usize, rounds: usize, 
             counts.strip_quads_rediagonalised += s.faces.len() - 2;
             replaced.push((s.faces.clone(), quads));
             // Valences change at the ends; refresh them for later candidates of this round.
-            let ends = if quads_is_variant_a(&replaced.last().expect("pushed").1, &s) {
-                [s.x[0], s.y[k]]
-            } else {
-                [s.y[0], s.x[k]]
-            };
+            let ends = if use_b { [s.y[0], s.x[k]] } else { [s.x[0], s.y[k]] };
             for v in ends {
                 *valence.get_mut(&v).expect("strip vertex has edges") -= 1;
             }
@@ -484,10 +455,6 @@ fn variant_b(s: &Strip) -> Vec<Vec<u32>> {
             q
         })
         .collect()
-}
-
-fn quads_is_variant_a(quads: &[Vec<u32>], s: &Strip) -> bool {
-    quads.first() == strip_quads(s.a, s.b, &s.x, &s.y).first()
 }
 
 /// Remove valence-2 vertices shared by exactly two faces ("doublets"): the two faces merge into one.
@@ -846,24 +813,9 @@ pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usiz
         *faces = out;
     }
     // Drop merged-away vertices.
-    let mut map = vec![u32::MAX; p.len()];
-    let mut kept = Vec::with_capacity(p.len());
-    for f in faces.iter_mut() {
-        for v in f.iter_mut() {
-            if map[*v as usize] == u32::MAX {
-                map[*v as usize] = kept.len() as u32;
-                kept.push(p[*v as usize]);
-            }
-            *v = map[*v as usize];
-        }
-    }
-    *p = kept;
+    *p = compact(p, faces);
     let mut valence = vec![0usize; p.len()];
-    let mut edges: Vec<(u32, u32)> =
-        faces.iter().flat_map(|f| (0..4).map(move |k| (f[k].min(f[(k + 1) % 4]), f[k].max(f[(k + 1) % 4])))).collect();
-    edges.sort_unstable();
-    edges.dedup();
-    for (a, b) in edges {
+    for (a, b) in unique_edges(faces.iter().map(Vec::as_slice)) {
         valence[a as usize] += 1;
         valence[b as usize] += 1;
     }
