@@ -720,7 +720,9 @@ pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usiz
                 }
             }
         }
-        for (&(u, v), &f1) in &half {
+        // Edges in face order (not the hash map's order, which differs between runs).
+        let face_edges = faces.iter().enumerate().flat_map(|(fi, f)| (0..4).map(move |k| (f[k], f[(k + 1) % 4], fi)));
+        for (u, v, f1) in face_edges {
             if u > v {
                 continue;
             }
