@@ -61,6 +61,13 @@ pub enum ErrorCode {
     RemeshInputNotClosed,
     /// Remeshing could not produce a valid pure-quad mesh; the message names the step and the element.
     RemeshFailed,
+    /// A control net for the surface stage is not a closed, oriented, pure-quad 2-manifold.
+    SurfaceBadNet,
+    /// The least-squares surface fit produced non-finite values or a growing residual.
+    SurfaceFitDiverged,
+    /// The B-rep failed our own validity check (open shell, unshared edge, edge curve off a face boundary,
+    /// inward orientation); the message names the first offending element.
+    BrepInvalid,
     /// The operation would need more memory than its budget allows.
     ResourceMemoryBudget,
     /// Writing an output failed (disk full, permissions) or would overwrite an input.
@@ -90,6 +97,9 @@ impl ErrorCode {
             ErrorCode::RepairFailed => "repair.failed",
             ErrorCode::RemeshInputNotClosed => "remesh.input-not-closed",
             ErrorCode::RemeshFailed => "remesh.failed",
+            ErrorCode::SurfaceBadNet => "surface.bad-net",
+            ErrorCode::SurfaceFitDiverged => "surface.fit-diverged",
+            ErrorCode::BrepInvalid => "brep.invalid",
             ErrorCode::ResourceMemoryBudget => "resource.memory-budget",
             ErrorCode::ResourceOutput => "resource.output",
             ErrorCode::InternalBug => "internal.bug",
@@ -100,7 +110,7 @@ impl ErrorCode {
     pub const fn class(self) -> ErrorClass {
         match self {
             ErrorCode::ResourceMemoryBudget | ErrorCode::ResourceOutput => ErrorClass::Resource,
-            ErrorCode::InternalBug => ErrorClass::Internal,
+            ErrorCode::InternalBug | ErrorCode::BrepInvalid => ErrorClass::Internal,
             _ => ErrorClass::BadInput,
         }
     }

@@ -8,6 +8,7 @@
 pub mod quality;
 pub mod remesh;
 pub mod repair;
+pub mod surface;
 
 /// Receives progress from a running stage: `fraction` in [0, 1], never decreasing within one stage call,
 /// and a short phase name. Implementations must be cheap and thread-safe; stages call it from worker
