@@ -3,44 +3,12 @@
 use scanstation::geometry::vec3::{self, V3};
 use scanstation::stages::NoProgress;
 use scanstation::stages::surface::limit::{EvPatch, FaceKind, LimitSurface, limit_stencil, point_weights};
-use scanstation::stages::surface::{FitOptions, QuadNet, SphereTarget, fit_control_points};
+use scanstation::geometry::shapes;
+use scanstation::stages::surface::{FitOptions, QuadNet, SphereTarget, control_net, fit_control_points};
 
-/// The 24-face quad ball: a cube's faces each split 2×2, vertices projected onto the unit sphere.
+/// The quad ball of `shapes` as a control net with f64 positions.
 pub fn quad_ball(k: usize) -> (QuadNet, Vec<V3>) {
-    // Vertices of a k×k grid on each cube face, deduplicated by rounded position.
-    let mut pos: Vec<V3> = Vec::new();
-    let mut index = std::collections::HashMap::new();
-    let mut id = |p: V3, pos: &mut Vec<V3>| -> u32 {
-        let key = p.map(|c| (c * 1e6).round() as i64);
-        *index.entry(key).or_insert_with(|| {
-            pos.push(p);
-            (pos.len() - 1) as u32
-        })
-    };
-    let mut faces = Vec::new();
-    let axes: [(V3, V3, V3); 6] = [
-        ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]),
-        ([-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
-        ([0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]),
-        ([0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
-        ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
-        ([0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]),
-    ];
-    for (n, a, b) in axes {
-        let at = |i: usize, j: usize| -> V3 {
-            let (s, t) = (2.0 * i as f64 / k as f64 - 1.0, 2.0 * j as f64 / k as f64 - 1.0);
-            vec3::add(n, vec3::add(vec3::scale(a, s), vec3::scale(b, t)))
-        };
-        for j in 0..k {
-            for i in 0..k {
-                let q = [at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)].map(|p| id(p, &mut pos));
-                faces.push(q);
-            }
-        }
-    }
-    let pos: Vec<V3> = pos.into_iter().map(|p| vec3::scale(p, 1.0 / vec3::norm(p))).collect();
-    let net = QuadNet::new(faces, pos.len(), true).expect("quad ball is a closed net");
-    (net, pos)
+    control_net(&shapes::quad_ball(1.0, k)).expect("quad ball is a closed net")
 }
 
 fn eval(s: &LimitSurface, p1: &[V3], f: usize, u: f64, v: f64, ev: Option<&EvPatch>) -> V3 {
@@ -156,3 +124,4 @@ fn sphere_cage_fit_reaches_design_rms() {
     eprintln!("fit report {report:?}; limit-surface RMS {rms:.6}, max {max:.6}");
     assert!(rms <= 0.0007, "RMS {rms} > 0.0007");
 }
+

@@ -124,3 +124,65 @@ pub fn torus(major: f64, minor: f64, n: usize, m: usize) -> TriMesh {
     }
     TriMesh { positions, triangles }
 }
+
+/// A quad ball: a cube's six faces each split into `k × k` quads, vertices projected onto the sphere of
+/// `radius` around the origin. Outward-oriented, closed, genus 0; 8 valence-3 corners, all other vertices
+/// valence 4; `6k²` quads, `6k² + 2` vertices. `k = 2` is the 24-face cage of the sphere oracle.
+pub fn quad_ball(radius: f64, k: usize) -> crate::geometry::mesh::PolyMesh {
+    let k = k.max(1);
+    let mut pos: Vec<[f64; 3]> = Vec::new();
+    let mut index: HashMap<[i64; 3], u32> = HashMap::new();
+    let mut faces: Vec<Vec<u32>> = Vec::new();
+    // (outward normal, u axis, v axis) with u × v = normal.
+    let axes: [([f64; 3], [f64; 3], [f64; 3]); 6] = [
+        ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]),
+        ([-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
+        ([0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]),
+        ([0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+        ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
+        ([0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]),
+    ];
+    for (n, a, b) in axes {
+        let mut id = |i: usize, j: usize| -> u32 {
+            let (s, t) = (2 * i as i64 - k as i64, 2 * j as i64 - k as i64);
+            let key: [i64; 3] = std::array::from_fn(|c| n[c] as i64 * k as i64 + a[c] as i64 * s + b[c] as i64 * t);
+            *index.entry(key).or_insert_with(|| {
+                pos.push(key.map(|x| x as f64));
+                (pos.len() - 1) as u32
+            })
+        };
+        for j in 0..k {
+            for i in 0..k {
+                faces.push(vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+    }
+    let positions = pos
+        .into_iter()
+        .map(|p| {
+            let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            p.map(|c| (c / l * radius) as f32)
+        })
+        .collect();
+    crate::geometry::mesh::PolyMesh::new(positions, &faces).expect("quad ball is valid")
+}
+
+/// A quad torus around the z axis: `n` quads around the major circle (radius `major`), `m` around the tube
+/// (radius `minor`). Outward-oriented, closed, genus 1, every vertex valence 4.
+pub fn quad_torus(major: f64, minor: f64, n: usize, m: usize) -> crate::geometry::mesh::PolyMesh {
+    let (n, m) = (n.max(3), m.max(3));
+    let tau = std::f64::consts::TAU;
+    let mut positions = Vec::with_capacity(n * m);
+    for i in 0..n {
+        let a = tau * i as f64 / n as f64;
+        for j in 0..m {
+            let b = tau * j as f64 / m as f64;
+            let r = major + minor * b.cos();
+            positions.push([(r * a.cos()) as f32, (r * a.sin()) as f32, (minor * b.sin()) as f32]);
+        }
+    }
+    let id = |i: usize, j: usize| ((i % n) * m + j % m) as u32;
+    let faces: Vec<Vec<u32>> =
+        (0..n).flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)])).collect();
+    crate::geometry::mesh::PolyMesh::new(positions, &faces).expect("quad torus is valid")
+}

@@ -15,6 +15,10 @@ pub const DEGENERATE_AREA_REL: f64 = 1e-15;
 /// Distances below this fraction of the diagonal are "zero" in distance reports (f32 storage noise).
 pub const DISTANCE_ZERO_REL: f64 = 1e-7;
 
+/// An edge curve of a B-rep must equal the boundary of both faces that use it within this fraction of the
+/// bbox diagonal (OpenCASCADE's `Precision::Confusion()` is 1e-7 in model units). Unitless.
+pub const BREP_EDGE_REL: f64 = 1e-7;
+
 /// Assert that two floating-point values are within an absolute tolerance, printing both sides and the gap.
 ///
 /// `assert_near!(a, b, tol)` or `assert_near!(a, b, tol, "context {}", x)`.

@@ -5,6 +5,7 @@
 //! [`repair`] (closed 2-manifold without self-intersections) and [`remesh`] (field-aligned pure quads).
 //! Surface, brep/step, fea and reconstruction arrive with their issues.
 
+pub mod brep;
 pub mod quality;
 pub mod remesh;
 pub mod repair;

@@ -11,6 +11,8 @@
 use super::limit::{EvPatch, FaceKind, LimitSurface, bspline_basis, limit_stencil, point_weights};
 use super::net::{QuadNet, Stencils};
 use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::bvh::TriangleBvh;
+use crate::geometry::mesh::TriMesh;
 use crate::geometry::vec3::{self, V3};
 use crate::stages::Progress;
 use rayon::prelude::*;
@@ -18,13 +20,30 @@ use rayon::prelude::*;
 /// Where the fitted surface should lie.
 pub trait FitTarget: Sync {
     /// The closest target point to `p`, preferring parts of the target whose outward normal agrees with
-    /// `normal`; `None` when the target is empty.
-    fn closest(&self, p: V3, normal: V3) -> Option<V3>;
+    /// `normal`, with the target's unit normal there; `None` when the target is empty.
+    fn closest(&self, p: V3, normal: V3) -> Option<(V3, V3)>;
 }
 
-impl FitTarget for crate::geometry::bvh::TriangleBvh {
-    fn closest(&self, p: V3, normal: V3) -> Option<V3> {
-        self.closest_facing(p, normal).or_else(|| crate::geometry::bvh::TriangleBvh::closest(self, p)).map(|c| c.point)
+/// A triangle mesh as target: closest points on triangles facing the same way (so thin parts do not
+/// swap sides), with the triangle's normal.
+pub struct MeshTarget {
+    bvh: TriangleBvh,
+    normals: Vec<V3>,
+}
+
+impl MeshTarget {
+    /// Index `mesh`. Cost: O(F log F).
+    pub fn new(mesh: &TriMesh) -> Self {
+        let p: Vec<V3> = mesh.positions.iter().map(|&q| vec3::wide(q)).collect();
+        let normals = mesh.triangles.iter().map(|&t| vec3::tri_unit_normal(&p, t).unwrap_or([0.0; 3])).collect();
+        MeshTarget { bvh: TriangleBvh::new(mesh), normals }
+    }
+}
+
+impl FitTarget for MeshTarget {
+    fn closest(&self, p: V3, normal: V3) -> Option<(V3, V3)> {
+        let c = self.bvh.closest_facing(p, normal).or_else(|| self.bvh.closest(p))?;
+        Some((c.point, self.normals[c.index as usize]))
     }
 }
 
@@ -36,9 +55,9 @@ pub struct SphereTarget {
 }
 
 impl FitTarget for SphereTarget {
-    fn closest(&self, p: V3, _normal: V3) -> Option<V3> {
-        let d = vec3::sub(p, self.center);
-        Some(vec3::add(self.center, vec3::scale(vec3::unit_or(d, [0.0, 0.0, 1.0]), self.radius)))
+    fn closest(&self, p: V3, _normal: V3) -> Option<(V3, V3)> {
+        let d = vec3::unit_or(vec3::sub(p, self.center), [0.0, 0.0, 1.0]);
+        Some((vec3::add(self.center, vec3::scale(d, self.radius)), d))
     }
 }
 
@@ -51,6 +70,9 @@ pub struct FitOptions {
     pub rounds: usize,
     /// Weight of the umbrella smoothness term relative to the mean sample area per control point.
     pub smoothing: f64,
+    /// Weight of the tangential part of each sample's distance relative to the normal part (point-to-plane
+    /// fitting with a small point-to-point term: lets samples slide along the scan, converges fast).
+    pub tangential_weight: f64,
     /// Relative residual at which conjugate gradients stop.
     pub cg_tolerance: f64,
     /// Most conjugate-gradient iterations per round.
@@ -59,7 +81,7 @@ pub struct FitOptions {
 
 impl Default for FitOptions {
     fn default() -> Self {
-        FitOptions { samples_per_side: 3, rounds: 5, smoothing: 1e-3, cg_tolerance: 1e-8, cg_max_iterations: 400 }
+        FitOptions { samples_per_side: 3, rounds: 5, smoothing: 1e-3, tangential_weight: 0.01, cg_tolerance: 1e-8, cg_max_iterations: 400 }
     }
 }
 
@@ -336,72 +358,93 @@ pub fn fit_control_points(
     let umbrella = Umbrella::new(control);
     let lambda = opts.smoothing * total_area / n0 as f64;
 
-    // Jacobi preconditioner: diagonal of Sᵀ Aᵀ W A S (+ λ LᵀL, whose diagonal is ≈ 1 + 1/n).
-    let diag = jacobi_diagonal(&surface, &samples, n0, lambda);
-
-    let apply_h = |x: &[V3]| -> Vec<V3> {
-        let x1 = surface.refine.apply(x);
-        let mut ax = samples.eval(&surface, &x1, 0);
-        for (v, a) in ax.iter_mut().zip(&samples.area) {
-            *v = vec3::scale(*v, *a);
-        }
-        let back1 = samples.scatter(&surface, &ax, n1);
-        let mut out = refine_transpose(&surface.refine, &back1, n0);
-        if lambda > 0.0 {
-            let lx = umbrella.apply_transpose(&umbrella.apply(x));
-            for (o, l) in out.iter_mut().zip(lx) {
-                for c in 0..3 {
-                    o[c] += lambda * l[c];
-                }
-            }
-        }
-        out
-    };
+    // Jacobi preconditioner: diagonal of Sᵀ Aᵀ W A S (+ λ LᵀL, whose diagonal is ≈ 1 + 1/n), scaled by
+    // the mean of the per-sample metric's diagonal (1/3 + μ).
+    let mu = opts.tangential_weight.max(0.0);
+    let mut diag = jacobi_diagonal(&surface, &samples, n0, 0.0);
+    for d in &mut diag {
+        *d = *d * (1.0 / 3.0 + mu) + lambda * 1.25;
+    }
 
     let rms_of = |x: &[V3], y: &[V3]| -> f64 {
         let s: f64 = x.iter().zip(y).zip(&samples.area).map(|((a, b), w)| w * vec3::norm2(vec3::sub(*a, *b))).sum();
         (s / total_area).sqrt()
     };
-
-    for round in 0..opts.rounds {
-        progress.report(0.1 + 0.85 * round as f64 / opts.rounds as f64, "surface: fit");
-        let p1 = surface.refine.apply(&p);
+    let targets = |p: &[V3]| -> (Vec<V3>, Vec<V3>, Vec<V3>) {
+        let p1 = surface.refine.apply(p);
         let x = samples.eval(&surface, &p1, 0);
         let nu = samples.eval(&surface, &p1, 1);
         let nv = samples.eval(&surface, &p1, 2);
-        let y: Vec<V3> = (0..x.len())
+        let (y, n): (Vec<V3>, Vec<V3>) = (0..x.len())
             .into_par_iter()
-            .map(|s| target.closest(x[s], vec3::cross(nu[s], nv[s])).unwrap_or(x[s]))
-            .collect();
-        let rms_before = rms_of(&x, &y);
-        // Right-hand side Sᵀ Aᵀ W y (+ λ LᵀL·0).
-        let wy: Vec<V3> = y.iter().zip(&samples.area).map(|(v, a)| vec3::scale(*v, *a)).collect();
-        let b = refine_transpose(&surface.refine, &samples.scatter(&surface, &wy, n1), n0);
-        let (sol, iters) = conjugate_gradients(&apply_h, &b, &p, &diag, opts.cg_tolerance, opts.cg_max_iterations);
+            .map(|s| {
+                let facing = vec3::cross(nu[s], nv[s]);
+                target.closest(x[s], facing).unwrap_or((x[s], vec3::unit_or(facing, [0.0; 3])))
+            })
+            .unzip();
+        (x, y, n)
+    };
+
+    // Rounds: closest points, then a solve. A round that leaves the surface farther from the target than
+    // before is undone and the tangential weight raised 10× (damping); a good round halves it again.
+    let mut mu = mu;
+    let (mut x, mut y, mut normal) = targets(&p);
+    let mut current = rms_of(&x, &y);
+    let mut bad_rounds = 0;
+    for round in 0..opts.rounds {
+        progress.report(0.1 + 0.85 * round as f64 / opts.rounds as f64, "surface: fit");
+        // Per-sample metric a_s (n nᵀ + μ I): point-to-plane plus a little point-to-point.
+        let metric = |s: usize, v: V3| -> V3 {
+            let n = normal[s];
+            let a = samples.area[s];
+            vec3::scale(vec3::add(vec3::scale(n, vec3::dot(n, v)), vec3::scale(v, mu)), a)
+        };
+        let apply_h = |xv: &[V3]| -> Vec<V3> {
+            let x1 = surface.refine.apply(xv);
+            let ax: Vec<V3> = samples.eval(&surface, &x1, 0).into_iter().enumerate().map(|(s, v)| metric(s, v)).collect();
+            let mut out = refine_transpose(&surface.refine, &samples.scatter(&surface, &ax, n1), n0);
+            if lambda > 0.0 {
+                let lx = umbrella.apply_transpose(&umbrella.apply(xv));
+                for (o, l) in out.iter_mut().zip(lx) {
+                    for c in 0..3 {
+                        o[c] += lambda * l[c];
+                    }
+                }
+            }
+            out
+        };
+        let diag_mu: Vec<f64> = diag.iter().map(|d| d * (1.0 / 3.0 + mu) / (1.0 / 3.0 + opts.tangential_weight.max(0.0))).collect();
+        // Right-hand side Sᵀ Aᵀ M y; the smoothness term pulls toward zero Laplacian.
+        let my: Vec<V3> = (0..y.len()).map(|s| metric(s, y[s])).collect();
+        let b = refine_transpose(&surface.refine, &samples.scatter(&surface, &my, n1), n0);
+        let (sol, iters) = conjugate_gradients(&apply_h, &b, &p, &diag_mu, opts.cg_tolerance, opts.cg_max_iterations);
         if sol.iter().any(|q| !q.iter().all(|c| c.is_finite())) {
             return Err(Error::new(
                 ErrorCode::SurfaceFitDiverged,
                 format!("round {round}: the solve produced non-finite control points"),
             ));
         }
-        p = sol;
-        let x_after = samples.eval(&surface, &surface.refine.apply(&p), 0);
-        let rms_after = rms_of(&x_after, &y);
-        if rms_after > 10.0 * rms_before.max(1e-300) && rms_before > 0.0 {
-            return Err(Error::new(
-                ErrorCode::SurfaceFitDiverged,
-                format!("round {round}: the residual grew from {rms_before:.3e} to {rms_after:.3e}"),
-            ));
+        let (nx, ny, nn) = targets(&sol);
+        let after = rms_of(&nx, &ny);
+        report.rounds.push(RoundReport { rms_before: current, rms_after: after, cg_iterations: iters });
+        if after <= current {
+            p = sol;
+            (x, y, normal) = (nx, ny, nn);
+            current = after;
+            mu = (mu * 0.5).max(1e-4);
+        } else {
+            bad_rounds += 1;
+            mu *= 10.0;
+            if bad_rounds > opts.rounds {
+                break;
+            }
         }
-        report.rounds.push(RoundReport { rms_before, rms_after, cg_iterations: iters });
     }
-    let p1 = surface.refine.apply(&p);
-    let x = samples.eval(&surface, &p1, 0);
-    let nu = samples.eval(&surface, &p1, 1);
-    let nv = samples.eval(&surface, &p1, 2);
-    let y: Vec<V3> =
-        (0..x.len()).into_par_iter().map(|s| target.closest(x[s], vec3::cross(nu[s], nv[s])).unwrap_or(x[s])).collect();
-    report.final_rms = rms_of(&x, &y);
+    let _ = &x;
+    report.final_rms = current;
+    if !current.is_finite() {
+        return Err(Error::new(ErrorCode::SurfaceFitDiverged, "the fitted surface is not finite"));
+    }
     progress.report(1.0, "surface: fit");
     Ok((p, surface, report))
 }
@@ -446,8 +489,8 @@ fn jacobi_diagonal(surface: &LimitSurface, samples: &Samples, n0: usize, lambda:
     diag
 }
 
-/// Preconditioned conjugate gradients on three right-hand sides at once (the x, y, z columns share the
-/// matrix). Returns the solution and the iterations used.
+/// Preconditioned conjugate gradients on the 3n unknowns (coordinates coupled by the point-to-plane
+/// metric). Returns the solution and the iterations used.
 fn conjugate_gradients(
     apply: &dyn Fn(&[V3]) -> Vec<V3>,
     b: &[V3],
@@ -457,47 +500,35 @@ fn conjugate_gradients(
     max_iter: usize,
 ) -> (Vec<V3>, usize) {
     let n = b.len();
+    let dot = |a: &[V3], b: &[V3]| -> f64 { a.iter().zip(b).map(|(u, v)| vec3::dot(*u, *v)).sum() };
     let mut x = x0.to_vec();
     let ax = apply(&x);
     let mut r: Vec<V3> = (0..n).map(|i| vec3::sub(b[i], ax[i])).collect();
-    let bnorm: [f64; 3] = std::array::from_fn(|c| b.iter().map(|v| v[c] * v[c]).sum::<f64>().sqrt().max(1e-300));
+    let bnorm = dot(b, b).sqrt().max(1e-300);
     let mut z: Vec<V3> = (0..n).map(|i| vec3::scale(r[i], 1.0 / diag[i])).collect();
     let mut d = z.clone();
-    let dotc = |a: &[V3], b: &[V3]| -> [f64; 3] {
-        let mut s = [0.0; 3];
-        for (u, v) in a.iter().zip(b) {
-            for c in 0..3 {
-                s[c] += u[c] * v[c];
-            }
-        }
-        s
-    };
-    let mut rz = dotc(&r, &z);
+    let mut rz = dot(&r, &z);
     let mut iters = 0;
     for it in 0..max_iter {
-        let rn = dotc(&r, &r);
-        if (0..3).all(|c| rn[c].sqrt() <= tol * bnorm[c]) {
+        if dot(&r, &r).sqrt() <= tol * bnorm {
             break;
         }
         iters = it + 1;
         let hd = apply(&d);
-        let dhd = dotc(&d, &hd);
-        let alpha: [f64; 3] = std::array::from_fn(|c| if dhd[c] > 0.0 { rz[c] / dhd[c] } else { 0.0 });
-        for i in 0..n {
-            for c in 0..3 {
-                x[i][c] += alpha[c] * d[i][c];
-                r[i][c] -= alpha[c] * hd[i][c];
-            }
+        let dhd = dot(&d, &hd);
+        if !(dhd > 0.0) {
+            break;
         }
+        let alpha = rz / dhd;
         for i in 0..n {
+            x[i] = vec3::add(x[i], vec3::scale(d[i], alpha));
+            r[i] = vec3::sub(r[i], vec3::scale(hd[i], alpha));
             z[i] = vec3::scale(r[i], 1.0 / diag[i]);
         }
-        let rz_new = dotc(&r, &z);
-        let beta: [f64; 3] = std::array::from_fn(|c| if rz[c] > 0.0 { rz_new[c] / rz[c] } else { 0.0 });
+        let rz_new = dot(&r, &z);
+        let beta = rz_new / rz;
         for i in 0..n {
-            for c in 0..3 {
-                d[i][c] = z[i][c] + beta[c] * d[i][c];
-            }
+            d[i] = vec3::add(z[i], vec3::scale(d[i], beta));
         }
         rz = rz_new;
     }

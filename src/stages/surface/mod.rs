@@ -14,7 +14,7 @@ pub mod fit;
 pub mod limit;
 pub mod net;
 
-pub use fit::{FitOptions, FitReport, FitTarget, SphereTarget, fit_control_points};
+pub use fit::{FitOptions, FitReport, FitTarget, MeshTarget, SphereTarget, fit_control_points};
 pub use limit::LimitSurface;
 pub use net::QuadNet;
 

@@ -278,6 +278,12 @@ impl QuadNet {
     /// `(w + 3) × (h + 3)` vertices, row-major in v (`grid[(w + 3)·j + i]` at lattice `(i − 1, j − 1)`).
     /// `None` when the faces do not form such a block with a regular one-ring.
     pub fn lattice_block(&self, f: usize, start: usize, w: usize, h: usize) -> Option<Vec<u32>> {
+        self.lattice_block_cells(f, start, w, h).map(|(g, _)| g)
+    }
+
+    /// As [`QuadNet::lattice_block`], also returning the block's own faces row-major over its cells
+    /// (`cells[w·j + i]`), each with the corner where its frame (aligned with the block's) starts.
+    pub fn lattice_block_cells(&self, f: usize, start: usize, w: usize, h: usize) -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
         let (gw, gh) = (w + 3, h + 3);
         let mut grid = vec![u32::MAX; gw * gh];
         let mut seen: HashMap<u32, ()> = HashMap::new();
@@ -291,10 +297,15 @@ impl QuadNet {
         let mut queue = vec![(f, coords)];
         seen.insert(f as u32, ());
         let mut used_cells: HashMap<(i64, i64), u32> = HashMap::new();
+        let mut cells = vec![(u32::MAX, 0u8); w * h];
         while let Some((face, c)) = queue.pop() {
             let cell = (c.iter().map(|p| p.0).min().unwrap(), c.iter().map(|p| p.1).min().unwrap());
             if used_cells.insert(cell, face as u32).is_some() {
                 return None;
+            }
+            if cell.0 >= 0 && cell.1 >= 0 && (cell.0 as usize) < w && (cell.1 as usize) < h {
+                let k = c.iter().position(|&p| p == cell)? as u8;
+                cells[cell.1 as usize * w + cell.0 as usize] = (face as u32, k);
             }
             for k in 0..4 {
                 let (x, y) = c[k];
@@ -335,7 +346,7 @@ impl QuadNet {
         if grid.contains(&u32::MAX) || used_cells.len() != (w + 2) * (h + 2) {
             return None;
         }
-        Some(grid)
+        Some((grid, cells))
     }
 }
 

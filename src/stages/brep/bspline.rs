@@ -1,0 +1,229 @@
+//! Non-rational cubic B-spline curves and surfaces: evaluation (de Boor), Bézier forms, knot insertion.
+
+use crate::geometry::vec3::{self, V3};
+
+/// Polynomial degree of every curve and surface we write.
+pub const DEGREE: usize = 3;
+
+/// Cubic Bernstein basis and its derivative at `t`.
+pub fn bernstein(t: f64) -> ([f64; 4], [f64; 4]) {
+    let s = 1.0 - t;
+    (
+        [s * s * s, 3.0 * t * s * s, 3.0 * t * t * s, t * t * t],
+        [-3.0 * s * s, 3.0 * s * s - 6.0 * t * s, 6.0 * t * s - 3.0 * t * t, 3.0 * t * t],
+    )
+}
+
+/// A point on a cubic Bézier curve.
+pub fn bezier_point(c: &[V3; 4], t: f64) -> V3 {
+    let (b, _) = bernstein(t);
+    let mut p = [0.0; 3];
+    for i in 0..4 {
+        p = vec3::add(p, vec3::scale(c[i], b[i]));
+    }
+    p
+}
+
+/// A clamped cubic B-spline surface: `poles[j * nu + i]` (i along u, j along v), expanded knot vectors
+/// (first and last knot repeated 4 times).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BsplineSurface {
+    pub nu: usize,
+    pub nv: usize,
+    pub poles: Vec<V3>,
+    pub knots_u: Vec<f64>,
+    pub knots_v: Vec<f64>,
+}
+
+/// Distinct knots and their multiplicities of an expanded knot vector.
+pub fn knot_multiplicities(knots: &[f64]) -> (Vec<f64>, Vec<u32>) {
+    let mut k: Vec<f64> = Vec::new();
+    let mut m: Vec<u32> = Vec::new();
+    for &x in knots {
+        if k.last() == Some(&x) {
+            *m.last_mut().unwrap() += 1;
+        } else {
+            k.push(x);
+            m.push(1);
+        }
+    }
+    (k, m)
+}
+
+impl BsplineSurface {
+    /// One bicubic Bézier patch `b[4 * j + i]` on `[0, 1]²`.
+    pub fn from_bezier(b: &[V3; 16]) -> Self {
+        let k = vec![0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0];
+        BsplineSurface { nu: 4, nv: 4, poles: b.to_vec(), knots_u: k.clone(), knots_v: k }
+    }
+
+    /// The clamped equivalent of a uniform bicubic B-spline with a `(w + 3) × (h + 3)` control grid
+    /// (`grid[(w + 3) * j + i]`), on `[0, w] × [0, h]` with simple interior knots (C² inside).
+    pub fn from_uniform_grid(grid: &[V3], w: usize, h: usize) -> Self {
+        let (gw, gh) = (w + 3, h + 3);
+        // Clamp every row along u.
+        let mut rows: Vec<Vec<V3>> = Vec::with_capacity(gh);
+        let mut ku = Vec::new();
+        for j in 0..gh {
+            let (k, p) = clamp_uniform(&grid[j * gw..(j + 1) * gw], w);
+            ku = k;
+            rows.push(p);
+        }
+        // Then every column along v.
+        let mut poles = vec![[0.0; 3]; gw * gh];
+        let mut kv = Vec::new();
+        for i in 0..gw {
+            let col: Vec<V3> = (0..gh).map(|j| rows[j][i]).collect();
+            let (k, p) = clamp_uniform(&col, h);
+            kv = k;
+            for j in 0..gh {
+                poles[j * gw + i] = p[j];
+            }
+        }
+        BsplineSurface { nu: gw, nv: gh, poles, knots_u: ku, knots_v: kv }
+    }
+
+    /// Parameter range `[u0, u1] × [v0, v1]`.
+    pub fn range(&self) -> ([f64; 2], [f64; 2]) {
+        ([self.knots_u[3], self.knots_u[self.nu]], [self.knots_v[3], self.knots_v[self.nv]])
+    }
+
+    /// Point and first derivatives at `(u, v)`.
+    pub fn eval(&self, u: f64, v: f64) -> (V3, V3, V3) {
+        let (iu, bu, du) = basis(&self.knots_u, self.nu, u);
+        let (iv, bv, dv) = basis(&self.knots_v, self.nv, v);
+        let mut p = [0.0; 3];
+        let mut pu = [0.0; 3];
+        let mut pv = [0.0; 3];
+        for b in 0..4 {
+            for a in 0..4 {
+                let q = self.poles[(iv + b) * self.nu + iu + a];
+                p = vec3::add(p, vec3::scale(q, bu[a] * bv[b]));
+                pu = vec3::add(pu, vec3::scale(q, du[a] * bv[b]));
+                pv = vec3::add(pv, vec3::scale(q, bu[a] * dv[b]));
+            }
+        }
+        (p, pu, pv)
+    }
+}
+
+/// Index of the first of the 4 poles that act at `t`, their basis values and derivatives (Cox–de Boor).
+fn basis(knots: &[f64], n: usize, t: f64) -> (usize, [f64; 4], [f64; 4]) {
+    // Span k with knots[k] <= t < knots[k + 1], clamped into [3, n − 1].
+    let mut k = 3;
+    while k + 1 < n && knots[k + 1] <= t {
+        k += 1;
+    }
+    // Degree-2 values for the derivative, degree-3 for the value.
+    let mut nb = [0.0f64; 4];
+    nb[0] = 1.0;
+    let mut left = [0.0; 4];
+    let mut right = [0.0; 4];
+    let mut lower = [0.0; 4];
+    for j in 1..=3 {
+        left[j] = t - knots[k + 1 - j];
+        right[j] = knots[k + j] - t;
+        let mut saved = 0.0;
+        for r in 0..j {
+            let den = right[r + 1] + left[j - r];
+            let temp = if den != 0.0 { nb[r] / den } else { 0.0 };
+            nb[r] = saved + right[r + 1] * temp;
+            saved = left[j - r] * temp;
+        }
+        nb[j] = saved;
+        if j == 2 {
+            lower = nb;
+        }
+    }
+    // Derivative: N'_{i,3} = 3 (N_{i,2}/(t_{i+3} − t_i) − N_{i+1,2}/(t_{i+4} − t_{i+1})).
+    let i0 = k - 3;
+    let mut d = [0.0; 4];
+    for a in 0..4 {
+        let i = i0 + a;
+        let n2 = |idx: usize| -> f64 {
+            // lower[r] is N_{k−2+r, 2}; idx ranges over k−3 ..= k.
+            if idx + 2 < k || idx > k { 0.0 } else { lower[idx + 2 - k] }
+        };
+        let den1 = knots[i + 3] - knots[i];
+        let den2 = knots[i + 4] - knots[i + 1];
+        let t1 = if den1 != 0.0 { n2(i) / den1 } else { 0.0 };
+        let t2 = if den2 != 0.0 { n2(i + 1) / den2 } else { 0.0 };
+        d[a] = 3.0 * (t1 - t2);
+    }
+    (i0, nb, d)
+}
+
+/// Insert knot `t` once (Boehm) into a cubic B-spline with expanded knots `knots` and poles `p`.
+fn insert_knot(knots: &mut Vec<f64>, p: &mut Vec<V3>, t: f64) {
+    // Span k with knots[k] <= t < knots[k + 1]; at the right end of the range use the last span (inserting
+    // at a span's end through that span gives the same result).
+    let k = knots.iter().rposition(|&x| x <= t).expect("t inside the knot range").min(p.len() - 1);
+    let mut q = Vec::with_capacity(p.len() + 1);
+    for i in 0..=p.len() {
+        if i + 3 <= k {
+            q.push(p[i]);
+        } else if i > k {
+            q.push(p[i - 1]);
+        } else {
+            let den = knots[i + 3] - knots[i];
+            let a = if den != 0.0 { (t - knots[i]) / den } else { 0.0 };
+            q.push(vec3::add(vec3::scale(p[i - 1], 1.0 - a), vec3::scale(p[i], a)));
+        }
+    }
+    knots.insert(k + 1, t);
+    *p = q;
+}
+
+/// Uniform cubic B-spline with `w + 3` poles on knots −3 … w + 3, as a clamped spline on [0, w]:
+/// (expanded knots, `w + 3` poles).
+fn clamp_uniform(poles: &[V3], w: usize) -> (Vec<f64>, Vec<V3>) {
+    let mut knots: Vec<f64> = (0..w + 7).map(|i| i as f64 - 3.0).collect();
+    let mut p = poles.to_vec();
+    for _ in 0..3 {
+        insert_knot(&mut knots, &mut p, 0.0);
+    }
+    for _ in 0..3 {
+        insert_knot(&mut knots, &mut p, w as f64);
+    }
+    // Drop the three poles (and knots) on each side outside [0, w].
+    let p = p[3..p.len() - 3].to_vec();
+    let knots = knots[3..knots.len() - 3].to_vec();
+    debug_assert_eq!(knots.len(), p.len() + 4);
+    (knots, p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clamped_grid_reproduces_the_uniform_spline() {
+        // A wavy 5×4-face grid: compare clamped evaluation with direct uniform B-spline evaluation.
+        let (w, h) = (5, 4);
+        let grid: Vec<V3> = (0..(w + 3) * (h + 3))
+            .map(|k| {
+                let (i, j) = ((k % (w + 3)) as f64, (k / (w + 3)) as f64);
+                [i, j, (0.7 * i).sin() + 0.3 * (1.3 * j).cos() * i]
+            })
+            .collect();
+        let s = BsplineSurface::from_uniform_grid(&grid, w, h);
+        assert_eq!((s.nu, s.nv), (w + 3, h + 3));
+        for &(u, v) in &[(0.0, 0.0), (0.3, 2.7), (2.5, 1.5), (4.99, 3.2), (5.0, 4.0), (1.0, 3.0)] {
+            let (p, pu, _) = s.eval(u, v);
+            let (iu, iv) = ((u.floor() as usize).min(w - 1), (v.floor() as usize).min(h - 1));
+            let (bu, du) = crate::stages::surface::limit::bspline_basis(u - iu as f64);
+            let (bv, _) = crate::stages::surface::limit::bspline_basis(v - iv as f64);
+            let mut q = [0.0; 3];
+            let mut qu = [0.0; 3];
+            for b in 0..4 {
+                for a in 0..4 {
+                    let g = grid[(iv + b) * (w + 3) + iu + a];
+                    q = vec3::add(q, vec3::scale(g, bu[a] * bv[b]));
+                    qu = vec3::add(qu, vec3::scale(g, du[a] * bv[b]));
+                }
+            }
+            assert!(vec3::norm(vec3::sub(p, q)) < 1e-12, "({u},{v}): {p:?} vs {q:?}");
+            assert!(vec3::norm(vec3::sub(pu, qu)) < 1e-10, "d/du at ({u},{v}): {pu:?} vs {qu:?}");
+        }
+    }
+}

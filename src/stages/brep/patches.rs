@@ -1,0 +1,374 @@
+//! Bicubic Bézier patches, one per face of the refined net, that share their boundary curves exactly.
+//!
+//! - Regular faces: the exact B-spline patch converted to Bézier form.
+//! - Edge curves: from a regular neighbour when there is one (exact); otherwise (both faces extraordinary)
+//!   a cubic fitted to the exact limit along the edge, with its end tangents projected into the limit
+//!   tangent planes of the end vertices (so all patches at a vertex share its tangent plane).
+//! - Extraordinary faces: the 12 boundary points come from the edge curves; the 4 interior points are a
+//!   least-squares fit to the exact limit (positions inside, cross-boundary derivatives on the edges, so
+//!   neighbours agree in their tangent planes).
+
+use crate::error::{Error, Result};
+use crate::geometry::vec3::{self, V3};
+use crate::stages::brep::bspline::bernstein;
+use crate::stages::surface::limit::{EvPatch, FaceKind, LimitSurface, limit_stencil, point_weights, tangent_stencils};
+use rayon::prelude::*;
+
+/// The Bézier net of every refined face (in its patch frame) and the curve of every refined edge.
+#[derive(Clone, Debug)]
+pub struct Patches {
+    /// `bezier[f][4·j + i]`, frame from corner [`LimitSurface::frame_start`].
+    pub bezier: Vec<[V3; 16]>,
+    /// Curve of the edge of half-edge `edge_half[e]`, running from its start vertex to its end vertex.
+    pub edge_curve: Vec<[V3; 4]>,
+    /// A representative half-edge (the lower-numbered of the two) of every edge.
+    pub edge_half: Vec<u32>,
+    /// Edge of every half-edge.
+    pub edge_of: Vec<u32>,
+    /// Limit position of every refined vertex (the B-rep vertices).
+    pub vertex: Vec<V3>,
+}
+
+const B2BEZ: [[f64; 4]; 4] = [
+    [1.0 / 6.0, 4.0 / 6.0, 1.0 / 6.0, 0.0],
+    [0.0, 4.0 / 6.0, 2.0 / 6.0, 0.0],
+    [0.0, 2.0 / 6.0, 4.0 / 6.0, 0.0],
+    [0.0, 1.0 / 6.0, 4.0 / 6.0, 1.0 / 6.0],
+];
+
+fn combine(row: &[(u32, f64)], p: &[V3]) -> V3 {
+    let mut acc = [0.0; 3];
+    for &(g, w) in row {
+        acc = vec3::add(acc, vec3::scale(p[g as usize], w));
+    }
+    acc
+}
+
+/// Positions of the 16 Bézier control points of a uniform B-spline patch with grid `g[4·j + i]`.
+pub fn bspline_to_bezier(g: &[V3; 16]) -> [V3; 16] {
+    let mut out = [[0.0; 3]; 16];
+    for j in 0..4 {
+        for i in 0..4 {
+            let mut acc = [0.0; 3];
+            for b in 0..4 {
+                for a in 0..4 {
+                    let w = B2BEZ[j][b] * B2BEZ[i][a];
+                    if w != 0.0 {
+                        acc = vec3::add(acc, vec3::scale(g[4 * b + a], w));
+                    }
+                }
+            }
+            out[4 * j + i] = acc;
+        }
+    }
+    out
+}
+
+/// Boundary half-edges of face `f` in its frame: v = 0, u = 1, v = 1 (reversed), u = 0 (reversed).
+fn frame_halfedges(f: usize, s: usize) -> [u32; 4] {
+    std::array::from_fn(|k| (4 * f + (s + k) % 4) as u32)
+}
+
+/// Indices into a 4×4 net of the boundary row under frame half-edge `k`, in the half-edge's direction.
+fn boundary_slots(k: usize) -> [usize; 4] {
+    match k {
+        0 => [0, 1, 2, 3],
+        1 => [3, 7, 11, 15],
+        2 => [15, 14, 13, 12],
+        _ => [12, 8, 4, 0],
+    }
+}
+
+/// The slots of the row next to the boundary row of [`boundary_slots`] (same order).
+fn inner_slots(k: usize) -> [usize; 4] {
+    match k {
+        0 => [4, 5, 6, 7],
+        1 => [2, 6, 10, 14],
+        2 => [11, 10, 9, 8],
+        _ => [13, 9, 5, 1],
+    }
+}
+
+/// Parameter `(u, v)` of a point at fraction `t` along frame half-edge `k`, and the inward unit direction
+/// in parameter space.
+fn edge_param(k: usize, t: f64) -> ((f64, f64), (f64, f64)) {
+    match k {
+        0 => ((t, 0.0), (0.0, 1.0)),
+        1 => ((1.0, t), (-1.0, 0.0)),
+        2 => ((1.0 - t, 1.0), (0.0, -1.0)),
+        _ => ((0.0, 1.0 - t), (1.0, 0.0)),
+    }
+}
+
+/// Build all patches from the fitted control points on the refined net (`p1`).
+///
+/// # Errors
+/// `internal.bug` when an extraordinary face's local evaluation cannot be built.
+///
+/// Cost: O(F) with a constant of a few thousand flops per extraordinary face.
+pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
+    let net = &surface.net;
+    let nh = net.faces.len() * 4;
+    // Edges.
+    let mut edge_of = vec![u32::MAX; nh];
+    let mut edge_half = Vec::with_capacity(nh / 2);
+    for h in 0..nh {
+        if edge_of[h] == u32::MAX {
+            let t = net.twin[h] as usize;
+            edge_of[h] = edge_half.len() as u32;
+            edge_of[t] = edge_half.len() as u32;
+            edge_half.push(h as u32);
+        }
+    }
+    let vertex: Vec<V3> = (0..net.vertex_count as u32).into_par_iter().map(|v| combine(&limit_stencil(net, v), p1)).collect();
+    let normal: Vec<V3> = (0..net.vertex_count as u32)
+        .into_par_iter()
+        .map(|v| {
+            let [a, b] = tangent_stencils(net, v);
+            vec3::unit_or(vec3::cross(combine(&a, p1), combine(&b, p1)), [0.0; 3])
+        })
+        .collect();
+    let ev_tables: Vec<Option<EvPatch>> = (0..net.faces.len())
+        .into_par_iter()
+        .map(|f| match surface.kinds[f] {
+            FaceKind::Extraordinary(c) => EvPatch::new(net, f, c as usize).map(Some),
+            FaceKind::Regular(_) => Ok(None),
+        })
+        .collect::<Result<_>>()?;
+
+    // Regular faces: exact Bézier nets.
+    let mut bezier: Vec<[V3; 16]> = (0..net.faces.len())
+        .into_par_iter()
+        .map(|f| match surface.kinds[f] {
+            FaceKind::Regular(grid) => bspline_to_bezier(&grid.map(|g| p1[g as usize])),
+            FaceKind::Extraordinary(_) => [[0.0; 3]; 16],
+        })
+        .collect();
+
+    // Edge curves.
+    let edge_curve: Vec<[V3; 4]> = edge_half
+        .par_iter()
+        .map(|&h| {
+            let t = net.twin[h as usize];
+            let (a, b) = (net.from(h), net.to(h));
+            for (half, reversed) in [(h, false), (t, true)] {
+                let f = (half / 4) as usize;
+                if let FaceKind::Regular(_) = surface.kinds[f] {
+                    let k = ((half % 4) as usize + 4 - surface.frame_start(f)) % 4;
+                    let slots = boundary_slots(k);
+                    let mut c = slots.map(|s| bezier[f][s]);
+                    if reversed {
+                        c.reverse();
+                    }
+                    c[0] = vertex[a as usize];
+                    c[3] = vertex[b as usize];
+                    return c;
+                }
+            }
+            // Both faces extraordinary: fit to the exact limit along the edge (seen from the face of h).
+            let f = (h / 4) as usize;
+            let k = ((h % 4) as usize + 4 - surface.frame_start(f)) % 4;
+            let ev = ev_tables[f].as_ref().expect("extraordinary face has a table");
+            let (p0, p3) = (vertex[a as usize], vertex[b as usize]);
+            let mut ata = [[0.0; 2]; 2];
+            let mut atb = [[0.0; 3]; 2];
+            let n = 16;
+            for m in 1..n {
+                let t_ = m as f64 / n as f64;
+                let ((u, v), _) = edge_param(k, t_);
+                let x = combine(&point_weights(surface, f, u, v, Some(ev)).pos, p1);
+                let (bb, _) = bernstein(t_);
+                let r = vec3::sub(x, vec3::add(vec3::scale(p0, bb[0]), vec3::scale(p3, bb[3])));
+                for i in 0..2 {
+                    for j in 0..2 {
+                        ata[i][j] += bb[1 + i] * bb[1 + j];
+                    }
+                    for c in 0..3 {
+                        atb[i][c] += bb[1 + i] * r[c];
+                    }
+                }
+            }
+            let det = ata[0][0] * ata[1][1] - ata[0][1] * ata[1][0];
+            let solve = |c: usize| -> (f64, f64) {
+                ((atb[0][c] * ata[1][1] - atb[1][c] * ata[0][1]) / det, (ata[0][0] * atb[1][c] - ata[1][0] * atb[0][c]) / det)
+            };
+            let mut c1 = [0.0; 3];
+            let mut c2 = [0.0; 3];
+            for c in 0..3 {
+                let (x1, x2) = solve(c);
+                c1[c] = x1;
+                c2[c] = x2;
+            }
+            // End tangents into the limit tangent planes.
+            let project = |q: V3, origin: V3, nrm: V3| -> V3 {
+                let d = vec3::sub(q, origin);
+                vec3::sub(q, vec3::scale(nrm, vec3::dot(d, nrm)))
+            };
+            c1 = project(c1, p0, normal[a as usize]);
+            c2 = project(c2, p3, normal[b as usize]);
+            [p0, c1, c2, p3]
+        })
+        .collect();
+
+    // Boundary rows of every face from the shared edge curves (regular faces too, so both sides are equal
+    // bit for bit), then the interiors of extraordinary faces.
+    bezier.par_iter_mut().enumerate().try_for_each(|(f, b)| -> Result<()> {
+        let s = surface.frame_start(f);
+        for (k, half) in frame_halfedges(f, s).into_iter().enumerate() {
+            let e = edge_of[half as usize] as usize;
+            let mut c = edge_curve[e];
+            if edge_half[e] != half {
+                c.reverse();
+            }
+            for (slot, q) in boundary_slots(k).into_iter().zip(c) {
+                b[slot] = q;
+            }
+        }
+        if let FaceKind::Extraordinary(_) = surface.kinds[f] {
+            let ev = ev_tables[f].as_ref().ok_or_else(|| Error::internal("missing table"))?;
+            fit_interior(surface, f, ev, p1, b);
+        }
+        Ok(())
+    })?;
+    Ok(Patches { bezier, edge_curve, edge_half, edge_of, vertex })
+}
+
+/// Least-squares fit of the 4 interior points of an extraordinary face's Bézier net `b` (boundary fixed).
+fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &mut [V3; 16]) {
+    const INTERIOR: [usize; 4] = [5, 6, 9, 10];
+    let mut ata = [[0.0f64; 4]; 4];
+    let mut atb = [[0.0f64; 3]; 4];
+    let mut add = |coef: [f64; 16], target: V3, weight: f64| {
+        // Residual: Σ coef·b − target, unknowns the interior slots.
+        let mut rhs = target;
+        for (s, &c) in coef.iter().enumerate() {
+            if c != 0.0 && !INTERIOR.contains(&s) {
+                rhs = vec3::sub(rhs, vec3::scale(b[s], c));
+            }
+        }
+        for (i, &si) in INTERIOR.iter().enumerate() {
+            for (j, &sj) in INTERIOR.iter().enumerate() {
+                ata[i][j] += weight * coef[si] * coef[sj];
+            }
+            for c in 0..3 {
+                atb[i][c] += weight * coef[si] * rhs[c];
+            }
+        }
+    };
+    // Positions on an 8×8 grid.
+    let n = 8;
+    for j in 0..n {
+        for i in 0..n {
+            let (u, v) = ((i as f64 + 0.5) / n as f64, (j as f64 + 0.5) / n as f64);
+            let x = combine(&point_weights(surface, f, u, v, Some(ev)).pos, p1);
+            let (bu, _) = bernstein(u);
+            let (bv, _) = bernstein(v);
+            let coef: [f64; 16] = std::array::from_fn(|s| bu[s % 4] * bv[s / 4]);
+            add(coef, x, 1.0);
+        }
+    }
+    // Cross-boundary derivatives along the four edges.
+    for k in 0..4 {
+        for m in 1..8 {
+            let t = m as f64 / 8.0;
+            let ((u, v), (du_dir, dv_dir)) = edge_param(k, t);
+            let w = point_weights(surface, f, u, v, Some(ev));
+            let d = vec3::add(vec3::scale(combine(&w.du, p1), du_dir), vec3::scale(combine(&w.dv, p1), dv_dir));
+            let (bu, dbu) = bernstein(u);
+            let (bv, dbv) = bernstein(v);
+            let coef: [f64; 16] = std::array::from_fn(|s| du_dir * dbu[s % 4] * bv[s / 4] + dv_dir * bu[s % 4] * dbv[s / 4]);
+            add(coef, d, 0.25);
+        }
+    }
+    // Solve the 4×4 system (SPD) by Gaussian elimination with partial pivoting.
+    let mut a = ata;
+    let mut r = atb;
+    for col in 0..4 {
+        let piv = (col..4).max_by(|&x, &y| a[x][col].abs().total_cmp(&a[y][col].abs())).unwrap();
+        a.swap(col, piv);
+        r.swap(col, piv);
+        if a[col][col].abs() < 1e-300 {
+            return;
+        }
+        for row in col + 1..4 {
+            let fct = a[row][col] / a[col][col];
+            for c in col..4 {
+                a[row][c] -= fct * a[col][c];
+            }
+            for c in 0..3 {
+                r[row][c] -= fct * r[col][c];
+            }
+        }
+    }
+    let mut x = [[0.0; 3]; 4];
+    for row in (0..4).rev() {
+        for c in 0..3 {
+            let mut s = r[row][c];
+            for k in row + 1..4 {
+                s -= a[row][k] * x[k][c];
+            }
+            x[row][c] = s / a[row][row];
+        }
+    }
+    for (i, &s) in INTERIOR.iter().enumerate() {
+        b[s] = x[i];
+    }
+}
+
+/// Point, and unnormalised normal `∂u × ∂v`, of a Bézier net at `(u, v)`.
+pub fn bezier_eval(b: &[V3; 16], u: f64, v: f64) -> (V3, V3) {
+    let (bu, du) = bernstein(u);
+    let (bv, dv) = bernstein(v);
+    let mut p = [0.0; 3];
+    let mut pu = [0.0; 3];
+    let mut pv = [0.0; 3];
+    for j in 0..4 {
+        for i in 0..4 {
+            let q = b[4 * j + i];
+            p = vec3::add(p, vec3::scale(q, bu[i] * bv[j]));
+            pu = vec3::add(pu, vec3::scale(q, du[i] * bv[j]));
+            pv = vec3::add(pv, vec3::scale(q, bu[i] * dv[j]));
+        }
+    }
+    (p, vec3::cross(pu, pv))
+}
+
+/// Largest angle (degrees) between the normals of the two patches along every edge, sampled at 11 points
+/// per edge; with the 99th percentile over edges.
+pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> (f64, f64) {
+    let mut per_edge: Vec<f64> = patches
+        .edge_half
+        .par_iter()
+        .map(|&h| {
+            let t = surface.net.twin[h as usize];
+            let mut worst: f64 = 0.0;
+            for m in 0..=10 {
+                let x = m as f64 / 10.0;
+                let mut normals = [[0.0; 3]; 2];
+                for (side, (half, frac)) in [(h, x), (t, 1.0 - x)].into_iter().enumerate() {
+                    let f = (half / 4) as usize;
+                    let k = ((half % 4) as usize + 4 - surface.frame_start(f)) % 4;
+                    let ((u, v), _) = edge_param(k, frac);
+                    normals[side] = vec3::unit_or(bezier_eval(&patches.bezier[f], u, v).1, [0.0; 3]);
+                }
+                let c = vec3::dot(normals[0], normals[1]).clamp(-1.0, 1.0);
+                worst = worst.max(c.acos().to_degrees());
+            }
+            worst
+        })
+        .collect();
+    let max = per_edge.iter().copied().fold(0.0, f64::max);
+    let p99 = if per_edge.is_empty() { 0.0 } else { crate::stages::quality::percentile(&mut per_edge, 0.99) };
+    (max, p99)
+}
+
+/// Position of the Bézier net boundary under frame half-edge `k` at fraction `t` (exposed for checks).
+pub fn boundary_point(b: &[V3; 16], k: usize, t: f64) -> V3 {
+    let ((u, v), _) = edge_param(k, t);
+    bezier_eval(b, u, v).0
+}
+
+/// The inner row next to frame edge `k` (exposed for tests).
+pub fn inner_row(b: &[V3; 16], k: usize) -> [V3; 4] {
+    inner_slots(k).map(|s| b[s])
+}
