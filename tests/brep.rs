@@ -61,7 +61,10 @@ fn finer_sphere_cages_pack_and_converge() {
     for k in [3, 4, 6] {
         let (solid, report) = sphere_solid(k);
         let (rms, _) = radial_error(&solid);
-        eprintln!("k {k}: faces {} of {} patches, rms {rms:.3e}, jump {:.3}°", report.faces, report.patches, report.max_normal_jump_deg);
+        eprintln!(
+            "k {k}: faces {} of {} patches, rms {rms:.3e}, jump {:.3}°",
+            report.faces, report.patches, report.max_normal_jump_deg
+        );
         assert!(rms < last, "k {k}: RMS {rms} is not below {last}");
         assert!(report.faces < report.patches, "k {k}: no packing");
         assert!(report.max_normal_jump_deg < 1.0, "k {k}: normal jump {}°", report.max_normal_jump_deg);

@@ -1,9 +1,9 @@
 //! Surface stage: Catmull–Clark limit evaluation and the least-squares fit.
 
+use scanstation::geometry::shapes;
 use scanstation::geometry::vec3::{self, V3};
 use scanstation::stages::NoProgress;
 use scanstation::stages::surface::limit::{EvPatch, FaceKind, LimitSurface, limit_stencil, point_weights};
-use scanstation::geometry::shapes;
 use scanstation::stages::surface::{FitOptions, QuadNet, SphereTarget, control_net, fit_control_points};
 
 /// The quad ball of `shapes` as a control net with f64 positions.
@@ -124,4 +124,3 @@ fn sphere_cage_fit_reaches_design_rms() {
     eprintln!("fit report {report:?}; limit-surface RMS {rms:.6}, max {max:.6}");
     assert!(rms <= 0.0007, "RMS {rms} > 0.0007");
 }
-

@@ -87,6 +87,34 @@ enum Command {
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight)]
         curvature_weight: f64,
     },
+    /// The whole chain to a CAD solid: repair → quad remesh → fitted Catmull–Clark surface → B-spline B-rep
+    /// → STEP (AP214), with a quality check, time and peak memory after every stage.
+    Convert {
+        /// The scan (a triangle or polygon mesh).
+        input: PathBuf,
+        /// The STEP file to write (written to a temporary name and renamed when complete).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Control vertices of the quad net (default 10000).
+        #[arg(long, conflicts_with = "tolerance")]
+        vertices: Option<usize>,
+        /// Refine coarse to fine until the solid's RMS distance to the input is at most this: a length in
+        /// the input's units, or a percentage of the bounding-box diagonal such as 0.05%.
+        #[arg(long)]
+        tolerance: Option<String>,
+        /// Write the full report as JSON here.
+        #[arg(long, value_name = "R.json")]
+        report: Option<PathBuf>,
+        /// Also write the quad control net (.obj or .ply).
+        #[arg(long)]
+        quads: Option<PathBuf>,
+        /// Length unit of the input, written into the STEP file: mm, cm or m.
+        #[arg(long, default_value = "mm")]
+        unit: String,
+        /// Seed of remeshing and sampling.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare {
         /// The surface to measure.
@@ -164,6 +192,10 @@ fn main() -> ExitCode {
             remesh(input, output, *vertices, *edge_length, opts, &read)
                 .map(|r| if cli.json { print_json(&r) } else { print_remesh(&r) })
         }
+        Command::Convert { input, output, vertices, tolerance, report, quads, unit, seed } => {
+            convert(input, output, *vertices, tolerance.as_deref(), report.as_deref(), quads, unit, *seed, &cli, &read)
+                .map(|r| if cli.json { print_json(&r) } else { print_convert(&r) })
+        }
         Command::Compare { test, reference, samples, seed, error_map } => {
             let opts = CompareOptions {
                 samples: *samples,
@@ -179,6 +211,103 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => report_error(&e, cli.json),
     }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn convert(
+    input: &std::path::Path,
+    output: &std::path::Path,
+    vertices: Option<usize>,
+    tolerance: Option<&str>,
+    report: Option<&std::path::Path>,
+    quads: &Option<PathBuf>,
+    unit: &str,
+    seed: u64,
+    cli: &Cli,
+    read: &ReadOptions,
+) -> Result<pipeline::ConvertReport, Error> {
+    use scanstation::ErrorCode;
+    let bad = |m: String| Error::new(ErrorCode::InputBadArgument, m);
+    let unit = scanstation::stages::brep::step::LengthUnit::parse(unit)
+        .ok_or_else(|| bad(format!("unknown unit {unit:?}: use mm, cm or m")))?;
+    let resolution = match (vertices, tolerance) {
+        (Some(n), _) => pipeline::Resolution::Vertices(n),
+        (None, Some(t)) => {
+            let t = t.trim();
+            let value = if let Some(pct) = t.strip_suffix('%') {
+                let p: f64 = pct.trim().parse().map_err(|_| bad(format!("not a tolerance: {t:?}")))?;
+                let mesh = scanstation::geometry::io::read_mesh(input, read)?;
+                p / 100.0 * mesh.bbox().diagonal()
+            } else {
+                t.parse().map_err(|_| bad(format!("not a tolerance: {t:?}")))?
+            };
+            pipeline::Resolution::Tolerance(value)
+        }
+        (None, None) => pipeline::Resolution::Vertices(10_000),
+    };
+    if let Some(r) = report {
+        scanstation::geometry::io::ensure_not_input(r, &[input, output])?;
+    }
+    let opts = pipeline::ConvertOptions {
+        resolution,
+        seed,
+        unit,
+        quads_output: quads.clone(),
+        memory_budget: cli.memory_budget,
+        ..Default::default()
+    };
+    let r = pipeline::convert_file(input, output, read, &opts, &NoProgress)?;
+    if let Some(path) = report {
+        let text = serde_json::to_string_pretty(&r).map_err(|e| Error::internal(e.to_string()))?;
+        let tmp = path.with_extension("json.partial");
+        std::fs::write(&tmp, text).and_then(|_| std::fs::rename(&tmp, path)).map_err(|e| {
+            Error::new(ErrorCode::ResourceOutput, format!("writing the report failed: {e}")).in_file(path)
+        })?;
+    }
+    Ok(r)
+}
+
+fn print_convert(r: &pipeline::ConvertReport) {
+    println!("{} -> {}", r.input_file.display(), r.output_file.display());
+    println!("  stage      seconds  peak MiB   RMS (% diag)   p95 (% diag)   max (% diag)");
+    for s in &r.stages {
+        let mem = s.peak_rss_mib.map(|m| format!("{m:8.0}")).unwrap_or_else(|| "       -".into());
+        match &s.distance {
+            Some(d) => println!(
+                "  {:<9} {:8.2} {}   {:.3e} ({:.4}%)  {:.3e} ({:.4}%)  {:.3e} ({:.4}%)",
+                s.stage,
+                s.seconds,
+                mem,
+                d.symmetric.rms.value,
+                d.symmetric.rms.pct_of_diagonal,
+                d.symmetric.p95.value,
+                d.symmetric.p95.pct_of_diagonal,
+                d.symmetric.max.value,
+                d.symmetric.max.pct_of_diagonal
+            ),
+            None => println!("  {:<9} {:8.2} {}", s.stage, s.seconds, mem),
+        }
+    }
+    let b = &r.brep;
+    println!(
+        "  solid: {} faces ({} packed) from {} patches, {} edges, {} vertices; volume {:.6e} ({:+.3}% vs input), max normal jump {:.3}° (p99 {:.3}°)",
+        b.faces,
+        b.packed_faces,
+        b.patches,
+        b.edges,
+        b.vertices,
+        b.volume,
+        r.volume_error_pct,
+        b.max_normal_jump_deg,
+        b.p99_normal_jump_deg
+    );
+    println!(
+        "  control net: {} vertices, {:.2}% irregular; fit RMS {:.3e}; total {:.1} s",
+        r.fit.control_points,
+        100.0 * r.remesh.output.irregular_fraction,
+        r.fit.final_rms,
+        r.total_seconds
+    );
 }
 
 fn remesh(

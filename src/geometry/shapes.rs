@@ -182,7 +182,8 @@ pub fn quad_torus(major: f64, minor: f64, n: usize, m: usize) -> crate::geometry
         }
     }
     let id = |i: usize, j: usize| ((i % n) * m + j % m) as u32;
-    let faces: Vec<Vec<u32>> =
-        (0..n).flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)])).collect();
+    let faces: Vec<Vec<u32>> = (0..n)
+        .flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]))
+        .collect();
     crate::geometry::mesh::PolyMesh::new(positions, &faces).expect("quad torus is valid")
 }

@@ -1,8 +1,12 @@
 //! **Pipeline** — runs stages on files and assembles their reports and artifacts. This is the layer the
 //! CLI (and later the daemon) calls; it owns file handling, timing and the shape of the reports.
 //!
-//! So far: ingest + inspection ([`inspect_file`]) and the quality comparison of two files ([`compare_files`]).
-//! The conversion chain (repair → remesh → surface → B-rep → STEP → FEA) is added here stage by stage.
+//! Inspection ([`inspect_file`]), the quality comparison of two files ([`compare_files`]), single stages on
+//! files ([`repair_file`], [`remesh_file`]) and the whole chain to a STEP solid ([`convert_file`]).
+
+pub mod convert;
+
+pub use convert::{ConvertOptions, ConvertReport, Resolution, convert_file};
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -202,7 +206,7 @@ pub fn repair_file(
 }
 
 /// Write `mesh` as OBJ when `output` ends in `.obj` (polygons kept), else as binary PLY with `comment`.
-fn write_mesh(output: &Path, mesh: &crate::geometry::mesh::PolyMesh, comment: &str) -> Result<()> {
+pub(crate) fn write_mesh(output: &Path, mesh: &crate::geometry::mesh::PolyMesh, comment: &str) -> Result<()> {
     if output.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj")) {
         crate::geometry::io::write_obj(output, mesh)
     } else {

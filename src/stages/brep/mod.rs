@@ -107,7 +107,11 @@ fn pack(surface: &LimitSurface) -> Vec<Block> {
         }
         let ok = |w: usize, h: usize, taken: &[bool]| -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
             let (grid, cells) = net.lattice_block_cells(f, 0, w, h)?;
-            if cells.iter().all(|&(g, _)| regular(g as usize) && !taken[g as usize]) { Some((grid, cells)) } else { None }
+            if cells.iter().all(|&(g, _)| regular(g as usize) && !taken[g as usize]) {
+                Some((grid, cells))
+            } else {
+                None
+            }
         };
         let Some(mut best) = ok(1, 1, &taken) else {
             blocks.push(Block { w: 1, h: 1, cells: vec![(f as u32, 0)], grid: None });
@@ -178,7 +182,10 @@ pub fn build_solid(surface: &LimitSurface, p1: &[V3]) -> Result<(Solid, BrepRepo
         max_edge_deviation: dev,
     };
     if !(volume > 0.0) {
-        return Err(Error::new(ErrorCode::BrepInvalid, format!("the solid's volume {volume:.6e} is not positive: faces point inward")));
+        return Err(Error::new(
+            ErrorCode::BrepInvalid,
+            format!("the solid's volume {volume:.6e} is not positive: faces point inward"),
+        ));
     }
     Ok((solid, report))
 }

@@ -120,7 +120,8 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
             edge_half.push(h as u32);
         }
     }
-    let vertex: Vec<V3> = (0..net.vertex_count as u32).into_par_iter().map(|v| combine(&limit_stencil(net, v), p1)).collect();
+    let vertex: Vec<V3> =
+        (0..net.vertex_count as u32).into_par_iter().map(|v| combine(&limit_stencil(net, v), p1)).collect();
     let normal: Vec<V3> = (0..net.vertex_count as u32)
         .into_par_iter()
         .map(|v| {
@@ -190,7 +191,10 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
             }
             let det = ata[0][0] * ata[1][1] - ata[0][1] * ata[1][0];
             let solve = |c: usize| -> (f64, f64) {
-                ((atb[0][c] * ata[1][1] - atb[1][c] * ata[0][1]) / det, (ata[0][0] * atb[1][c] - ata[1][0] * atb[0][c]) / det)
+                (
+                    (atb[0][c] * ata[1][1] - atb[1][c] * ata[0][1]) / det,
+                    (ata[0][0] * atb[1][c] - ata[1][0] * atb[0][c]) / det,
+                )
             };
             let mut c1 = [0.0; 3];
             let mut c2 = [0.0; 3];
@@ -276,7 +280,8 @@ fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &m
             let d = vec3::add(vec3::scale(combine(&w.du, p1), du_dir), vec3::scale(combine(&w.dv, p1), dv_dir));
             let (bu, dbu) = bernstein(u);
             let (bv, dbv) = bernstein(v);
-            let coef: [f64; 16] = std::array::from_fn(|s| du_dir * dbu[s % 4] * bv[s / 4] + dv_dir * bu[s % 4] * dbv[s / 4]);
+            let coef: [f64; 16] =
+                std::array::from_fn(|s| du_dir * dbu[s % 4] * bv[s / 4] + dv_dir * bu[s % 4] * dbv[s / 4]);
             add(coef, d, 0.25);
         }
     }

@@ -124,7 +124,9 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
         "( GEOMETRIC_REPRESENTATION_CONTEXT(3) GLOBAL_UNCERTAINTY_ASSIGNED_CONTEXT((#{unc})) \
          GLOBAL_UNIT_ASSIGNED_CONTEXT((#{len},#{ang},#{sol})) REPRESENTATION_CONTEXT('','3D') )"
     ));
-    let ctx2 = o.add("( GEOMETRIC_REPRESENTATION_CONTEXT(2) PARAMETRIC_REPRESENTATION_CONTEXT() REPRESENTATION_CONTEXT('','2D') )");
+    let ctx2 = o.add(
+        "( GEOMETRIC_REPRESENTATION_CONTEXT(2) PARAMETRIC_REPRESENTATION_CONTEXT() REPRESENTATION_CONTEXT('','2D') )",
+    );
     let origin = o.point([0.0; 3]);
     let dz = o.add("DIRECTION('',(0.,0.,1.))");
     let dx = o.add("DIRECTION('',(1.,0.,0.))");
@@ -169,7 +171,8 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
     // Edges.
     let mut edge_curve = Vec::with_capacity(solid.edges.len());
     for (e, edge) in solid.edges.iter().enumerate() {
-        let ctrl = [vpoint[edge.start as usize], o.point(edge.curve[1]), o.point(edge.curve[2]), vpoint[edge.end as usize]];
+        let ctrl =
+            [vpoint[edge.start as usize], o.point(edge.curve[1]), o.point(edge.curve[2]), vpoint[edge.end as usize]];
         let c3 = o.add(format!(
             "B_SPLINE_CURVE_WITH_KNOTS('',3,{},.UNSPECIFIED.,.F.,.F.,(4,4),(0.,1.),.UNSPECIFIED.)",
             list(ctrl)
@@ -192,7 +195,10 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
         } else {
             c3
         };
-        edge_curve.push(o.add(format!("EDGE_CURVE('',#{},#{},#{geom},.T.)", vertex[edge.start as usize], vertex[edge.end as usize])));
+        edge_curve.push(o.add(format!(
+            "EDGE_CURVE('',#{},#{},#{geom},.T.)",
+            vertex[edge.start as usize], vertex[edge.end as usize]
+        )));
     }
     // Faces.
     let mut faces = Vec::with_capacity(solid.faces.len());
@@ -200,7 +206,13 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
         let oes: Vec<usize> = face
             .bound
             .iter()
-            .map(|c| o.add(format!("ORIENTED_EDGE('',*,*,#{},{})", edge_curve[c.edge as usize], if c.forward { ".T." } else { ".F." })))
+            .map(|c| {
+                o.add(format!(
+                    "ORIENTED_EDGE('',*,*,#{},{})",
+                    edge_curve[c.edge as usize],
+                    if c.forward { ".T." } else { ".F." }
+                ))
+            })
             .collect();
         let lp = o.add(format!("EDGE_LOOP('',{})", list(oes)));
         let bound = o.add(format!("FACE_OUTER_BOUND('',#{lp},.T.)"));
@@ -238,7 +250,8 @@ pub fn write_step(path: &Path, solid: &Solid, opts: &StepOptions) -> Result<()> 
         path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out.step".into()),
         std::process::id()
     ));
-    let fail = |e: std::io::Error, what: &str| Error::new(ErrorCode::ResourceOutput, format!("{what}: {e}")).in_file(path);
+    let fail =
+        |e: std::io::Error, what: &str| Error::new(ErrorCode::ResourceOutput, format!("{what}: {e}")).in_file(path);
     let result = (|| -> std::io::Result<()> {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(body.as_bytes())?;

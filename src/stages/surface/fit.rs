@@ -81,7 +81,14 @@ pub struct FitOptions {
 
 impl Default for FitOptions {
     fn default() -> Self {
-        FitOptions { samples_per_side: 3, rounds: 5, smoothing: 1e-3, tangential_weight: 0.01, cg_tolerance: 1e-8, cg_max_iterations: 400 }
+        FitOptions {
+            samples_per_side: 3,
+            rounds: 5,
+            smoothing: 1e-3,
+            tangential_weight: 0.01,
+            cg_tolerance: 1e-8,
+            cg_max_iterations: 400,
+        }
     }
 }
 
@@ -401,7 +408,8 @@ pub fn fit_control_points(
         };
         let apply_h = |xv: &[V3]| -> Vec<V3> {
             let x1 = surface.refine.apply(xv);
-            let ax: Vec<V3> = samples.eval(&surface, &x1, 0).into_iter().enumerate().map(|(s, v)| metric(s, v)).collect();
+            let ax: Vec<V3> =
+                samples.eval(&surface, &x1, 0).into_iter().enumerate().map(|(s, v)| metric(s, v)).collect();
             let mut out = refine_transpose(&surface.refine, &samples.scatter(&surface, &ax, n1), n0);
             if lambda > 0.0 {
                 let lx = umbrella.apply_transpose(&umbrella.apply(xv));
@@ -413,7 +421,8 @@ pub fn fit_control_points(
             }
             out
         };
-        let diag_mu: Vec<f64> = diag.iter().map(|d| d * (1.0 / 3.0 + mu) / (1.0 / 3.0 + opts.tangential_weight.max(0.0))).collect();
+        let diag_mu: Vec<f64> =
+            diag.iter().map(|d| d * (1.0 / 3.0 + mu) / (1.0 / 3.0 + opts.tangential_weight.max(0.0))).collect();
         // Right-hand side Sᵀ Aᵀ M y; the smoothness term pulls toward zero Laplacian.
         let my: Vec<V3> = (0..y.len()).map(|s| metric(s, y[s])).collect();
         let b = refine_transpose(&surface.refine, &samples.scatter(&surface, &my, n1), n0);

@@ -283,7 +283,13 @@ impl QuadNet {
 
     /// As [`QuadNet::lattice_block`], also returning the block's own faces row-major over its cells
     /// (`cells[w·j + i]`), each with the corner where its frame (aligned with the block's) starts.
-    pub fn lattice_block_cells(&self, f: usize, start: usize, w: usize, h: usize) -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
+    pub fn lattice_block_cells(
+        &self,
+        f: usize,
+        start: usize,
+        w: usize,
+        h: usize,
+    ) -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
         let (gw, gh) = (w + 3, h + 3);
         let mut grid = vec![u32::MAX; gw * gh];
         let mut seen: HashMap<u32, ()> = HashMap::new();

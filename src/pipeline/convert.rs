@@ -1,0 +1,276 @@
+//! The whole chain for one file: read → repair → remesh → surface fit → B-rep → STEP, with a quality check
+//! and time and peak memory after every stage.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh};
+use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
+use crate::geometry::vec3::Aabb;
+use crate::stages::Progress;
+use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
+use crate::stages::brep::{BrepReport, Solid, build_solid};
+use crate::stages::quality::{CompareOptions, DistanceReport, compare};
+use crate::stages::remesh::{RemeshOptions, RemeshReport, remesh};
+use crate::stages::repair::{RepairOptions, RepairReport, repair};
+use crate::stages::surface::{FitOptions, FitReport, MeshTarget, control_net, fit_control_points};
+
+/// How fine the quad control net is.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub enum Resolution {
+    /// A fixed number of control vertices.
+    Vertices(usize),
+    /// Raise the control-vertex count coarse to fine (×2 per attempt, from [`TOLERANCE_START`] up to
+    /// [`TOLERANCE_MAX`]) until the solid's two-sided RMS distance to the input is at most this length.
+    Tolerance(f64),
+}
+
+/// First control-vertex count tried with a tolerance.
+pub const TOLERANCE_START: usize = 2_500;
+/// Most control vertices a tolerance may ask for.
+pub const TOLERANCE_MAX: usize = 80_000;
+
+/// Settings of a conversion.
+#[derive(Clone, Debug)]
+pub struct ConvertOptions {
+    pub resolution: Resolution,
+    pub repair: RepairOptions,
+    pub remesh: RemeshOptions,
+    pub fit: FitOptions,
+    /// Samples per side for every quality check.
+    pub compare_samples: usize,
+    pub seed: u64,
+    pub unit: LengthUnit,
+    /// Also write the quad control net here (OBJ or PLY).
+    pub quads_output: Option<PathBuf>,
+    pub memory_budget: u64,
+}
+
+impl Default for ConvertOptions {
+    fn default() -> Self {
+        ConvertOptions {
+            resolution: Resolution::Vertices(10_000),
+            repair: RepairOptions::default(),
+            remesh: RemeshOptions::default(),
+            fit: FitOptions::default(),
+            compare_samples: 200_000,
+            seed: 0,
+            unit: LengthUnit::Millimetre,
+            quads_output: None,
+            memory_budget: 8 << 30,
+        }
+    }
+}
+
+/// Time, memory and (where it applies) distance to the input after one stage.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StageReport {
+    pub stage: &'static str,
+    pub seconds: f64,
+    /// Peak resident memory of the process during the stage (Linux; `null` elsewhere), MiB.
+    pub peak_rss_mib: Option<f64>,
+    /// Two-sided distance of the stage's result to the input.
+    pub distance: Option<DistanceReport>,
+}
+
+/// One resolution tried.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Attempt {
+    pub target_vertices: usize,
+    pub control_vertices: usize,
+    pub solid_rms: f64,
+    pub solid_rms_pct: f64,
+}
+
+/// What `scanstation convert` reports.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ConvertReport {
+    pub input_file: PathBuf,
+    pub output_file: PathBuf,
+    pub unit: LengthUnit,
+    pub input_vertices: usize,
+    pub input_faces: usize,
+    pub bbox_diagonal: f64,
+    pub stages: Vec<StageReport>,
+    pub repair: RepairReport,
+    pub remesh: RemeshReport,
+    pub fit: FitReport,
+    pub brep: BrepReport,
+    /// Volume of the repaired input mesh (closed).
+    pub input_volume: f64,
+    /// (solid − input) / input, percent.
+    pub volume_error_pct: f64,
+    /// Resolutions tried (one without a tolerance).
+    pub attempts: Vec<Attempt>,
+    pub total_seconds: f64,
+}
+
+/// Peak-RSS bookkeeping per stage: resets the kernel's high-water mark (Linux `clear_refs` 5) and reads
+/// `VmHWM` afterwards.
+fn reset_peak() {
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+}
+
+fn peak_mib() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+struct Clock {
+    t: Instant,
+}
+
+impl Clock {
+    fn start() -> Self {
+        reset_peak();
+        Clock { t: Instant::now() }
+    }
+
+    fn stop(self, stage: &'static str, distance: Option<DistanceReport>) -> StageReport {
+        StageReport { stage, seconds: self.t.elapsed().as_secs_f64(), peak_rss_mib: peak_mib(), distance }
+    }
+}
+
+/// Tessellation density for the solid's quality check: about `budget` triangles in all.
+fn tessellate_for_check(solid: &Solid, budget: usize) -> Result<TriMesh> {
+    let spans: usize = solid.faces.iter().map(|f| (f.surface.nu - 3) * (f.surface.nv - 3)).sum::<usize>().max(1);
+    let per = ((budget as f64 / (2.0 * spans as f64)).sqrt().floor() as usize).clamp(2, 8);
+    solid.tessellate(per)
+}
+
+/// Read `input`, convert it to a solid and write it as STEP to `output` (atomically; nothing is left
+/// behind on failure).
+///
+/// # Errors
+/// Reader errors; `input.no-geometry` for a point cloud (reconstruction is not part of this chain yet);
+/// `repair.failed`; `remesh.*`; `surface.*`; `brep.invalid`; `resource.output` when the output cannot be
+/// written or would overwrite the input; `input.bad-argument` for a bad resolution.
+pub fn convert_file(
+    input: &Path,
+    output: &Path,
+    read: &ReadOptions,
+    opts: &ConvertOptions,
+    progress: &dyn Progress,
+) -> Result<ConvertReport> {
+    ensure_not_input(output, &[input])?;
+    if let Some(q) = &opts.quads_output {
+        ensure_not_input(q, &[input, output])?;
+    }
+    let t_total = Instant::now();
+    let mut stages = Vec::new();
+    let cmp_opts = CompareOptions {
+        samples: opts.compare_samples,
+        seed: opts.seed,
+        include_vertices: true,
+        memory_budget: opts.memory_budget,
+    };
+
+    let clock = Clock::start();
+    progress.report(0.0, "read");
+    let mesh = read_mesh(input, read)?;
+    let input_geom = Geometry::Mesh(mesh.clone());
+    let bbox: Aabb = mesh.bbox();
+    let diag = bbox.diagonal();
+    stages.push(clock.stop("read", None));
+
+    let clock = Clock::start();
+    progress.report(0.02, "repair");
+    let (repaired, repair_report) = repair(&mesh, &opts.repair, progress).map_err(|e| e.in_file(input))?;
+    let d = compare(&Geometry::Mesh(PolyMesh::from(repaired.clone())), &input_geom, &cmp_opts, progress)?;
+    stages.push(clock.stop("repair", Some(d)));
+    let input_volume = repaired.signed_volume();
+
+    // Resolutions to try.
+    let targets: Vec<usize> = match opts.resolution {
+        Resolution::Vertices(n) => vec![n],
+        Resolution::Tolerance(t) => {
+            if !(t.is_finite() && t > 0.0) {
+                return Err(Error::new(ErrorCode::InputBadArgument, "the tolerance must be a positive length"));
+            }
+            let mut v = Vec::new();
+            let mut n = TOLERANCE_START;
+            while n <= TOLERANCE_MAX {
+                v.push(n);
+                n *= 2;
+            }
+            v
+        }
+    };
+    let target_bvh = MeshTarget::new(&repaired);
+    let mut attempts = Vec::new();
+    let mut best = None;
+    for (k, &n) in targets.iter().enumerate() {
+        let mut attempt_stages = Vec::new();
+        let clock = Clock::start();
+        progress.report(0.1, "remesh");
+        let ropts =
+            RemeshOptions { target_vertices: n, seed: opts.seed, memory_budget: opts.memory_budget, ..opts.remesh };
+        let (quads, remesh_report) = remesh(&repaired, &ropts, progress).map_err(|e| e.in_file(input))?;
+        let d = compare(&Geometry::Mesh(quads.clone()), &input_geom, &cmp_opts, progress)?;
+        attempt_stages.push(clock.stop("remesh", Some(d)));
+
+        let clock = Clock::start();
+        progress.report(0.5, "surface");
+        let (net, pos) = control_net(&quads)?;
+        let (p, surface, fit_report) = fit_control_points(&net, &pos, &target_bvh, &opts.fit, progress)?;
+        attempt_stages.push(clock.stop("surface", None));
+
+        let clock = Clock::start();
+        progress.report(0.8, "brep");
+        let p1 = surface.refine.apply(&p);
+        let (solid, brep_report) = build_solid(&surface, &p1)?;
+        let tess = tessellate_for_check(&solid, 3_000_000)?;
+        let d = compare(&Geometry::Mesh(PolyMesh::from(tess)), &input_geom, &cmp_opts, progress)?;
+        let rms = d.symmetric.rms.value;
+        attempt_stages.push(clock.stop("brep", Some(d)));
+        attempts.push(Attempt {
+            target_vertices: n,
+            control_vertices: net.vertex_count,
+            solid_rms: rms,
+            solid_rms_pct: 100.0 * rms / diag,
+        });
+        let done = match opts.resolution {
+            Resolution::Vertices(_) => true,
+            Resolution::Tolerance(t) => rms <= t || k + 1 == targets.len(),
+        };
+        tracing::info!(target_vertices = n, rms, "convert attempt");
+        if done {
+            best = Some((quads, remesh_report, fit_report, solid, brep_report, attempt_stages));
+            break;
+        }
+    }
+    let (quads, remesh_report, fit_report, solid, brep_report, attempt_stages) =
+        best.ok_or_else(|| Error::internal("no resolution attempted"))?;
+    stages.extend(attempt_stages);
+
+    let clock = Clock::start();
+    progress.report(0.95, "step");
+    let name = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
+    write_step(output, &solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
+    if let Some(q) = &opts.quads_output {
+        super::write_mesh(q, &quads, "quad control net by scanstation")?;
+    }
+    stages.push(clock.stop("step", None));
+    progress.report(1.0, "done");
+    let volume_error_pct = 100.0 * (brep_report.volume - input_volume) / input_volume.abs().max(f64::MIN_POSITIVE);
+    Ok(ConvertReport {
+        input_file: input.to_path_buf(),
+        output_file: output.to_path_buf(),
+        unit: opts.unit,
+        input_vertices: mesh.positions.len(),
+        input_faces: mesh.face_count(),
+        bbox_diagonal: diag,
+        stages,
+        repair: repair_report,
+        remesh: remesh_report,
+        fit: fit_report,
+        brep: brep_report,
+        input_volume,
+        volume_error_pct,
+        attempts,
+        total_seconds: t_total.elapsed().as_secs_f64(),
+    })
+}
