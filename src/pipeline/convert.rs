@@ -222,7 +222,7 @@ pub fn convert_file(
         progress.report(0.8, "brep");
         let p1 = surface.refine.apply(&p);
         let (solid, brep_report) = build_solid(&surface, &p1)?;
-        let tess = tessellate_for_check(&solid, 3_000_000)?;
+        let tess = tessellate_for_check(&solid, 1_500_000)?;
         let d = compare(&Geometry::Mesh(PolyMesh::from(tess)), &input_geom, &cmp_opts, progress)?;
         let rms = d.symmetric.rms.value;
         attempt_stages.push(clock.stop("brep", Some(d)));

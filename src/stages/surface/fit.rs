@@ -82,7 +82,7 @@ pub struct FitOptions {
 impl Default for FitOptions {
     fn default() -> Self {
         FitOptions {
-            samples_per_side: 3,
+            samples_per_side: 2,
             rounds: 5,
             smoothing: 1e-3,
             tangential_weight: 0.01,
@@ -207,21 +207,29 @@ impl Samples {
         out
     }
 
-    /// Aᵀ·r: sample values scattered back onto the refined net.
+    /// Aᵀ·r: sample values scattered back onto the refined net (per-face sums in parallel, then added).
     fn scatter(&self, surface: &LimitSurface, r: &[V3], n1: usize) -> Vec<V3> {
         let mm = self.m * self.m;
-        let mut out = vec![[0.0; 3]; n1];
-        for (fi, &f) in self.regular.iter().enumerate() {
-            let FaceKind::Regular(grid) = surface.kinds[f as usize] else { unreachable!() };
-            let mut acc = [[0.0; 3]; 16];
-            for s in 0..mm {
-                let rs = r[fi * mm + s];
-                for (a, w) in acc.iter_mut().zip(&self.slot[s][0]) {
-                    for c in 0..3 {
-                        a[c] += w * rs[c];
+        let per_face: Vec<[V3; 16]> = self
+            .regular
+            .par_iter()
+            .enumerate()
+            .map(|(fi, _)| {
+                let mut acc = [[0.0; 3]; 16];
+                for s in 0..mm {
+                    let rs = r[fi * mm + s];
+                    for (a, w) in acc.iter_mut().zip(&self.slot[s][0]) {
+                        for c in 0..3 {
+                            a[c] += w * rs[c];
+                        }
                     }
                 }
-            }
+                acc
+            })
+            .collect();
+        let mut out = vec![[0.0; 3]; n1];
+        for (&f, acc) in self.regular.iter().zip(&per_face) {
+            let FaceKind::Regular(grid) = surface.kinds[f as usize] else { unreachable!() };
             for (g, a) in grid.iter().zip(acc) {
                 let o = &mut out[*g as usize];
                 for c in 0..3 {
@@ -326,7 +334,9 @@ pub fn fit_control_points(
     let surface = LimitSurface::new(control)?;
     let n0 = control.vertex_count;
     let n1 = surface.net.vertex_count;
+    let t0 = std::time::Instant::now();
     let mut samples = Samples::build(&surface, opts.samples_per_side)?;
+    tracing::debug!(seconds = t0.elapsed().as_secs_f64(), samples = samples.count(), "surface fit: samples built");
     let mut report = FitReport {
         control_points: n0,
         samples: samples.count(),
@@ -436,11 +446,12 @@ pub fn fit_control_points(
         let (nx, ny, nn) = targets(&sol);
         let after = rms_of(&nx, &ny);
         report.rounds.push(RoundReport { rms_before: current, rms_after: after, cg_iterations: iters });
+        tracing::debug!(round, seconds = t0.elapsed().as_secs_f64(), iters, after, mu, "surface fit: round");
         if after <= current {
             p = sol;
             (x, y, normal) = (nx, ny, nn);
             current = after;
-            mu = (mu * 0.5).max(1e-4);
+            mu = (mu * 0.5).max(1e-3);
         } else {
             bad_rounds += 1;
             mu *= 10.0;
@@ -498,6 +509,10 @@ fn jacobi_diagonal(surface: &LimitSurface, samples: &Samples, n0: usize, lambda:
     diag
 }
 
+/// Residual reduction per round at which conjugate gradients stop (each round re-solves a nearby problem
+/// from the previous solution; 10⁻³ leaves an error far below the closest-point error of the round).
+const CG_REDUCTION: f64 = 1e-3;
+
 /// Preconditioned conjugate gradients on the 3n unknowns (coordinates coupled by the point-to-plane
 /// metric). Returns the solution and the iterations used.
 fn conjugate_gradients(
@@ -514,12 +529,15 @@ fn conjugate_gradients(
     let ax = apply(&x);
     let mut r: Vec<V3> = (0..n).map(|i| vec3::sub(b[i], ax[i])).collect();
     let bnorm = dot(b, b).sqrt().max(1e-300);
+    // Warm-started: stop when the residual fell by `CG_REDUCTION` from its start, or below tol·|b|.
+    let r0 = dot(&r, &r).sqrt();
+    let stop = (tol * bnorm).max(CG_REDUCTION * r0);
     let mut z: Vec<V3> = (0..n).map(|i| vec3::scale(r[i], 1.0 / diag[i])).collect();
     let mut d = z.clone();
     let mut rz = dot(&r, &z);
     let mut iters = 0;
     for it in 0..max_iter {
-        if dot(&r, &r).sqrt() <= tol * bnorm {
+        if dot(&r, &r).sqrt() <= stop {
             break;
         }
         iters = it + 1;

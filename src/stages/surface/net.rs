@@ -46,9 +46,11 @@ impl Stencils {
         self.offsets.push(self.entries.len() as u32);
     }
 
-    /// `values` (one `D`-vector per column) mapped through every row.
+    /// `values` (one `D`-vector per column) mapped through every row (rows in parallel).
     pub fn apply<const D: usize>(&self, values: &[[f64; D]]) -> Vec<[f64; D]> {
+        use rayon::prelude::*;
         (0..self.rows())
+            .into_par_iter()
             .map(|r| {
                 let mut acc = [0.0; D];
                 for &(c, w) in self.row(r) {
