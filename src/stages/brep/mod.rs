@@ -80,6 +80,9 @@ pub struct BrepReport {
     pub max_normal_jump_deg: f64,
     /// 99th percentile over edges of the per-edge largest jump, degrees.
     pub p99_normal_jump_deg: f64,
+    /// Where the largest jump is, and whether that edge touches an extraordinary patch.
+    pub max_normal_jump_at: V3,
+    pub max_normal_jump_at_extraordinary: bool,
     /// Largest distance between an edge curve and the face boundaries that use it, model units.
     pub max_edge_deviation: f64,
 }
@@ -94,33 +97,28 @@ struct Block {
     grid: Option<Vec<u32>>,
 }
 
-/// Greedy packing of regular refined faces into rectangles, then single faces for the rest.
+/// Greedy packing: maximal rectangles of regular faces with a regular one-ring become C² B-spline faces;
+/// the remaining faces (patches at extraordinary vertices among them) are grouped into rectangles whose
+/// interior vertices are regular and become piecewise-Bézier B-spline faces (triple interior knots; the
+/// patches join G1 there, exactly as before packing). Rectangles of fewer than `MIN_C2_CELLS` cells are
+/// left to the second pass.
 fn pack(surface: &LimitSurface) -> Vec<Block> {
+    const MIN_C2_CELLS: usize = 4;
     let net = &surface.net;
     let nf = net.faces.len();
     let mut taken = vec![false; nf];
     let regular = |f: usize| matches!(surface.kinds[f], FaceKind::Regular(_));
     let mut blocks = Vec::new();
-    for f in 0..nf {
-        if taken[f] || !regular(f) {
-            continue;
-        }
-        let ok = |w: usize, h: usize, taken: &[bool]| -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
-            let (grid, cells) = net.lattice_block_cells(f, 0, w, h)?;
-            if cells.iter().all(|&(g, _)| regular(g as usize) && !taken[g as usize]) {
-                Some((grid, cells))
-            } else {
-                None
-            }
+    // Grow a rectangle from face f: first along u, then along v.
+    let grow = |f: usize, ring: bool, taken: &[bool]| -> Option<(usize, usize, Vec<u32>, Vec<(u32, u8)>)> {
+        let ok = |w: usize, h: usize| -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
+            let (grid, cells) = net.lattice_block_cells(f, 0, w, h, ring)?;
+            cells.iter().all(|&(g, _)| (!ring || regular(g as usize)) && !taken[g as usize]).then_some((grid, cells))
         };
-        let Some(mut best) = ok(1, 1, &taken) else {
-            blocks.push(Block { w: 1, h: 1, cells: vec![(f as u32, 0)], grid: None });
-            taken[f] = true;
-            continue;
-        };
+        let mut best = ok(1, 1)?;
         let (mut w, mut h) = (1, 1);
         while w < MAX_PACK_SIDE {
-            match ok(w + 1, 1, &taken) {
+            match ok(w + 1, 1) {
                 Some(b) => {
                     best = b;
                     w += 1;
@@ -129,7 +127,7 @@ fn pack(surface: &LimitSurface) -> Vec<Block> {
             }
         }
         while h < MAX_PACK_SIDE {
-            match ok(w, h + 1, &taken) {
+            match ok(w, h + 1) {
                 Some(b) => {
                     best = b;
                     h += 1;
@@ -137,17 +135,74 @@ fn pack(surface: &LimitSurface) -> Vec<Block> {
                 None => break,
             }
         }
-        for &(g, _) in &best.1 {
-            taken[g as usize] = true;
+        Some((w, h, best.0, best.1))
+    };
+    for f in 0..nf {
+        if taken[f] || !regular(f) {
+            continue;
         }
-        blocks.push(Block { w, h, cells: best.1, grid: Some(best.0) });
+        if let Some((w, h, grid, cells)) = grow(f, true, &taken) {
+            if w * h >= MIN_C2_CELLS {
+                for &(g, _) in &cells {
+                    taken[g as usize] = true;
+                }
+                blocks.push(Block { w, h, cells, grid: Some(grid) });
+            }
+        }
     }
     for f in 0..nf {
-        if !taken[f] {
-            blocks.push(Block { w: 1, h: 1, cells: vec![(f as u32, surface.frame_start(f) as u8)], grid: None });
+        if taken[f] {
+            continue;
         }
+        let (w, h, cells) = match grow(f, false, &taken) {
+            Some((w, h, _, cells)) => (w, h, cells),
+            None => (1, 1, vec![(f as u32, surface.frame_start(f) as u8)]),
+        };
+        for &(g, _) in &cells {
+            taken[g as usize] = true;
+        }
+        blocks.push(Block { w, h, cells, grid: None });
     }
     blocks
+}
+
+/// A Bézier net given in the frame starting at corner `from`, re-expressed in the frame starting at `to`.
+fn rotate_net(b: &[V3; 16], from: usize, to: usize) -> [V3; 16] {
+    let mut cur = *b;
+    for _ in 0..(to + 4 - from) % 4 {
+        let old = cur;
+        for j in 0..4 {
+            for i in 0..4 {
+                cur[4 * j + i] = old[4 * i + (3 - j)];
+            }
+        }
+    }
+    cur
+}
+
+/// A `w × h` block of Bézier nets (`nets[w·j + i]`) as one B-spline surface with triple interior knots.
+fn bezier_block(nets: &[[V3; 16]], w: usize, h: usize) -> BsplineSurface {
+    let (nu, nv) = (3 * w + 1, 3 * h + 1);
+    let mut poles = vec![[0.0; 3]; nu * nv];
+    for j in 0..h {
+        for i in 0..w {
+            let b = &nets[w * j + i];
+            for bj in 0..4 {
+                for bi in 0..4 {
+                    poles[(3 * j + bj) * nu + 3 * i + bi] = b[4 * bj + bi];
+                }
+            }
+        }
+    }
+    let knots = |n: usize| -> Vec<f64> {
+        let mut k = vec![0.0; 4];
+        for x in 1..n {
+            k.extend([x as f64; 3]);
+        }
+        k.extend([n as f64; 4]);
+        k
+    };
+    BsplineSurface { nu, nv, poles, knots_u: knots(w), knots_v: knots(h) }
 }
 
 /// Build the solid from the fitted surface (`p1`: control points on the refined net).
@@ -159,7 +214,7 @@ fn pack(surface: &LimitSurface) -> Vec<Block> {
 /// Cost: O(F) time and memory in the number of refined faces.
 pub fn build_solid(surface: &LimitSurface, p1: &[V3]) -> Result<(Solid, BrepReport)> {
     let patches = patches::build(surface, p1)?;
-    let (max_jump, p99_jump) = patches::normal_jumps(surface, &patches);
+    let jumps = patches::normal_jumps(surface, &patches);
     let blocks = pack(surface);
     let solid = assemble(surface, &patches, &blocks, p1);
     let mut bbox = Aabb::EMPTY;
@@ -177,8 +232,10 @@ pub fn build_solid(surface: &LimitSurface, p1: &[V3]) -> Result<(Solid, BrepRepo
         vertices: solid.vertices.len(),
         volume,
         area,
-        max_normal_jump_deg: max_jump,
-        p99_normal_jump_deg: p99_jump,
+        max_normal_jump_deg: jumps.max_deg,
+        p99_normal_jump_deg: jumps.p99_deg,
+        max_normal_jump_at: jumps.max_at,
+        max_normal_jump_at_extraordinary: jumps.max_at_extraordinary,
         max_edge_deviation: dev,
     };
     if !(volume > 0.0) {
@@ -221,11 +278,18 @@ fn assemble(surface: &LimitSurface, patches: &Patches, blocks: &[Block], p1: &[V
     for blk in blocks {
         let (w, h) = (blk.w, blk.h);
         let surface_geom = match &blk.grid {
-            Some(grid) if w * h > 1 => {
+            Some(grid) => {
                 let pts: Vec<V3> = grid.iter().map(|&g| p1[g as usize]).collect();
                 BsplineSurface::from_uniform_grid(&pts, w, h)
             }
-            _ => BsplineSurface::from_bezier(&patches.bezier[blk.cells[0].0 as usize]),
+            None => {
+                let nets: Vec<[V3; 16]> = blk
+                    .cells
+                    .iter()
+                    .map(|&(g, s)| rotate_net(&patches.bezier[g as usize], surface.frame_start(g as usize), s as usize))
+                    .collect();
+                bezier_block(&nets, w, h)
+            }
         };
         let cell = |i: usize, j: usize| blk.cells[j * w + i];
         let mut bound = Vec::with_capacity(2 * (w + h));

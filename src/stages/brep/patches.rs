@@ -338,33 +338,55 @@ pub fn bezier_eval(b: &[V3; 16], u: f64, v: f64) -> (V3, V3) {
     (p, vec3::cross(pu, pv))
 }
 
-/// Largest angle (degrees) between the normals of the two patches along every edge, sampled at 11 points
-/// per edge; with the 99th percentile over edges.
-pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> (f64, f64) {
-    let mut per_edge: Vec<f64> = patches
+/// Normal jumps across patch edges (11 samples per edge): the largest, in degrees, where it is, whether
+/// that edge touches an extraordinary patch, and the 99th percentile over edges of the per-edge largest.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct NormalJumps {
+    pub max_deg: f64,
+    pub max_at: V3,
+    pub max_at_extraordinary: bool,
+    pub p99_deg: f64,
+}
+
+/// Measure [`NormalJumps`].
+pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> NormalJumps {
+    let per_edge: Vec<(f64, V3)> = patches
         .edge_half
         .par_iter()
         .map(|&h| {
             let t = surface.net.twin[h as usize];
-            let mut worst: f64 = 0.0;
+            let mut worst: (f64, V3) = (0.0, [0.0; 3]);
             for m in 0..=10 {
                 let x = m as f64 / 10.0;
                 let mut normals = [[0.0; 3]; 2];
+                let mut at = [0.0; 3];
                 for (side, (half, frac)) in [(h, x), (t, 1.0 - x)].into_iter().enumerate() {
                     let f = (half / 4) as usize;
                     let k = ((half % 4) as usize + 4 - surface.frame_start(f)) % 4;
                     let ((u, v), _) = edge_param(k, frac);
-                    normals[side] = vec3::unit_or(bezier_eval(&patches.bezier[f], u, v).1, [0.0; 3]);
+                    let (p, n) = bezier_eval(&patches.bezier[f], u, v);
+                    normals[side] = vec3::unit_or(n, [0.0; 3]);
+                    at = p;
                 }
                 let c = vec3::dot(normals[0], normals[1]).clamp(-1.0, 1.0);
-                worst = worst.max(c.acos().to_degrees());
+                let a = c.acos().to_degrees();
+                if a > worst.0 {
+                    worst = (a, at);
+                }
             }
             worst
         })
         .collect();
-    let max = per_edge.iter().copied().fold(0.0, f64::max);
-    let p99 = if per_edge.is_empty() { 0.0 } else { crate::stages::quality::percentile(&mut per_edge, 0.99) };
-    (max, p99)
+    let Some((imax, &(max_deg, max_at))) = per_edge.iter().enumerate().max_by(|a, b| a.1.0.total_cmp(&b.1.0)) else {
+        return NormalJumps::default();
+    };
+    let h = patches.edge_half[imax];
+    let t = surface.net.twin[h as usize];
+    let max_at_extraordinary =
+        [h, t].iter().any(|&x| matches!(surface.kinds[(x / 4) as usize], FaceKind::Extraordinary(_)));
+    let mut v: Vec<f64> = per_edge.iter().map(|e| e.0).collect();
+    let p99_deg = crate::stages::quality::percentile(&mut v, 0.99);
+    NormalJumps { max_deg, max_at, max_at_extraordinary, p99_deg }
 }
 
 /// Position of the Bézier net boundary under frame half-edge `k` at fraction `t` (exposed for checks).

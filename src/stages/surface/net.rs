@@ -280,22 +280,26 @@ impl QuadNet {
     /// `(w + 3) × (h + 3)` vertices, row-major in v (`grid[(w + 3)·j + i]` at lattice `(i − 1, j − 1)`).
     /// `None` when the faces do not form such a block with a regular one-ring.
     pub fn lattice_block(&self, f: usize, start: usize, w: usize, h: usize) -> Option<Vec<u32>> {
-        self.lattice_block_cells(f, start, w, h).map(|(g, _)| g)
+        self.lattice_block_cells(f, start, w, h, true).map(|(g, _)| g)
     }
 
     /// As [`QuadNet::lattice_block`], also returning the block's own faces row-major over its cells
-    /// (`cells[w·j + i]`), each with the corner where its frame (aligned with the block's) starts.
+    /// (`cells[w·j + i]`), each with the corner where its frame (aligned with the block's) starts. With
+    /// `ring == false` only the block's own faces must form the grid (any valence on its boundary) and the
+    /// grid is `(w + 1) × (h + 1)` (`grid[(w + 1)·j + i]` at lattice `(i, j)`).
     pub fn lattice_block_cells(
         &self,
         f: usize,
         start: usize,
         w: usize,
         h: usize,
+        ring: bool,
     ) -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
-        let (gw, gh) = (w + 3, h + 3);
+        let r = i64::from(ring);
+        let (gw, gh) = (w + 1 + 2 * r as usize, h + 1 + 2 * r as usize);
         let mut grid = vec![u32::MAX; gw * gh];
         let mut seen: HashMap<u32, ()> = HashMap::new();
-        let in_block = |x: i64, y: i64| x >= -1 && x <= w as i64 && y >= -1 && y <= h as i64;
+        let in_block = |x: i64, y: i64| x >= -r && x <= w as i64 - 1 + r && y >= -r && y <= h as i64 - 1 + r;
         // Face with its four corner lattice points, in the face's own corner order.
         let unit = [(0i64, 0i64), (1, 0), (1, 1), (0, 1)];
         let mut coords = [(0i64, 0i64); 4];
@@ -317,7 +321,7 @@ impl QuadNet {
             }
             for k in 0..4 {
                 let (x, y) = c[k];
-                let slot = ((y + 1) as usize) * gw + (x + 1) as usize;
+                let slot = ((y + r) as usize) * gw + (x + r) as usize;
                 let v = self.faces[face][k];
                 if grid[slot] == u32::MAX {
                     grid[slot] = v;
@@ -351,7 +355,7 @@ impl QuadNet {
                 queue.push((g, gc));
             }
         }
-        if grid.contains(&u32::MAX) || used_cells.len() != (w + 2) * (h + 2) {
+        if grid.contains(&u32::MAX) || used_cells.len() != (w + 2 * r as usize) * (h + 2 * r as usize) {
             return None;
         }
         Some((grid, cells))
