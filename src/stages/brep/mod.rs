@@ -337,7 +337,9 @@ pub fn check(solid: &Solid, diagonal: f64) -> Result<f64> {
             uses[c.edge as usize][usize::from(!c.forward)] += 1;
             let (_, end) = if c.forward { (edge.start, edge.end) } else { (edge.end, edge.start) };
             let nxt = face.bound[(k + 1) % face.bound.len()];
-            let ne = solid.edges[nxt.edge as usize];
+            let Some(&ne) = solid.edges.get(nxt.edge as usize) else {
+                return Err(bad(format!("face {fi} uses edge {} that does not exist", nxt.edge)));
+            };
             let nstart = if nxt.forward { ne.start } else { ne.end };
             if end != nstart {
                 return Err(bad(format!("face {fi}: loop does not chain after edge {}", c.edge)));

@@ -358,6 +358,17 @@ impl QuadNet {
         if grid.contains(&u32::MAX) || used_cells.len() != (w + 2 * r as usize) * (h + 2 * r as usize) {
             return None;
         }
+        // The block must not touch itself across its boundary (a strip wrapped around a handle): exactly the
+        // interior edges join two of its faces.
+        let members: std::collections::HashSet<u32> = cells.iter().map(|c| c.0).collect();
+        let joins = cells
+            .iter()
+            .flat_map(|&(g, _)| (0..4).map(move |i| self.twin[4 * g as usize + i]))
+            .filter(|&t| t != NO_TWIN && members.contains(&(t / 4)))
+            .count();
+        if joins != 2 * ((w - 1) * h + w * (h - 1)) {
+            return None;
+        }
         Some((grid, cells))
     }
 }
