@@ -114,6 +114,10 @@ enum Command {
         /// Seed of remeshing and sampling.
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Remesh by the split route only (see `remesh --split-only`): fewer extraordinary vertices, so fewer
+        /// and larger faces, but features thinner than twice the spacing can be lost.
+        #[arg(long)]
+        split_only: bool,
     },
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare {
@@ -192,10 +196,20 @@ fn main() -> ExitCode {
             remesh(input, output, *vertices, *edge_length, opts, &read)
                 .map(|r| if cli.json { print_json(&r) } else { print_remesh(&r) })
         }
-        Command::Convert { input, output, vertices, tolerance, report, quads, unit, seed } => {
-            convert(input, output, *vertices, tolerance.as_deref(), report.as_deref(), quads, unit, *seed, &cli, &read)
-                .map(|r| if cli.json { print_json(&r) } else { print_convert(&r) })
-        }
+        Command::Convert { input, output, vertices, tolerance, report, quads, unit, seed, split_only } => convert(
+            input,
+            output,
+            *vertices,
+            tolerance.as_deref(),
+            report.as_deref(),
+            quads,
+            unit,
+            *seed,
+            !*split_only,
+            &cli,
+            &read,
+        )
+        .map(|r| if cli.json { print_json(&r) } else { print_convert(&r) }),
         Command::Compare { test, reference, samples, seed, error_map } => {
             let opts = CompareOptions {
                 samples: *samples,
@@ -223,6 +237,7 @@ fn convert(
     quads: &Option<PathBuf>,
     unit: &str,
     seed: u64,
+    direct: bool,
     cli: &Cli,
     read: &ReadOptions,
 ) -> Result<pipeline::ConvertReport, Error> {
@@ -254,6 +269,7 @@ fn convert(
         unit,
         quads_output: quads.clone(),
         memory_budget: cli.memory_budget,
+        remesh: scanstation::stages::remesh::RemeshOptions { try_direct: direct, ..Default::default() },
         ..Default::default()
     };
     let r = pipeline::convert_file(input, output, read, &opts, &NoProgress)?;

@@ -22,8 +22,8 @@ use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::tolerance::BREP_EDGE_REL;
 use crate::geometry::vec3::{self, Aabb, V3};
-use crate::stages::surface::LimitSurface;
 use crate::stages::surface::limit::FaceKind;
+use crate::stages::surface::{LimitSurface, QuadNet};
 use bspline::{BsplineSurface, bezier_point};
 use patches::Patches;
 
@@ -97,71 +97,99 @@ struct Block {
     grid: Option<Vec<u32>>,
 }
 
-/// Greedy packing: maximal rectangles of regular faces with a regular one-ring become C² B-spline faces;
-/// the remaining faces (patches at extraordinary vertices among them) are grouped into rectangles whose
-/// interior vertices are regular and become piecewise-Bézier B-spline faces (triple interior knots; the
-/// patches join G1 there, exactly as before packing). Rectangles of fewer than `MIN_C2_CELLS` cells are
-/// left to the second pass.
+/// The face across side `k` of face `f` (frame from corner `s`; sides 0: v = 0, 1: u = 1, 2: v = 1,
+/// 3: u = 0) with the corner where its frame, aligned with `f`'s, starts.
+fn across(net: &QuadNet, (f, s): (u32, u8), k: usize) -> Option<(u32, u8)> {
+    let t = net.twin[4 * f as usize + (s as usize + k) % 4];
+    if t == crate::stages::surface::net::NO_TWIN {
+        return None;
+    }
+    let j = (t % 4) as usize;
+    Some((t / 4, ((j + 4 - (k + 2) % 4) % 4) as u8))
+}
+
+/// Greedy packing of the refined faces into rectangles whose interior vertices are all regular (valence
+/// 4), grown alternately along u and v from each face not yet taken. A rectangle of regular faces with a
+/// regular one-ring becomes a C² B-spline face; any other becomes a piecewise-Bézier B-spline face
+/// (triple interior knots; its patches join as before packing).
 fn pack(surface: &LimitSurface) -> Vec<Block> {
-    const MIN_C2_CELLS: usize = 4;
     let net = &surface.net;
     let nf = net.faces.len();
     let mut taken = vec![false; nf];
-    let regular = |f: usize| matches!(surface.kinds[f], FaceKind::Regular(_));
     let mut blocks = Vec::new();
-    // Grow a rectangle from face f: first along u, then along v.
-    let grow = |f: usize, ring: bool, taken: &[bool]| -> Option<(usize, usize, Vec<u32>, Vec<(u32, u8)>)> {
-        let ok = |w: usize, h: usize| -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
-            let (grid, cells) = net.lattice_block_cells(f, 0, w, h, ring)?;
-            cells.iter().all(|&(g, _)| (!ring || regular(g as usize)) && !taken[g as usize]).then_some((grid, cells))
-        };
-        let mut best = ok(1, 1)?;
-        let (mut w, mut h) = (1, 1);
-        while w < MAX_PACK_SIDE {
-            match ok(w + 1, 1) {
-                Some(b) => {
-                    best = b;
-                    w += 1;
-                }
-                None => break,
-            }
-        }
-        while h < MAX_PACK_SIDE {
-            match ok(w, h + 1) {
-                Some(b) => {
-                    best = b;
-                    h += 1;
-                }
-                None => break,
-            }
-        }
-        Some((w, h, best.0, best.1))
-    };
-    for f in 0..nf {
-        if taken[f] || !regular(f) {
-            continue;
-        }
-        if let Some((w, h, grid, cells)) = grow(f, true, &taken) {
-            if w * h >= MIN_C2_CELLS {
-                for &(g, _) in &cells {
-                    taken[g as usize] = true;
-                }
-                blocks.push(Block { w, h, cells, grid: Some(grid) });
-            }
-        }
-    }
     for f in 0..nf {
         if taken[f] {
             continue;
         }
-        let (w, h, cells) = match grow(f, false, &taken) {
-            Some((w, h, _, cells)) => (w, h, cells),
-            None => (1, 1, vec![(f as u32, surface.frame_start(f) as u8)]),
-        };
+        let first = (f as u32, surface.frame_start(f) as u8);
+        let mut rows: Vec<Vec<(u32, u8)>> = vec![vec![first]];
+        let mut members: std::collections::HashSet<u32> = [f as u32].into_iter().collect();
+        taken[f] = true;
+        // Try to add a line of cells beyond side `k` (1: a column at u = w, 2: a row at v = h).
+        let try_grow =
+            |rows: &mut Vec<Vec<(u32, u8)>>, members: &mut std::collections::HashSet<u32>, k: usize| -> bool {
+                let (w, h) = (rows[0].len(), rows.len());
+                let edge: Vec<(u32, u8)> =
+                    if k == 1 { (0..h).map(|j| rows[j][w - 1]).collect() } else { rows[h - 1].clone() };
+                let along = if k == 1 { 2 } else { 1 };
+                let mut new = Vec::with_capacity(edge.len());
+                for &c in &edge {
+                    match across(net, c, k) {
+                        Some(g) if !taken[g.0 as usize] && !members.contains(&g.0) && !new.contains(&g) => new.push(g),
+                        _ => return false,
+                    }
+                }
+                // Consecutive new cells are neighbours along the line (closing the fans of the new interior
+                // vertices), and no new cell touches the block anywhere else.
+                for (i, &g) in new.iter().enumerate() {
+                    if i + 1 < new.len() && across(net, g, along) != Some(new[i + 1]) {
+                        return false;
+                    }
+                    for side in 0..4 {
+                        let Some(nb) = across(net, g, side) else { return false };
+                        let expected = (side + 2) % 4 == k
+                            || (side == along && i + 1 < new.len())
+                            || ((side + 2) % 4 == along && i > 0);
+                        if !expected && (members.contains(&nb.0) || new.iter().any(|x| x.0 == nb.0)) {
+                            return false;
+                        }
+                    }
+                }
+                if k == 1 {
+                    for (j, g) in new.iter().enumerate() {
+                        rows[j].push(*g);
+                    }
+                } else {
+                    rows.push(new.clone());
+                }
+                for g in new {
+                    members.insert(g.0);
+                }
+                true
+            };
+        let (mut grow_u, mut grow_v) = (true, true);
+        while grow_u || grow_v {
+            if grow_u {
+                grow_u = rows[0].len() < MAX_PACK_SIDE && try_grow(&mut rows, &mut members, 1);
+            }
+            if grow_v {
+                grow_v = rows.len() < MAX_PACK_SIDE && try_grow(&mut rows, &mut members, 2);
+            }
+        }
+        let (w, h) = (rows[0].len(), rows.len());
+        let cells: Vec<(u32, u8)> = rows.into_iter().flatten().collect();
         for &(g, _) in &cells {
             taken[g as usize] = true;
         }
-        blocks.push(Block { w, h, cells, grid: None });
+        let all_regular = cells.iter().all(|&(g, _)| matches!(surface.kinds[g as usize], FaceKind::Regular(_)));
+        let grid = if all_regular {
+            net.lattice_block_cells(cells[0].0 as usize, cells[0].1 as usize, w, h, true)
+                .filter(|(_, c)| *c == cells)
+                .map(|(g, _)| g)
+        } else {
+            None
+        };
+        blocks.push(Block { w, h, cells, grid });
     }
     blocks
 }

@@ -111,6 +111,11 @@ pub struct FitReport {
     pub rounds: Vec<RoundReport>,
     /// Area-weighted RMS sample-to-target distance after the last round (targets re-projected).
     pub final_rms: f64,
+    /// Samples whose surface normal points against the target's normal at their closest point (folds).
+    pub flipped_samples: usize,
+    /// Largest sample-to-target distance after the last round, and where it is.
+    pub final_max: f64,
+    pub final_max_at: V3,
 }
 
 /// Per-sample weights on the refined net: regular faces share per-slot basis tables, extraordinary samples
@@ -460,8 +465,20 @@ pub fn fit_control_points(
             }
         }
     }
-    let _ = &x;
     report.final_rms = current;
+    {
+        let p1 = surface.refine.apply(&p);
+        let nu = samples.eval(&surface, &p1, 1);
+        let nv = samples.eval(&surface, &p1, 2);
+        report.flipped_samples =
+            (0..x.len()).filter(|&s| vec3::dot(vec3::cross(nu[s], nv[s]), normal[s]) < 0.0).count();
+        if let Some((s, d)) =
+            (0..x.len()).map(|s| (s, vec3::norm(vec3::sub(x[s], y[s])))).max_by(|a, b| a.1.total_cmp(&b.1))
+        {
+            report.final_max = d;
+            report.final_max_at = x[s];
+        }
+    }
     if !current.is_finite() {
         return Err(Error::new(ErrorCode::SurfaceFitDiverged, "the fitted surface is not finite"));
     }
