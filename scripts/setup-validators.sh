@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Install what the conformance suite needs: a Python virtualenv (.venv-validators/) with the pinned packages of
-# ../shared/validators that our suites call (point-cloud-utils, trimesh, numpy, scipy; pyinstantmeshes, the peer remesher). Idempotent.
+# ../shared/validators that our suites call (point-cloud-utils, trimesh, numpy, scipy; pyinstantmeshes, the peer remesher;
+# cadquery-ocp (OpenCASCADE) and gmsh for the STEP checks). Idempotent.
 # Usage: bash scripts/setup-validators.sh            (SCANSTATION_VALIDATORS overrides ../shared/validators)
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
@@ -12,7 +13,7 @@ if [ ! -f "$kit/requirements.txt" ]; then
 fi
 [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
 # Only the packages our suites use, at the kit's pinned versions.
-pins=$(grep -E '^(numpy|scipy|trimesh|rtree|point-cloud-utils|pyinstantmeshes)==' "$kit/requirements.txt" | sed 's/[[:space:]]*#.*//')
+pins=$(grep -E '^(numpy|scipy|trimesh|rtree|point-cloud-utils|pyinstantmeshes|cadquery-ocp|gmsh)==' "$kit/requirements.txt" | sed 's/[[:space:]]*#.*//')
 # shellcheck disable=SC2086
 "$venv/bin/pip" install -q --disable-pip-version-check $pins
-"$venv/bin/python" -c "import point_cloud_utils, trimesh, numpy, scipy, pyinstantmeshes; print('validators venv ok:', '$venv')"
+"$venv/bin/python" -c "import point_cloud_utils, trimesh, numpy, scipy, pyinstantmeshes, OCP, gmsh; print('validators venv ok:', '$venv')"

@@ -1,0 +1,38 @@
+#!/usr/bin/env python3
+"""Tetrahedralise a STEP solid with gmsh (its own OpenCASCADE reader): prints JSON with the number of
+volumes and tetrahedra. Used by the conformance suite as "gmsh can mesh it" (issue 5).
+
+Usage: gmsh_tetrahedralise.py SOLID.step [CELLS_PER_DIAGONAL (default 40)]
+"""
+import json
+import sys
+import time
+
+import gmsh
+
+
+def main() -> int:
+    t0 = time.time()
+    per_diag = float(sys.argv[2]) if len(sys.argv) > 2 else 40.0
+    gmsh.initialize()
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.model.add("solid")
+    gmsh.model.occ.importShapes(sys.argv[1])
+    gmsh.model.occ.synchronize()
+    volumes = gmsh.model.getEntities(3)
+    xmin, ymin, zmin, xmax, ymax, zmax = gmsh.model.getBoundingBox(-1, -1)
+    diag = ((xmax - xmin) ** 2 + (ymax - ymin) ** 2 + (zmax - zmin) ** 2) ** 0.5
+    gmsh.option.setNumber("Mesh.MeshSizeMin", diag / per_diag)
+    gmsh.option.setNumber("Mesh.MeshSizeMax", diag / per_diag)
+    gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+    gmsh.model.mesh.generate(3)
+    _, tags, _ = gmsh.model.mesh.getElements(3)
+    tets = sum(len(t) for t in tags)
+    print(json.dumps({"ok": True, "volumes": len(volumes), "tetrahedra": int(tets), "seconds": time.time() - t0}))
+    gmsh.finalize()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
