@@ -171,10 +171,24 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
     for (file, vertices, accuracy) in cases {
         let input = data.join(file);
         let step = out_dir.join(format!("{}.step", file.replace('/', "_").replace(".ply.gz", "").replace(".ply", "")));
-        let opts = ConvertOptions { resolution: Resolution::Vertices(vertices), compare_samples: 50_000, ..Default::default() };
+        let opts = ConvertOptions {
+            resolution: Resolution::Vertices(vertices),
+            compare_samples: 50_000,
+            ..Default::default()
+        };
         let report = convert_file(&input, &step, &ReadOptions::default(), &opts, &NoProgress)
             .unwrap_or_else(|e| panic!("{file}: convert failed: {e}"));
-        let solid_rms = report.stages.iter().find(|s| s.stage == "brep").unwrap().distance.as_ref().unwrap().symmetric.rms.pct_of_diagonal;
+        let solid_rms = report
+            .stages
+            .iter()
+            .find(|s| s.stage == "brep")
+            .unwrap()
+            .distance
+            .as_ref()
+            .unwrap()
+            .symmetric
+            .rms
+            .pct_of_diagonal;
         println!(
             "{file}: {} faces from {} quads, volume {:+.4} %, solid RMS {solid_rms:.4} % (ours), max normal jump {:.2}°, {:.1} s",
             report.brep.faces,
@@ -195,12 +209,29 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
         assert_eq!(s["valid"], true, "{file}: BRepCheck_Analyzer invalid: {}", v["occt"]["invalid_subshapes"]);
         assert_eq!(s["all_shells_closed"], true, "{file}: shell not closed: {s}");
         assert_eq!(s["free_edges"], 0, "{file}: free edges: {s}");
-        assert_eq!(s["text_all_shells_closed"], true, "{file}: STEP text: an edge not used exactly twice: {}", v["step_text"]);
-        assert_eq!(s["text_consistently_oriented"], true, "{file}: STEP text: inconsistent orientation: {}", v["step_text"]);
-        assert_eq!(s["faces"].as_u64().unwrap() as usize, report.brep.faces, "{file}: OCCT face count differs from ours");
+        assert_eq!(
+            s["text_all_shells_closed"], true,
+            "{file}: STEP text: an edge not used exactly twice: {}",
+            v["step_text"]
+        );
+        assert_eq!(
+            s["text_consistently_oriented"], true,
+            "{file}: STEP text: inconsistent orientation: {}",
+            v["step_text"]
+        );
+        assert_eq!(
+            s["faces"].as_u64().unwrap() as usize,
+            report.brep.faces,
+            "{file}: OCCT face count differs from ours"
+        );
         let occt_volume = s["volume"].as_f64().unwrap();
         let gap = (occt_volume - report.input_volume).abs() / report.input_volume;
-        assert!(gap <= 0.005, "{file}: OCCT volume {occt_volume:.6e} vs input {:.6e}: {:.3} % > 0.5 %", report.input_volume, 100.0 * gap);
+        assert!(
+            gap <= 0.005,
+            "{file}: OCCT volume {occt_volume:.6e} vs input {:.6e}: {:.3} % > 0.5 %",
+            report.input_volume,
+            100.0 * gap
+        );
         if let Some(bound) = accuracy {
             let rms_pct = s["dist_rms_pct"].as_f64().unwrap();
             assert!(rms_pct <= bound, "{file}: solid RMS {rms_pct:.4} % of the diagonal (validator) > {bound} %");

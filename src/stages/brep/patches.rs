@@ -237,29 +237,27 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
     Ok(Patches { bezier, edge_curve, edge_half, edge_of, vertex })
 }
 
-/// Least-squares fit of the 4 interior points of an extraordinary face's Bézier net `b` (boundary fixed).
+/// Weight of a tangent-plane row (per unit of length residual) against a position row.
+const G1_WEIGHT: f64 = 16.0;
+
+/// Least-squares fit of the 4 interior points of an extraordinary face's Bézier net `b` (boundary fixed):
+/// positions on an 8×8 grid of the exact limit, and along each edge the condition that the patch's
+/// cross-boundary derivative lies in the exact limit's tangent plane (`n · ∂S = 0`; scale-free, so it
+/// holds near the extraordinary vertex where the limit's parametric derivatives blow up or vanish). Both
+/// patches at an edge satisfy the same condition, which bounds the normal jump between them.
 fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &mut [V3; 16]) {
     const INTERIOR: [usize; 4] = [5, 6, 9, 10];
-    let mut ata = [[0.0f64; 4]; 4];
-    let mut atb = [[0.0f64; 3]; 4];
-    let mut add = |coef: [f64; 16], target: V3, weight: f64| {
-        // Residual: Σ coef·b − target, unknowns the interior slots.
-        let mut rhs = target;
-        for (s, &c) in coef.iter().enumerate() {
-            if c != 0.0 && !INTERIOR.contains(&s) {
-                rhs = vec3::sub(rhs, vec3::scale(b[s], c));
+    // Unknowns: x[3·i + c] = coordinate c of interior point i.
+    let mut ata = [[0.0f64; 12]; 12];
+    let mut atb = [0.0f64; 12];
+    let mut add_row = |row: &[(usize, f64)], rhs: f64, weight: f64| {
+        for &(i, a) in row {
+            for &(j, c) in row {
+                ata[i][j] += weight * a * c;
             }
-        }
-        for (i, &si) in INTERIOR.iter().enumerate() {
-            for (j, &sj) in INTERIOR.iter().enumerate() {
-                ata[i][j] += weight * coef[si] * coef[sj];
-            }
-            for c in 0..3 {
-                atb[i][c] += weight * coef[si] * rhs[c];
-            }
+            atb[i] += weight * a * rhs;
         }
     };
-    // Positions on an 8×8 grid.
     let n = 8;
     for j in 0..n {
         for i in 0..n {
@@ -268,56 +266,80 @@ fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &m
             let (bu, _) = bernstein(u);
             let (bv, _) = bernstein(v);
             let coef: [f64; 16] = std::array::from_fn(|s| bu[s % 4] * bv[s / 4]);
-            add(coef, x, 1.0);
+            for c in 0..3 {
+                let mut rhs = x[c];
+                for (s, &w) in coef.iter().enumerate() {
+                    if !INTERIOR.contains(&s) {
+                        rhs -= w * b[s][c];
+                    }
+                }
+                let row: Vec<(usize, f64)> = INTERIOR.iter().enumerate().map(|(i, &s)| (3 * i + c, coef[s])).collect();
+                add_row(&row, rhs, 1.0);
+            }
         }
     }
-    // Cross-boundary derivatives along the four edges.
     for k in 0..4 {
-        for m in 1..8 {
-            let t = m as f64 / 8.0;
+        for m in 1..16 {
+            let t = m as f64 / 16.0;
             let ((u, v), (du_dir, dv_dir)) = edge_param(k, t);
             let w = point_weights(surface, f, u, v, Some(ev));
-            let d = vec3::add(vec3::scale(combine(&w.du, p1), du_dir), vec3::scale(combine(&w.dv, p1), dv_dir));
+            let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
+            if nrm == [0.0; 3] {
+                continue;
+            }
             let (bu, dbu) = bernstein(u);
             let (bv, dbv) = bernstein(v);
             let coef: [f64; 16] =
                 std::array::from_fn(|s| du_dir * dbu[s % 4] * bv[s / 4] + dv_dir * bu[s % 4] * dbv[s / 4]);
-            add(coef, d, 0.25);
+            let mut rhs = 0.0;
+            for (s, &w) in coef.iter().enumerate() {
+                if !INTERIOR.contains(&s) {
+                    rhs -= w * vec3::dot(nrm, b[s]);
+                }
+            }
+            let mut row = Vec::with_capacity(12);
+            for (i, &s) in INTERIOR.iter().enumerate() {
+                for c in 0..3 {
+                    row.push((3 * i + c, coef[s] * nrm[c]));
+                }
+            }
+            add_row(&row, rhs, G1_WEIGHT);
         }
     }
-    // Solve the 4×4 system (SPD) by Gaussian elimination with partial pivoting.
-    let mut a = ata;
-    let mut r = atb;
-    for col in 0..4 {
-        let piv = (col..4).max_by(|&x, &y| a[x][col].abs().total_cmp(&a[y][col].abs())).unwrap();
+    if let Some(x) = solve_dense::<12>(ata, atb) {
+        for (i, &s) in INTERIOR.iter().enumerate() {
+            b[s] = [x[3 * i], x[3 * i + 1], x[3 * i + 2]];
+        }
+    }
+}
+
+/// Solve a small dense system by Gaussian elimination with partial pivoting; `None` when singular.
+fn solve_dense<const N: usize>(mut a: [[f64; N]; N], mut r: [f64; N]) -> Option<[f64; N]> {
+    let scale = (0..N).map(|i| a[i][i].abs()).fold(0.0, f64::max).max(f64::MIN_POSITIVE);
+    for col in 0..N {
+        let piv = (col..N).max_by(|&x, &y| a[x][col].abs().total_cmp(&a[y][col].abs()))?;
         a.swap(col, piv);
         r.swap(col, piv);
-        if a[col][col].abs() < 1e-300 {
-            return;
+        if a[col][col].abs() <= 1e-14 * scale {
+            return None;
         }
-        for row in col + 1..4 {
+        for row in col + 1..N {
             let fct = a[row][col] / a[col][col];
-            for c in col..4 {
+            for c in col..N {
                 a[row][c] -= fct * a[col][c];
             }
-            for c in 0..3 {
-                r[row][c] -= fct * r[col][c];
-            }
+            r[row] -= fct * r[col];
         }
     }
-    let mut x = [[0.0; 3]; 4];
-    for row in (0..4).rev() {
-        for c in 0..3 {
-            let mut s = r[row][c];
-            for k in row + 1..4 {
-                s -= a[row][k] * x[k][c];
-            }
-            x[row][c] = s / a[row][row];
+    let mut x = [0.0; N];
+    for row in (0..N).rev() {
+        let mut s = r[row];
+        for k in row + 1..N {
+            s -= a[row][k] * x[k];
         }
+        x[row] = s / a[row][row];
     }
-    for (i, &s) in INTERIOR.iter().enumerate() {
-        b[s] = x[i];
-    }
+    Some(x)
 }
 
 /// Point, and unnormalised normal `∂u × ∂v`, of a Bézier net at `(u, v)`.
