@@ -83,6 +83,9 @@ pub struct BrepReport {
     /// Where the largest jump is, and whether that edge touches an extraordinary patch.
     pub max_normal_jump_at: V3,
     pub max_normal_jump_at_extraordinary: bool,
+    /// Fraction along that edge and the valences of its two vertices (refined net).
+    pub max_normal_jump_at_fraction: f64,
+    pub max_normal_jump_at_valences: [usize; 2],
     /// Largest distance between an edge curve and the face boundaries that use it, model units.
     pub max_edge_deviation: f64,
 }
@@ -264,6 +267,8 @@ pub fn build_solid(surface: &LimitSurface, p1: &[V3]) -> Result<(Solid, BrepRepo
         p99_normal_jump_deg: jumps.p99_deg,
         max_normal_jump_at: jumps.max_at,
         max_normal_jump_at_extraordinary: jumps.max_at_extraordinary,
+        max_normal_jump_at_fraction: jumps.max_at_fraction,
+        max_normal_jump_at_valences: jumps.max_at_valences,
         max_edge_deviation: dev,
     };
     if !(volume > 0.0) {

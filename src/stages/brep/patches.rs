@@ -171,39 +171,78 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
             let k = ((h % 4) as usize + 4 - surface.frame_start(f)) % 4;
             let ev = ev_tables[f].as_ref().expect("extraordinary face has a table");
             let (p0, p3) = (vertex[a as usize], vertex[b as usize]);
-            let mut ata = [[0.0; 2]; 2];
-            let mut atb = [[0.0; 3]; 2];
+            // Unknowns c1, c2 (6 coordinates): positions of the exact limit along the edge, its tangent plane
+            // containing the curve's derivative (n · c'(t) = 0), and the end tangents in the vertices'
+            // tangent planes (heavily weighted, so all patches at a vertex share its plane).
+            let mut ata = [[0.0f64; 6]; 6];
+            let mut atb = [0.0f64; 6];
+            let mut add_row = |row: &[(usize, f64)], rhs: f64, weight: f64| {
+                for &(i, a) in row {
+                    for &(j, c) in row {
+                        ata[i][j] += weight * a * c;
+                    }
+                    atb[i] += weight * a * rhs;
+                }
+            };
             let n = 16;
+            for m in 1..n {
+                let t_ = m as f64 / n as f64;
+                let ((u, v), _) = edge_param(k, t_);
+                let w = point_weights(surface, f, u, v, Some(ev));
+                let x = combine(&w.pos, p1);
+                let (bb, db) = bernstein(t_);
+                for c in 0..3 {
+                    let rhs = x[c] - bb[0] * p0[c] - bb[3] * p3[c];
+                    add_row(&[(c, bb[1]), (3 + c, bb[2])], rhs, 1.0);
+                }
+                let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
+                if nrm != [0.0; 3] {
+                    let rhs = -(db[0] * vec3::dot(nrm, p0) + db[3] * vec3::dot(nrm, p3));
+                    let row: Vec<(usize, f64)> =
+                        (0..3).flat_map(|c| [(c, db[1] * nrm[c]), (3 + c, db[2] * nrm[c])]).collect();
+                    add_row(&row, rhs, G1_WEIGHT);
+                }
+            }
+            for (off, origin, nrm) in [(0, p0, normal[a as usize]), (3, p3, normal[b as usize])] {
+                let row: Vec<(usize, f64)> = (0..3).map(|c| (off + c, nrm[c])).collect();
+                add_row(&row, vec3::dot(nrm, origin), 1e6);
+            }
+            // Positions-only fit: the reference for the end tangents' direction and length.
+            let mut pa = [[0.0f64; 2]; 2];
+            let mut pb = [[0.0f64; 3]; 2];
             for m in 1..n {
                 let t_ = m as f64 / n as f64;
                 let ((u, v), _) = edge_param(k, t_);
                 let x = combine(&point_weights(surface, f, u, v, Some(ev)).pos, p1);
                 let (bb, _) = bernstein(t_);
-                let r = vec3::sub(x, vec3::add(vec3::scale(p0, bb[0]), vec3::scale(p3, bb[3])));
                 for i in 0..2 {
                     for j in 0..2 {
-                        ata[i][j] += bb[1 + i] * bb[1 + j];
+                        pa[i][j] += bb[1 + i] * bb[1 + j];
                     }
                     for c in 0..3 {
-                        atb[i][c] += bb[1 + i] * r[c];
+                        pb[i][c] += bb[1 + i] * (x[c] - bb[0] * p0[c] - bb[3] * p3[c]);
                     }
                 }
             }
-            let det = ata[0][0] * ata[1][1] - ata[0][1] * ata[1][0];
-            let solve = |c: usize| -> (f64, f64) {
-                (
-                    (atb[0][c] * ata[1][1] - atb[1][c] * ata[0][1]) / det,
-                    (ata[0][0] * atb[1][c] - ata[1][0] * atb[0][c]) / det,
-                )
+            let det = pa[0][0] * pa[1][1] - pa[0][1] * pa[1][0];
+            let plain: [V3; 2] = [
+                std::array::from_fn(|c| (pb[0][c] * pa[1][1] - pb[1][c] * pa[0][1]) / det),
+                std::array::from_fn(|c| (pa[0][0] * pb[1][c] - pa[1][0] * pb[0][c]) / det),
+            ];
+            let (mut c1, mut c2) = match solve_dense::<6>(ata, atb) {
+                Some(x) => ([x[0], x[1], x[2]], [x[3], x[4], x[5]]),
+                None => (plain[0], plain[1]),
             };
-            let mut c1 = [0.0; 3];
-            let mut c2 = [0.0; 3];
-            for c in 0..3 {
-                let (x1, x2) = solve(c);
-                c1[c] = x1;
-                c2[c] = x2;
+            // Keep the tangent-plane fit only when its end tangents point the way the plain fit's do, with
+            // a comparable length; otherwise (a fold near two close extraordinary vertices) the plain one.
+            let agrees = |q: V3, r: V3, origin: V3| {
+                let (a, b) = (vec3::sub(q, origin), vec3::sub(r, origin));
+                vec3::dot(a, b) > 0.0 && (0.25..4.0).contains(&(vec3::norm(a) / vec3::norm(b).max(f64::MIN_POSITIVE)))
+            };
+            if !(agrees(c1, plain[0], p0) && agrees(c2, plain[1], p3)) {
+                (c1, c2) = (plain[0], plain[1]);
             }
-            // End tangents into the limit tangent planes.
+            // Exactly into the end tangent planes.
             let project = |q: V3, origin: V3, nrm: V3| -> V3 {
                 let d = vec3::sub(q, origin);
                 vec3::sub(q, vec3::scale(nrm, vec3::dot(d, nrm)))
@@ -238,14 +277,14 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
 }
 
 /// Weight of a tangent-plane row (per unit of length residual) against a position row.
-const G1_WEIGHT: f64 = 16.0;
+const G1_WEIGHT: f64 = 100.0;
 
 /// Least-squares fit of the 4 interior points of an extraordinary face's Bézier net `b` (boundary fixed):
 /// positions on an 8×8 grid of the exact limit, and along each edge the condition that the patch's
 /// cross-boundary derivative lies in the exact limit's tangent plane (`n · ∂S = 0`; scale-free, so it
 /// holds near the extraordinary vertex where the limit's parametric derivatives blow up or vanish). Both
 /// patches at an edge satisfy the same condition, which bounds the normal jump between them.
-fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &mut [V3; 16]) {
+fn fit_interior_weighted(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &mut [V3; 16], g1_weight: f64) {
     const INTERIOR: [usize; 4] = [5, 6, 9, 10];
     // Unknowns: x[3·i + c] = coordinate c of interior point i.
     let mut ata = [[0.0f64; 12]; 12];
@@ -303,12 +342,38 @@ fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &m
                     row.push((3 * i + c, coef[s] * nrm[c]));
                 }
             }
-            add_row(&row, rhs, G1_WEIGHT);
+            add_row(&row, rhs, g1_weight);
         }
     }
     if let Some(x) = solve_dense::<12>(ata, atb) {
         for (i, &s) in INTERIOR.iter().enumerate() {
             b[s] = [x[3 * i], x[3 * i + 1], x[3 * i + 2]];
+        }
+    }
+}
+
+/// [`fit_interior_weighted`] with the strongest tangent-plane weight that leaves the patch unfolded: its
+/// normal within 90° of the exact limit's on the inner 7×7 points of a 9×9 grid (a strong weight constrains only the normal
+/// component of the cross derivative, which can swing a weakly held interior over).
+fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &mut [V3; 16]) {
+    let boundary = *b;
+    for weight in [G1_WEIGHT, G1_WEIGHT / 10.0, 1.0, 0.0] {
+        *b = boundary;
+        fit_interior_weighted(surface, f, ev, p1, b, weight);
+        let unfolded = (1..8).all(|j| {
+            (1..8).all(|i| {
+                let (u, v) = (i as f64 / 8.0, j as f64 / 8.0);
+                if u + v < 0.2 {
+                    return true; // the corner's normal comes from the (shared) edge curves alone
+                }
+                let w = point_weights(surface, f, u, v, Some(ev));
+                let exact = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
+                let ours = vec3::unit_or(bezier_eval(b, u, v).1, [0.0; 3]);
+                exact == [0.0; 3] || vec3::dot(exact, ours) > 0.0
+            })
+        });
+        if unfolded {
+            return;
         }
     }
 }
@@ -367,17 +432,21 @@ pub struct NormalJumps {
     pub max_deg: f64,
     pub max_at: V3,
     pub max_at_extraordinary: bool,
+    /// Fraction along the edge (from its start vertex) where the largest jump is.
+    pub max_at_fraction: f64,
+    /// Valences (on the refined net) of the start and end vertex of that edge.
+    pub max_at_valences: [usize; 2],
     pub p99_deg: f64,
 }
 
 /// Measure [`NormalJumps`].
 pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> NormalJumps {
-    let per_edge: Vec<(f64, V3)> = patches
+    let per_edge: Vec<(f64, V3, f64)> = patches
         .edge_half
         .par_iter()
         .map(|&h| {
             let t = surface.net.twin[h as usize];
-            let mut worst: (f64, V3) = (0.0, [0.0; 3]);
+            let mut worst: (f64, V3, f64) = (0.0, [0.0; 3], 0.0);
             for m in 0..=10 {
                 let x = m as f64 / 10.0;
                 let mut normals = [[0.0; 3]; 2];
@@ -393,13 +462,15 @@ pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> NormalJumps {
                 let c = vec3::dot(normals[0], normals[1]).clamp(-1.0, 1.0);
                 let a = c.acos().to_degrees();
                 if a > worst.0 {
-                    worst = (a, at);
+                    worst = (a, at, x);
                 }
             }
             worst
         })
         .collect();
-    let Some((imax, &(max_deg, max_at))) = per_edge.iter().enumerate().max_by(|a, b| a.1.0.total_cmp(&b.1.0)) else {
+    let Some((imax, &(max_deg, max_at, max_at_fraction))) =
+        per_edge.iter().enumerate().max_by(|a, b| a.1.0.total_cmp(&b.1.0))
+    else {
         return NormalJumps::default();
     };
     let h = patches.edge_half[imax];
@@ -408,7 +479,8 @@ pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> NormalJumps {
         [h, t].iter().any(|&x| matches!(surface.kinds[(x / 4) as usize], FaceKind::Extraordinary(_)));
     let mut v: Vec<f64> = per_edge.iter().map(|e| e.0).collect();
     let p99_deg = crate::stages::quality::percentile(&mut v, 0.99);
-    NormalJumps { max_deg, max_at, max_at_extraordinary, p99_deg }
+    let max_at_valences = [surface.net.valence(surface.net.from(h)), surface.net.valence(surface.net.to(h))];
+    NormalJumps { max_deg, max_at, max_at_extraordinary, max_at_fraction, max_at_valences, p99_deg }
 }
 
 /// Position of the Bézier net boundary under frame half-edge `k` at fraction `t` (exposed for checks).
