@@ -164,3 +164,64 @@ fn remesh_writes_pure_quads_of_the_bundled_sample() {
     assert_eq!((code, v["error_code"].as_str()), (2, Some("remesh.input-not-closed")), "{v}");
     assert!(v["error"]["hint"].as_str().unwrap().contains("repair"), "{v}");
 }
+
+/// The README's main job: `convert` of the bundled sample writes a STEP solid and a report whose numbers
+/// hold (solid within 0.05 % of the diagonal, volume within 0.5 %, faces ≥ 4× fewer than quads).
+#[test]
+fn convert_writes_a_step_solid_of_the_bundled_sample() {
+    let dir = scratch("cli_convert");
+    let out = dir.join("spot.step");
+    let report = dir.join("spot.json");
+    let (code, v) = json(&[
+        "convert",
+        SPOT,
+        "-o",
+        out.to_str().unwrap(),
+        "--vertices",
+        "3000",
+        "--report",
+        report.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{v}");
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert!(text.starts_with("ISO-10303-21;") && text.trim_end().ends_with("END-ISO-10303-21;"));
+    assert_eq!(text.matches("MANIFOLD_SOLID_BREP(").count(), 1);
+    assert_eq!(text.matches("ADVANCED_FACE(").count() as u64, v["brep"]["faces"].as_u64().unwrap());
+    let written: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert_eq!(written["brep"]["faces"], v["brep"]["faces"]);
+    let stages: Vec<&str> = v["stages"].as_array().unwrap().iter().map(|s| s["stage"].as_str().unwrap()).collect();
+    assert_eq!(stages, ["read", "repair", "remesh", "surface", "brep", "step"]);
+    let brep = v["stages"][4]["distance"]["symmetric"]["rms"]["pct_of_diagonal"].as_f64().unwrap();
+    assert!(brep <= 0.05, "solid RMS {brep} % of the diagonal");
+    assert!(v["volume_error_pct"].as_f64().unwrap().abs() <= 0.5, "{}", v["volume_error_pct"]);
+    let quads = v["remesh"]["output"]["faces"].as_f64().unwrap();
+    assert!(v["brep"]["faces"].as_f64().unwrap() * 4.0 <= quads, "{} faces from {quads} quads", v["brep"]["faces"]);
+    assert!(v["brep"]["p99_normal_jump_deg"].as_f64().unwrap() < 1.0, "{}", v["brep"]["p99_normal_jump_deg"]);
+    // No temporary files are left beside the output.
+    let leftovers: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().contains("partial"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+/// Bad input to `convert`: a point cloud is refused with a stable code and no STEP file appears; the input
+/// is never overwritten.
+#[test]
+fn convert_refuses_bad_input_and_writes_nothing() {
+    let dir = scratch("cli_convert_bad");
+    let cloud = dir.join("cloud.xyz");
+    std::fs::write(&cloud, "0 0 0\n1 0 0\n0 1 0\n0 0 1\n").unwrap();
+    let out = dir.join("cloud.step");
+    let (code, v) = json(&["convert", cloud.to_str().unwrap(), "-o", out.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 2, "{v}");
+    assert!(v["error_code"].as_str().unwrap().starts_with("input."), "{v}");
+    assert!(!out.exists());
+    let (code, v) = json(&["convert", SPOT, "-o", SPOT, "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")), "{v}");
+    let (code, v) = json(&["convert", SPOT, "-o", out.to_str().unwrap(), "--unit", "furlong", "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (2, Some("input.bad-argument")), "{v}");
+    assert!(!out.exists());
+}

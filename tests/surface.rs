@@ -124,3 +124,28 @@ fn sphere_cage_fit_reaches_design_rms() {
     eprintln!("fit report {report:?}; limit-surface RMS {rms:.6}, max {max:.6}");
     assert!(rms <= 0.0007, "RMS {rms} > 0.0007");
 }
+
+/// Nets that are not closed pure-quad 2-manifolds are refused with `surface.bad-net` naming the element.
+#[test]
+fn bad_control_nets_are_refused_with_a_stable_code() {
+    use scanstation::ErrorCode;
+    // Open: one quad missing from the ball.
+    let ball = shapes::quad_ball(1.0, 2);
+    let faces: Vec<Vec<u32>> = ball.faces().skip(1).map(|f| f.to_vec()).collect();
+    let open = scanstation::PolyMesh::new(ball.positions.clone(), &faces).unwrap();
+    let e = control_net(&open).unwrap_err();
+    assert_eq!(e.code, ErrorCode::SurfaceBadNet, "{e}");
+    assert!(e.message.contains("open") || e.message.contains("no face"), "{e}");
+    // A triangle.
+    let tri = scanstation::PolyMesh::new(vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], &[vec![0, 1, 2]]).unwrap();
+    let e = control_net(&tri).unwrap_err();
+    assert_eq!(e.code, ErrorCode::SurfaceBadNet);
+    assert!(e.message.contains("face 0 has 3 corners"), "{e}");
+    // A flipped face: an edge used twice in the same direction.
+    let mut faces: Vec<Vec<u32>> = ball.faces().map(|f| f.to_vec()).collect();
+    faces[3].reverse();
+    let flipped = scanstation::PolyMesh::new(ball.positions.clone(), &faces).unwrap();
+    let e = control_net(&flipped).unwrap_err();
+    assert_eq!(e.code, ErrorCode::SurfaceBadNet);
+    assert!(e.message.contains("same direction"), "{e}");
+}
