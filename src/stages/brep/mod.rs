@@ -39,12 +39,28 @@ pub struct Coedge {
     pub uv: [[f64; 2]; 2],
 }
 
-/// A topological edge with its cubic Bézier curve from `start` to `end`.
-#[derive(Copy, Clone, Debug, PartialEq)]
+/// A topological edge with its curve from `start` to `end`: a piecewise cubic Bézier of `spans` spans on
+/// the parameter range `[0, spans]` (`curve` holds `3·spans + 1` points; span i is `curve[3i..=3i+3]`).
+#[derive(Clone, Debug, PartialEq)]
 pub struct Edge {
     pub start: u32,
     pub end: u32,
-    pub curve: [V3; 4],
+    pub curve: Vec<V3>,
+}
+
+impl Edge {
+    /// Number of cubic spans.
+    pub fn spans(&self) -> usize {
+        (self.curve.len() - 1) / 3
+    }
+
+    /// The curve at parameter `t ∈ [0, spans]`.
+    pub fn point(&self, t: f64) -> V3 {
+        let n = self.spans();
+        let i = (t.floor().max(0.0) as usize).min(n - 1);
+        let span: [V3; 4] = std::array::from_fn(|k| self.curve[3 * i + k]);
+        bezier_point(&span, t - i as f64)
+    }
 }
 
 /// A face: a B-spline surface bounded by one outer loop.
@@ -247,7 +263,7 @@ pub fn build_solid(surface: &LimitSurface, p1: &[V3]) -> Result<(Solid, BrepRepo
     let patches = patches::build(surface, p1)?;
     let jumps = patches::normal_jumps(surface, &patches);
     let blocks = pack(surface);
-    let solid = assemble(surface, &patches, &blocks, p1);
+    let solid = merge_edge_chains(assemble(surface, &patches, &blocks, p1));
     let mut bbox = Aabb::EMPTY;
     for v in &solid.vertices {
         bbox.add(*v);
@@ -306,7 +322,7 @@ fn assemble(surface: &LimitSurface, patches: &Patches, blocks: &[Block], p1: &[V
         };
         let (a, b) = (vid(net.from(h), &mut solid), vid(net.to(h), &mut solid));
         edge_id[e] = solid.edges.len() as u32;
-        solid.edges.push(Edge { start: a, end: b, curve: patches.edge_curve[e] });
+        solid.edges.push(Edge { start: a, end: b, curve: patches.edge_curve[e].to_vec() });
     }
     for blk in blocks {
         let (w, h) = (blk.w, blk.h);
@@ -348,6 +364,152 @@ fn assemble(surface: &LimitSurface, patches: &Patches, blocks: &[Block], p1: &[V
     solid
 }
 
+/// Merge runs of edges between the same two faces into one multi-span edge: a vertex where exactly two
+/// edges meet, both between the same pair of faces, and where both faces' boundaries run straight on (the
+/// same direction in (u, v) before and after) disappears. A closed run keeps one vertex.
+fn merge_edge_chains(solid: Solid) -> Solid {
+    let ne = solid.edges.len();
+    let nv = solid.vertices.len();
+    // Uses of every edge: (face, position in loop).
+    let mut uses: Vec<Vec<(usize, usize)>> = vec![Vec::new(); ne];
+    for (fi, f) in solid.faces.iter().enumerate() {
+        for (k, c) in f.bound.iter().enumerate() {
+            uses[c.edge as usize].push((fi, k));
+        }
+    }
+    let mut incident: Vec<Vec<u32>> = vec![Vec::new(); nv];
+    for (e, edge) in solid.edges.iter().enumerate() {
+        incident[edge.start as usize].push(e as u32);
+        incident[edge.end as usize].push(e as u32);
+    }
+    let dir = |c: &Coedge| [c.uv[1][0] - c.uv[0][0], c.uv[1][1] - c.uv[0][1]];
+    let same_dir =
+        |a: [f64; 2], b: [f64; 2]| (a[0] * b[1] - a[1] * b[0]).abs() < 1e-9 && a[0] * b[0] + a[1] * b[1] > 0.0;
+    let mergeable: Vec<bool> = (0..nv)
+        .map(|v| {
+            let [e1, e2] = incident[v][..] else { return false };
+            if e1 == e2 || uses[e1 as usize].len() != 2 || uses[e2 as usize].len() != 2 {
+                return false;
+            }
+            let faces = |e: u32| {
+                let mut f = [uses[e as usize][0].0, uses[e as usize][1].0];
+                f.sort();
+                f
+            };
+            if faces(e1) != faces(e2) {
+                return false;
+            }
+            // In each face the two coedges follow each other and run on straight.
+            uses[e1 as usize].iter().all(|&(fi, k1)| {
+                let bound = &solid.faces[fi].bound;
+                let Some(&(_, k2)) = uses[e2 as usize].iter().find(|u| u.0 == fi) else { return false };
+                let n = bound.len();
+                let consecutive = (k1 + 1) % n == k2 || (k2 + 1) % n == k1;
+                consecutive && same_dir(dir(&bound[k1]), dir(&bound[k2]))
+            })
+        })
+        .collect();
+    // Chains: walk from every edge end that is not mergeable.
+    let mut chain_of = vec![u32::MAX; ne];
+    let mut new_edges: Vec<Edge> = Vec::new();
+    let mut order: Vec<Vec<(u32, bool)>> = Vec::new(); // (old edge, along the chain's direction)
+    let walk = |start_v: u32,
+                first: u32,
+                chain_of: &mut Vec<u32>,
+                new_edges: &mut Vec<Edge>,
+                order: &mut Vec<Vec<(u32, bool)>>| {
+        let id = new_edges.len() as u32;
+        let mut v = start_v;
+        let mut e = first;
+        let mut pts: Vec<V3> = Vec::new();
+        let mut seq = Vec::new();
+        loop {
+            chain_of[e as usize] = id;
+            let edge = &solid.edges[e as usize];
+            let forward = edge.start == v;
+            let mut c = edge.curve.clone();
+            if !forward {
+                c.reverse();
+            }
+            if pts.is_empty() {
+                pts.extend(c);
+            } else {
+                pts.extend(c.into_iter().skip(1));
+            }
+            seq.push((e, forward));
+            v = if forward { edge.end } else { edge.start };
+            if v == start_v || !mergeable[v as usize] {
+                break;
+            }
+            let [a, b] = incident[v as usize][..] else { break };
+            let next = if a == e { b } else { a };
+            if chain_of[next as usize] != u32::MAX {
+                break;
+            }
+            e = next;
+        }
+        new_edges.push(Edge { start: start_v, end: v, curve: pts });
+        order.push(seq);
+    };
+    for v in 0..nv as u32 {
+        if mergeable[v as usize] {
+            continue;
+        }
+        for &e in &incident[v as usize].clone() {
+            if chain_of[e as usize] == u32::MAX {
+                walk(v, e, &mut chain_of, &mut new_edges, &mut order);
+            }
+        }
+    }
+    // Closed runs made only of mergeable vertices: start anywhere.
+    for e in 0..ne as u32 {
+        if chain_of[e as usize] == u32::MAX {
+            let v = solid.edges[e as usize].start;
+            walk(v, e, &mut chain_of, &mut new_edges, &mut order);
+        }
+    }
+    // Rebuild loops: a run of coedges of one chain becomes one coedge.
+    let mut faces = Vec::with_capacity(solid.faces.len());
+    for f in &solid.faces {
+        let n = f.bound.len();
+        // Start the walk at a coedge that begins a run.
+        let begins = |k: usize| chain_of[f.bound[k].edge as usize] != chain_of[f.bound[(k + n - 1) % n].edge as usize];
+        let start = (0..n).find(|&k| begins(k)).unwrap_or(0);
+        let mut bound: Vec<Coedge> = Vec::new();
+        let mut k = 0;
+        while k < n {
+            let c0 = f.bound[(start + k) % n];
+            let chain = chain_of[c0.edge as usize];
+            let mut last = c0;
+            let mut len = 1;
+            while k + len < n && chain_of[f.bound[(start + k + len) % n].edge as usize] == chain {
+                last = f.bound[(start + k + len) % n];
+                len += 1;
+            }
+            // Direction of the loop relative to the chain: the chain's first old edge, as the loop meets it.
+            let (first_old, first_fwd) = order[chain as usize][0];
+            let pos = f.bound.iter().position(|c| c.edge == first_old).unwrap_or(0);
+            let forward = f.bound[pos].forward == first_fwd;
+            bound.push(Coedge { edge: chain, forward, uv: [c0.uv[0], last.uv[1]] });
+            k += len;
+        }
+        faces.push(Face { surface: f.surface.clone(), bound });
+    }
+    // Renumber the vertices still used.
+    let mut vid = vec![u32::MAX; nv];
+    let mut vertices = Vec::new();
+    for e in &mut new_edges {
+        for v in [&mut e.start, &mut e.end] {
+            if vid[*v as usize] == u32::MAX {
+                vid[*v as usize] = vertices.len() as u32;
+                vertices.push(solid.vertices[*v as usize]);
+            }
+            *v = vid[*v as usize];
+        }
+    }
+    Solid { vertices, edges: new_edges, faces }
+}
+
 /// Our own validity check. Returns the largest edge-curve-to-face-boundary deviation.
 ///
 /// # Errors
@@ -364,30 +526,32 @@ pub fn check(solid: &Solid, diagonal: f64) -> Result<f64> {
             return Err(bad(format!("face {fi} has an empty loop")));
         }
         for (k, c) in face.bound.iter().enumerate() {
-            let Some(edge) = solid.edges.get(c.edge as usize) else {
+            let Some(edge) = solid.edges.get(c.edge as usize).filter(|e| e.curve.len() >= 4 && e.curve.len() % 3 == 1)
+            else {
                 return Err(bad(format!("face {fi} uses edge {} that does not exist", c.edge)));
             };
             uses[c.edge as usize][usize::from(!c.forward)] += 1;
             let (_, end) = if c.forward { (edge.start, edge.end) } else { (edge.end, edge.start) };
             let nxt = face.bound[(k + 1) % face.bound.len()];
-            let Some(&ne) = solid.edges.get(nxt.edge as usize) else {
+            let Some(ne) = solid.edges.get(nxt.edge as usize) else {
                 return Err(bad(format!("face {fi} uses edge {} that does not exist", nxt.edge)));
             };
             let nstart = if nxt.forward { ne.start } else { ne.end };
             if end != nstart {
                 return Err(bad(format!("face {fi}: loop does not chain after edge {}", c.edge)));
             }
-            for (v, p) in [(edge.start, edge.curve[0]), (edge.end, edge.curve[3])] {
+            for (v, p) in [(edge.start, edge.curve[0]), (edge.end, *edge.curve.last().unwrap())] {
                 let d = vec3::norm(vec3::sub(solid.vertices[v as usize], p));
                 if d > tol {
                     return Err(bad(format!("edge {}: curve end is {d:.3e} from vertex {v}", c.edge)));
                 }
             }
-            for m in 0..=8 {
-                let t = m as f64 / 8.0;
+            let spans = edge.spans() as f64;
+            for m in 0..=8 * edge.spans() {
+                let t = m as f64 / (8.0 * spans);
                 let uv = [c.uv[0][0] + t * (c.uv[1][0] - c.uv[0][0]), c.uv[0][1] + t * (c.uv[1][1] - c.uv[0][1])];
                 let on_face = face.surface.eval(uv[0], uv[1]).0;
-                let on_curve = bezier_point(&edge.curve, if c.forward { t } else { 1.0 - t });
+                let on_curve = edge.point(spans * if c.forward { t } else { 1.0 - t });
                 let d = vec3::norm(vec3::sub(on_face, on_curve));
                 worst = worst.max(d);
                 if !(d <= tol) {

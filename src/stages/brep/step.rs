@@ -171,22 +171,35 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
     // Edges.
     let mut edge_curve = Vec::with_capacity(solid.edges.len());
     for (e, edge) in solid.edges.iter().enumerate() {
-        let ctrl =
-            [vpoint[edge.start as usize], o.point(edge.curve[1]), o.point(edge.curve[2]), vpoint[edge.end as usize]];
+        let last = edge.curve.len() - 1;
+        let ctrl: Vec<usize> = (0..=last)
+            .map(|i| match i {
+                0 => vpoint[edge.start as usize],
+                i if i == last => vpoint[edge.end as usize],
+                i => o.point(edge.curve[i]),
+            })
+            .collect();
+        let spans = edge.spans();
+        let mults: Vec<String> =
+            (0..=spans).map(|i| if i == 0 || i == spans { "4".to_string() } else { "3".to_string() }).collect();
+        let knots: Vec<f64> = (0..=spans).map(|i| i as f64).collect();
         let c3 = o.add(format!(
-            "B_SPLINE_CURVE_WITH_KNOTS('',3,{},.UNSPECIFIED.,.F.,.F.,(4,4),(0.,1.),.UNSPECIFIED.)",
-            list(ctrl)
+            "B_SPLINE_CURVE_WITH_KNOTS('',3,{},.UNSPECIFIED.,.F.,.F.,({}),{},.UNSPECIFIED.)",
+            list(ctrl),
+            mults.join(","),
+            reals(&knots)
         ));
         let geom = if opts.pcurves {
             let mut pcs = Vec::with_capacity(2);
             for &(fi, k) in &users[e] {
                 let c = solid.faces[fi].bound[k];
-                // uv at curve parameter 0 and 1.
+                // uv at curve parameter 0 and `spans`.
                 let (a, b) = if c.forward { (c.uv[0], c.uv[1]) } else { (c.uv[1], c.uv[0]) };
                 let pa = o.add(format!("CARTESIAN_POINT('',({},{}))", real(a[0]), real(a[1])));
                 let pb = o.add(format!("CARTESIAN_POINT('',({},{}))", real(b[0]), real(b[1])));
                 let line = o.add(format!(
-                    "B_SPLINE_CURVE_WITH_KNOTS('',1,(#{pa},#{pb}),.POLYLINE_FORM.,.F.,.F.,(2,2),(0.,1.),.UNSPECIFIED.)"
+                    "B_SPLINE_CURVE_WITH_KNOTS('',1,(#{pa},#{pb}),.POLYLINE_FORM.,.F.,.F.,(2,2),(0.,{}),.UNSPECIFIED.)",
+                    real(spans as f64)
                 ));
                 let dr = o.add(format!("DEFINITIONAL_REPRESENTATION('',(#{line}),#{ctx2})"));
                 pcs.push(o.add(format!("PCURVE('',#{},#{dr})", surf[fi])));
