@@ -26,7 +26,14 @@ def main() -> int:
     gmsh.option.setNumber("Mesh.MeshSizeMax", diag / per_diag)
     gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
     gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
-    gmsh.model.mesh.generate(3)
+    # MeshAdapt: the most robust 2D algorithm on B-spline faces with uneven parametrisation.
+    gmsh.option.setNumber("Mesh.Algorithm", float(sys.argv[3]) if len(sys.argv) > 3 else 1)
+    gmsh.option.setNumber("Mesh.Algorithm3D", float(sys.argv[4]) if len(sys.argv) > 4 else 1)
+    try:
+        gmsh.model.mesh.generate(3)
+    except Exception as e:  # report, do not crash: the caller asserts on the count
+        print(json.dumps({"ok": False, "error": str(e), "volumes": len(volumes), "tetrahedra": 0}))
+        return 1
     _, tags, _ = gmsh.model.mesh.getElements(3)
     tets = sum(len(t) for t in tags)
     print(json.dumps({"ok": True, "volumes": len(volumes), "tetrahedra": int(tets), "seconds": time.time() - t0}))

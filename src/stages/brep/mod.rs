@@ -27,8 +27,9 @@ use crate::stages::surface::{LimitSurface, QuadNet};
 use bspline::{BsplineSurface, bezier_point};
 use patches::Patches;
 
-/// Largest packed face, in refined faces per side.
-pub const MAX_PACK_SIDE: usize = 48;
+/// Largest packed face, in refined faces per side. Larger blocks halve the face count again, but faces that
+/// wrap far around a thin part defeat gmsh's parametric surface mesher (measured on Spot at 48).
+pub const MAX_PACK_SIDE: usize = 16;
 
 /// A use of an edge by a face loop: the edge, whether the loop runs along the curve's direction, and the
 /// parameter points of the coedge's start and end on the face surface (edges are iso-parameter lines).
