@@ -225,3 +225,22 @@ fn convert_refuses_bad_input_and_writes_nothing() {
     assert_eq!((code, v["error_code"].as_str()), (2, Some("input.bad-argument")), "{v}");
     assert!(!out.exists());
 }
+
+/// `--tolerance` raises the control-vertex count coarse to fine until the solid's RMS meets it; every
+/// attempt is reported, and the last one meets the tolerance.
+#[test]
+fn convert_with_a_tolerance_refines_until_it_is_met() {
+    let dir = scratch("cli_convert_tol");
+    let out = dir.join("spot.step");
+    let (code, v) = json(&["convert", SPOT, "-o", out.to_str().unwrap(), "--tolerance", "0.02%", "--json"]);
+    assert_eq!(code, 0, "{v}");
+    let attempts = v["attempts"].as_array().unwrap();
+    assert!(!attempts.is_empty());
+    let last = attempts.last().unwrap();
+    assert!(last["solid_rms_pct"].as_f64().unwrap() <= 0.02, "{attempts:?}");
+    for a in &attempts[..attempts.len() - 1] {
+        assert!(a["solid_rms_pct"].as_f64().unwrap() > 0.02, "an earlier attempt already met it: {attempts:?}");
+    }
+    assert_eq!(last["target_vertices"].as_u64().unwrap() as usize, 2500 << (attempts.len() - 1));
+    assert!(out.is_file());
+}

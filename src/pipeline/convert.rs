@@ -134,6 +134,43 @@ impl Clock {
     }
 }
 
+/// Remesh attempts with other seeds when the quad mesh intersects itself.
+pub const REMESH_RETRIES: usize = 3;
+
+/// Pairs of non-adjacent triangles of the (fan-triangulated) quad mesh that intersect.
+fn quad_self_intersections(quads: &PolyMesh) -> usize {
+    let (t, _) = quads.triangulate();
+    let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
+    crate::geometry::intersect::self_intersections(&p, &t.triangles).len()
+}
+
+/// Pairs of intersecting triangles of a welded 2×2-per-span tessellation of the solid (faces joined at
+/// their exactly shared boundaries); 0 for a solid whose surface does not cross itself (at that
+/// resolution).
+fn solid_self_intersections(solid: &Solid) -> Result<(usize, Option<[f64; 3]>)> {
+    let t = solid.tessellate(2)?;
+    let mut map: std::collections::HashMap<[u32; 3], u32> = std::collections::HashMap::new();
+    let mut pts: Vec<[f64; 3]> = Vec::new();
+    let idx: Vec<u32> = t
+        .positions
+        .iter()
+        .map(|q| {
+            *map.entry(q.map(f32::to_bits)).or_insert_with(|| {
+                pts.push(q.map(f64::from));
+                (pts.len() - 1) as u32
+            })
+        })
+        .collect();
+    let tris: Vec<[u32; 3]> = t
+        .triangles
+        .iter()
+        .map(|tr| tr.map(|i| idx[i as usize]))
+        .filter(|tr| tr[0] != tr[1] && tr[1] != tr[2] && tr[0] != tr[2])
+        .collect();
+    let pairs = crate::geometry::intersect::self_intersections(&pts, &tris);
+    Ok((pairs.len(), pairs.first().map(|&(a, _)| pts[tris[a as usize][0] as usize])))
+}
+
 /// Tessellation density for the solid's quality check: about `budget` triangles in all.
 fn tessellate_for_check(solid: &Solid, budget: usize) -> Result<TriMesh> {
     let spans: usize = solid.faces.iter().map(|f| (f.surface.nu - 3) * (f.surface.nv - 3)).sum::<usize>().max(1);
@@ -208,7 +245,24 @@ pub fn convert_file(
         progress.report(0.1, "remesh");
         let ropts =
             RemeshOptions { target_vertices: n, seed: opts.seed, memory_budget: opts.memory_budget, ..opts.remesh };
-        let (quads, remesh_report) = remesh(&repaired, &ropts, progress).map_err(|e| e.in_file(input))?;
+        // A quad mesh that folds through itself would give a self-intersecting solid: try other seeds
+        // (up to REMESH_RETRIES) and keep the one with the fewest crossings.
+        let mut best_quads: Option<(PolyMesh, RemeshReport, usize)> = None;
+        for retry in 0..=REMESH_RETRIES {
+            let ropts = RemeshOptions { seed: opts.seed.wrapping_add(retry as u64), ..ropts.clone() };
+            let (q, r) = remesh(&repaired, &ropts, progress).map_err(|e| e.in_file(input))?;
+            let crossings = quad_self_intersections(&q);
+            if crossings > 0 {
+                tracing::warn!(crossings, seed = ropts.seed, "the quad mesh intersects itself; trying another seed");
+            }
+            if best_quads.as_ref().is_none_or(|b| crossings < b.2) {
+                best_quads = Some((q, r, crossings));
+            }
+            if crossings == 0 {
+                break;
+            }
+        }
+        let (quads, remesh_report, quad_crossings) = best_quads.expect("at least one remesh ran");
         let d = compare(&Geometry::Mesh(quads.clone()), &input_geom, &cmp_opts, progress)?;
         attempt_stages.push(clock.stop("remesh", Some(d)));
 
@@ -221,7 +275,12 @@ pub fn convert_file(
         let clock = Clock::start();
         progress.report(0.8, "brep");
         let p1 = surface.refine.apply(&p);
-        let (solid, brep_report) = build_solid(&surface, &p1)?;
+        let (solid, mut brep_report) = build_solid(&surface, &p1)?;
+        brep_report.quad_self_intersections = quad_crossings;
+        (brep_report.self_intersections, brep_report.self_intersection_at) = solid_self_intersections(&solid)?;
+        if brep_report.self_intersections > 0 {
+            tracing::warn!(pairs = brep_report.self_intersections, "the solid's surface intersects itself");
+        }
         let tess = tessellate_for_check(&solid, 1_500_000)?;
         let d = compare(&Geometry::Mesh(PolyMesh::from(tess)), &input_geom, &cmp_opts, progress)?;
         let rms = d.symmetric.rms.value;

@@ -105,6 +105,13 @@ pub struct BrepReport {
     pub max_normal_jump_at_valences: [usize; 2],
     /// Largest distance between an edge curve and the face boundaries that use it, model units.
     pub max_edge_deviation: f64,
+    /// Intersecting triangle pairs of a welded tessellation of the solid (set by the pipeline; 0 = the
+    /// surface does not cross itself at that resolution).
+    pub self_intersections: usize,
+    /// A point of the first intersecting pair.
+    pub self_intersection_at: Option<V3>,
+    /// Intersecting triangle pairs of the quad control mesh it was built from (set by the pipeline).
+    pub quad_self_intersections: usize,
 }
 
 /// A w × h block of refined faces that becomes one B-rep face.
@@ -287,6 +294,9 @@ pub fn build_solid(surface: &LimitSurface, p1: &[V3]) -> Result<(Solid, BrepRepo
         max_normal_jump_at_fraction: jumps.max_at_fraction,
         max_normal_jump_at_valences: jumps.max_at_valences,
         max_edge_deviation: dev,
+        self_intersections: 0,
+        self_intersection_at: None,
+        quad_self_intersections: 0,
     };
     if !(volume > 0.0) {
         return Err(Error::new(
