@@ -68,7 +68,8 @@ impl Default for ConvertOptions {
 pub struct StageReport {
     pub stage: &'static str,
     pub seconds: f64,
-    /// Peak resident memory of the process during the stage (Linux; `null` elsewhere), MiB.
+    /// Peak resident memory of the process during the stage (Linux: the reset high-water mark where
+    /// allowed, and a 5 ms `VmRSS` sampler; `null` elsewhere), MiB.
     pub peak_rss_mib: Option<f64>,
     /// Two-sided distance of the stage's result to the input.
     pub distance: Option<DistanceReport>,
@@ -106,31 +107,54 @@ pub struct ConvertReport {
     pub total_seconds: f64,
 }
 
-/// Peak-RSS bookkeeping per stage: resets the kernel's high-water mark (Linux `clear_refs` 5) and reads
-/// `VmHWM` afterwards.
-fn reset_peak() {
-    let _ = std::fs::write("/proc/self/clear_refs", "5");
-}
-
-fn peak_mib() -> Option<f64> {
+/// Peak resident memory per stage. The kernel's high-water mark (`VmHWM`) is reset at a stage's start where
+/// `/proc/self/clear_refs` allows it; a sampler thread also polls `VmRSS` every 5 ms, so the figure is
+/// per stage even where the reset is refused.
+fn rss_mib(key: &str) -> Option<f64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let line = s.lines().find(|l| l.starts_with(key))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb / 1024.0)
 }
 
 struct Clock {
     t: Instant,
+    hwm_reset: bool,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    sampler: Option<std::thread::JoinHandle<f64>>,
 }
 
 impl Clock {
     fn start() -> Self {
-        reset_peak();
-        Clock { t: Instant::now() }
+        let hwm_reset = std::fs::write("/proc/self/clear_refs", "5").is_ok();
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = stop.clone();
+        let sampler = std::thread::Builder::new()
+            .name("rss-sampler".into())
+            .spawn(move || {
+                let mut peak: f64 = 0.0;
+                loop {
+                    peak = peak.max(rss_mib("VmRSS:").unwrap_or(0.0));
+                    if flag.load(std::sync::atomic::Ordering::Relaxed) {
+                        return peak;
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(5));
+                }
+            })
+            .ok();
+        Clock { t: Instant::now(), hwm_reset, stop, sampler }
     }
 
     fn stop(self, stage: &'static str, distance: Option<DistanceReport>) -> StageReport {
-        StageReport { stage, seconds: self.t.elapsed().as_secs_f64(), peak_rss_mib: peak_mib(), distance }
+        let seconds = self.t.elapsed().as_secs_f64();
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        let sampled = self.sampler.and_then(|h| h.join().ok());
+        let hwm = if self.hwm_reset { rss_mib("VmHWM:") } else { None };
+        let peak_rss_mib = match (hwm, sampled) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b).filter(|m| *m > 0.0),
+        };
+        StageReport { stage, seconds, peak_rss_mib, distance }
     }
 }
 
