@@ -4,6 +4,7 @@
 pub mod bvh;
 pub mod intersect;
 pub mod io;
+pub mod linalg;
 pub mod mesh;
 pub mod sampling;
 pub mod shapes;

@@ -9,6 +9,7 @@
 //!   neighbours agree in their tangent planes).
 
 use crate::error::{Error, Result};
+use crate::geometry::linalg::NormalEquations;
 use crate::geometry::vec3::{self, V3};
 use crate::stages::brep::bspline::bernstein;
 use crate::stages::surface::limit::{EvPatch, FaceKind, LimitSurface, limit_stencil, point_weights, tangent_stencils};
@@ -174,16 +175,8 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
             // Unknowns c1, c2 (6 coordinates): positions of the exact limit along the edge, its tangent plane
             // containing the curve's derivative (n · c'(t) = 0), and the end tangents in the vertices'
             // tangent planes (heavily weighted, so all patches at a vertex share its plane).
-            let mut ata = [[0.0f64; 6]; 6];
-            let mut atb = [0.0f64; 6];
-            let mut add_row = |row: &[(usize, f64)], rhs: f64, weight: f64| {
-                for &(i, a) in row {
-                    for &(j, c) in row {
-                        ata[i][j] += weight * a * c;
-                    }
-                    atb[i] += weight * a * rhs;
-                }
-            };
+            let mut ne = NormalEquations::<6>::default();
+            let mut add_row = |row: &[(usize, f64)], rhs: f64, weight: f64| ne.add_row(row, rhs, weight);
             let n = 16;
             for m in 1..n {
                 let t_ = m as f64 / n as f64;
@@ -229,7 +222,7 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
                 std::array::from_fn(|c| (pb[0][c] * pa[1][1] - pb[1][c] * pa[0][1]) / det),
                 std::array::from_fn(|c| (pa[0][0] * pb[1][c] - pa[1][0] * pb[0][c]) / det),
             ];
-            let (mut c1, mut c2) = match solve_dense::<6>(ata, atb) {
+            let (mut c1, mut c2) = match ne.solve() {
                 Some(x) => ([x[0], x[1], x[2]], [x[3], x[4], x[5]]),
                 None => (plain[0], plain[1]),
             };
@@ -287,16 +280,8 @@ const G1_WEIGHT: f64 = 100.0;
 fn fit_interior_weighted(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &mut [V3; 16], g1_weight: f64) {
     const INTERIOR: [usize; 4] = [5, 6, 9, 10];
     // Unknowns: x[3·i + c] = coordinate c of interior point i.
-    let mut ata = [[0.0f64; 12]; 12];
-    let mut atb = [0.0f64; 12];
-    let mut add_row = |row: &[(usize, f64)], rhs: f64, weight: f64| {
-        for &(i, a) in row {
-            for &(j, c) in row {
-                ata[i][j] += weight * a * c;
-            }
-            atb[i] += weight * a * rhs;
-        }
-    };
+    let mut ne = NormalEquations::<12>::default();
+    let mut add_row = |row: &[(usize, f64)], rhs: f64, weight: f64| ne.add_row(row, rhs, weight);
     let n = 8;
     for j in 0..n {
         for i in 0..n {
@@ -345,7 +330,7 @@ fn fit_interior_weighted(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V
             add_row(&row, rhs, g1_weight);
         }
     }
-    if let Some(x) = solve_dense::<12>(ata, atb) {
+    if let Some(x) = ne.solve() {
         for (i, &s) in INTERIOR.iter().enumerate() {
             b[s] = [x[3 * i], x[3 * i + 1], x[3 * i + 2]];
         }
@@ -376,35 +361,6 @@ fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &m
             return;
         }
     }
-}
-
-/// Solve a small dense system by Gaussian elimination with partial pivoting; `None` when singular.
-fn solve_dense<const N: usize>(mut a: [[f64; N]; N], mut r: [f64; N]) -> Option<[f64; N]> {
-    let scale = (0..N).map(|i| a[i][i].abs()).fold(0.0, f64::max).max(f64::MIN_POSITIVE);
-    for col in 0..N {
-        let piv = (col..N).max_by(|&x, &y| a[x][col].abs().total_cmp(&a[y][col].abs()))?;
-        a.swap(col, piv);
-        r.swap(col, piv);
-        if a[col][col].abs() <= 1e-14 * scale {
-            return None;
-        }
-        for row in col + 1..N {
-            let fct = a[row][col] / a[col][col];
-            for c in col..N {
-                a[row][c] -= fct * a[col][c];
-            }
-            r[row] -= fct * r[col];
-        }
-    }
-    let mut x = [0.0; N];
-    for row in (0..N).rev() {
-        let mut s = r[row];
-        for k in row + 1..N {
-            s -= a[row][k] * x[k];
-        }
-        x[row] = s / a[row][row];
-    }
-    Some(x)
 }
 
 /// Point, and unnormalised normal `∂u × ∂v`, of a Bézier net at `(u, v)`.

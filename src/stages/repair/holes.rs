@@ -16,6 +16,7 @@ use std::collections::{HashMap, HashSet};
 
 use crate::geometry::bvh::{BoxTree, box_of};
 use crate::geometry::intersect::mesh_triangles_intersect;
+use crate::geometry::linalg::solve_dense;
 use crate::geometry::topology::MeshTopology;
 use crate::geometry::vec3::{self, V3, tri_area, tri_unit_normal};
 
@@ -556,31 +557,6 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> H
         report.patch_joint_quadric_deviation.push(joint);
     }
     report
-}
-
-/// Solve the small dense system `a x = b` by Gaussian elimination with partial pivoting.
-fn solve_dense<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; N]> {
-    for c in 0..N {
-        let piv = (c..N).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
-        if a[piv][c].abs() < 1e-300 {
-            return None;
-        }
-        a.swap(c, piv);
-        b.swap(c, piv);
-        for r in c + 1..N {
-            let f = a[r][c] / a[c][c];
-            for k in c..N {
-                a[r][k] -= f * a[c][k];
-            }
-            b[r] -= f * b[c];
-        }
-    }
-    let mut x = [0.0; N];
-    for c in (0..N).rev() {
-        let s: f64 = (c + 1..N).map(|k| a[c][k] * x[k]).sum();
-        x[c] = (b[c] - s) / a[c][c];
-    }
-    Some(x)
 }
 
 /// Quadric height fields around a filled hole, in a frame whose normal is the mean normal of the faces
