@@ -171,16 +171,8 @@ pub fn quad_ball(radius: f64, k: usize) -> crate::geometry::mesh::PolyMesh {
 /// (radius `minor`). Outward-oriented, closed, genus 1, every vertex valence 4.
 pub fn quad_torus(major: f64, minor: f64, n: usize, m: usize) -> crate::geometry::mesh::PolyMesh {
     let (n, m) = (n.max(3), m.max(3));
-    let tau = std::f64::consts::TAU;
-    let mut positions = Vec::with_capacity(n * m);
-    for i in 0..n {
-        let a = tau * i as f64 / n as f64;
-        for j in 0..m {
-            let b = tau * j as f64 / m as f64;
-            let r = major + minor * b.cos();
-            positions.push([(r * a.cos()) as f32, (r * a.sin()) as f32, (minor * b.sin()) as f32]);
-        }
-    }
+    // Same vertices as the triangle torus; each pair of its triangles is one quad.
+    let positions = torus(major, minor, n, m).positions;
     let id = |i: usize, j: usize| ((i % n) * m + j % m) as u32;
     let faces: Vec<Vec<u32>> = (0..n)
         .flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]))
