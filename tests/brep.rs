@@ -105,9 +105,6 @@ fn step_text_uses_every_edge_twice_and_is_deterministic() {
     assert_eq!(faces, solid.faces.len());
 }
 
-#[allow(dead_code)]
-fn unused(_: V3) {}
-
 /// A sphere-like net with two valence-`n` poles (and valence-3 vertices next to them), on the unit sphere.
 fn polar_ball(n: usize, bands: usize) -> scanstation::geometry::mesh::PolyMesh {
     use std::f64::consts::PI;
@@ -160,4 +157,41 @@ fn high_valence_patches_join_within_one_degree() {
         let bound = if n <= 6 { 1.0 } else { 10.0 };
         assert!(j < bound, "valence {n}: {j}° ≥ {bound}°");
     }
+}
+
+/// Our own validity check names the first offending element with `brep.invalid`: a missing face leaves its
+/// edges used once; a moved edge curve leaves the face boundary.
+#[test]
+fn validity_check_catches_open_shells_and_loose_curves() {
+    use scanstation::ErrorCode;
+    let (solid, _) = sphere_solid(2);
+    let diag = 2.0 * 3f64.sqrt();
+    check(&solid, diag).unwrap();
+    let mut open = solid.clone();
+    open.faces.pop();
+    let e = check(&open, diag).unwrap_err();
+    assert_eq!(e.code, ErrorCode::BrepInvalid);
+    assert!(e.message.contains("used 1 time(s)") || e.message.contains("used 0 time(s)"), "{e}");
+    let mut loose = solid.clone();
+    let k = loose.edges[0].curve.len() / 2;
+    loose.edges[0].curve[k][0] += 1e-3;
+    let e = check(&loose, diag).unwrap_err();
+    assert_eq!(e.code, ErrorCode::BrepInvalid);
+    assert!(e.message.contains("leaves the face boundary"), "{e}");
+}
+
+/// A fit whose target gives non-finite points is refused with `surface.fit-diverged`, not a panic.
+#[test]
+fn a_diverging_fit_is_refused() {
+    use scanstation::ErrorCode;
+    use scanstation::stages::surface::FitTarget;
+    struct Nan;
+    impl FitTarget for Nan {
+        fn closest(&self, _: V3, _: V3) -> Option<(V3, V3)> {
+            Some(([f64::NAN; 3], [0.0, 0.0, 1.0]))
+        }
+    }
+    let (net, pos) = control_net(&shapes::quad_ball(1.0, 2)).unwrap();
+    let e = fit_control_points(&net, &pos, &Nan, &FitOptions::default(), &NoProgress).unwrap_err();
+    assert_eq!(e.code, ErrorCode::SurfaceFitDiverged, "{e}");
 }
