@@ -3,20 +3,12 @@
 
 use std::path::{Path, PathBuf};
 
-/// Reset the kernel's peak-RSS counter (VmHWM) to the current RSS; false when not permitted.
-pub fn reset_peak() -> bool {
-    std::fs::write("/proc/self/clear_refs", "5").is_ok()
-}
+#[allow(unused_imports)]
+pub use scanstation::pipeline::memory::reset_peak;
 
-/// Peak RSS (VmHWM) in MiB.
+/// Peak RSS (VmHWM) in MiB; NaN where unavailable.
 pub fn peak_mib() -> f64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    status
-        .lines()
-        .find(|l| l.starts_with("VmHWM:"))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|kb| kb.parse::<f64>().ok())
-        .map_or(f64::NAN, |kb| kb / 1024.0)
+    scanstation::pipeline::memory::status_mib("VmHWM:").unwrap_or(f64::NAN)
 }
 
 /// The shared scan data folder (`SCANSTATION_SHARED_DATA`, default `../shared/data`).

@@ -275,10 +275,7 @@ fn convert(
     let r = pipeline::convert_file(input, output, read, &opts, &NoProgress)?;
     if let Some(path) = report {
         let text = serde_json::to_string_pretty(&r).map_err(|e| Error::internal(e.to_string()))?;
-        let tmp = path.with_extension("json.partial");
-        std::fs::write(&tmp, text).and_then(|_| std::fs::rename(&tmp, path)).map_err(|e| {
-            Error::new(ErrorCode::ResourceOutput, format!("writing the report failed: {e}")).in_file(path)
-        })?;
+        scanstation::geometry::io::write_atomic(path, |w| std::io::Write::write_all(w, text.as_bytes()))?;
     }
     Ok(r)
 }

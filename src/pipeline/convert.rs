@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use super::memory::StageMeter;
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
@@ -107,53 +108,16 @@ pub struct ConvertReport {
     pub total_seconds: f64,
 }
 
-/// Peak resident memory per stage. The kernel's high-water mark (`VmHWM`) is reset at a stage's start where
-/// `/proc/self/clear_refs` allows it; a sampler thread also polls `VmRSS` every 5 ms, so the figure is
-/// per stage even where the reset is refused.
-fn rss_mib(key: &str) -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with(key))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
-}
-
-struct Clock {
-    t: Instant,
-    hwm_reset: bool,
-    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
-    sampler: Option<std::thread::JoinHandle<f64>>,
-}
+/// Time and memory of a stage, turned into its report.
+struct Clock(StageMeter);
 
 impl Clock {
     fn start() -> Self {
-        let hwm_reset = std::fs::write("/proc/self/clear_refs", "5").is_ok();
-        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let flag = stop.clone();
-        let sampler = std::thread::Builder::new()
-            .name("rss-sampler".into())
-            .spawn(move || {
-                let mut peak: f64 = 0.0;
-                loop {
-                    peak = peak.max(rss_mib("VmRSS:").unwrap_or(0.0));
-                    if flag.load(std::sync::atomic::Ordering::Relaxed) {
-                        return peak;
-                    }
-                    std::thread::sleep(std::time::Duration::from_millis(5));
-                }
-            })
-            .ok();
-        Clock { t: Instant::now(), hwm_reset, stop, sampler }
+        Clock(StageMeter::start())
     }
 
     fn stop(self, stage: &'static str, distance: Option<DistanceReport>) -> StageReport {
-        let seconds = self.t.elapsed().as_secs_f64();
-        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        let sampled = self.sampler.and_then(|h| h.join().ok());
-        let hwm = if self.hwm_reset { rss_mib("VmHWM:") } else { None };
-        let peak_rss_mib = match (hwm, sampled) {
-            (Some(a), Some(b)) => Some(a.max(b)),
-            (a, b) => a.or(b).filter(|m| *m > 0.0),
-        };
+        let (seconds, peak_rss_mib) = self.0.finish();
         StageReport { stage, seconds, peak_rss_mib, distance }
     }
 }
@@ -173,24 +137,10 @@ fn quad_self_intersections(quads: &PolyMesh) -> usize {
 /// resolution).
 fn solid_self_intersections(solid: &Solid) -> Result<(usize, Option<[f64; 3]>)> {
     let t = solid.tessellate(2)?;
-    let mut map: std::collections::HashMap<[u32; 3], u32> = std::collections::HashMap::new();
-    let mut pts: Vec<[f64; 3]> = Vec::new();
-    let idx: Vec<u32> = t
-        .positions
-        .iter()
-        .map(|q| {
-            *map.entry(q.map(f32::to_bits)).or_insert_with(|| {
-                pts.push(q.map(f64::from));
-                (pts.len() - 1) as u32
-            })
-        })
-        .collect();
-    let tris: Vec<[u32; 3]> = t
-        .triangles
-        .iter()
-        .map(|tr| tr.map(|i| idx[i as usize]))
-        .filter(|tr| tr[0] != tr[1] && tr[1] != tr[2] && tr[0] != tr[2])
-        .collect();
+    let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
+    // Faces' boundary samples coincide exactly; anything closer than the edge tolerance is one point.
+    let tol = crate::geometry::tolerance::BREP_EDGE_REL * t.bbox().diagonal();
+    let (pts, tris, _) = crate::stages::repair::weld::weld(&p, &t.triangles, tol);
     let pairs = crate::geometry::intersect::self_intersections(&pts, &tris);
     Ok((pairs.len(), pairs.first().map(|&(a, _)| pts[tris[a as usize][0] as usize])))
 }

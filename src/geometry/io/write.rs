@@ -45,7 +45,11 @@ pub fn ensure_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
 }
 
 /// Write through a temporary file in the same directory (created if missing), fsync, then rename onto `path`.
-pub(crate) fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
+///
+/// # Errors
+/// `resource.output` when writing or renaming fails (the temporary file is removed);
+/// `input.bad-argument` for a path without a file name.
+pub fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name =
         path.file_name().ok_or_else(|| Error::new(ErrorCode::InputBadArgument, "output path has no file name"))?;

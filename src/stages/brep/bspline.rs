@@ -51,12 +51,6 @@ pub fn knot_multiplicities(knots: &[f64]) -> (Vec<f64>, Vec<u32>) {
 }
 
 impl BsplineSurface {
-    /// One bicubic Bézier patch `b[4 * j + i]` on `[0, 1]²`.
-    pub fn from_bezier(b: &[V3; 16]) -> Self {
-        let k = vec![0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0];
-        BsplineSurface { nu: 4, nv: 4, poles: b.to_vec(), knots_u: k.clone(), knots_v: k }
-    }
-
     /// The clamped equivalent of a uniform bicubic B-spline with a `(w + 3) × (h + 3)` control grid
     /// (`grid[(w + 3) * j + i]`), on `[0, w] × [0, h]` with simple interior knots (C² inside).
     pub fn from_uniform_grid(grid: &[V3], w: usize, h: usize) -> Self {

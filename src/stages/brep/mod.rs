@@ -210,7 +210,7 @@ fn pack(surface: &LimitSurface) -> Vec<Block> {
         }
         let all_regular = cells.iter().all(|&(g, _)| matches!(surface.kinds[g as usize], FaceKind::Regular(_)));
         let grid = if all_regular {
-            net.lattice_block_cells(cells[0].0 as usize, cells[0].1 as usize, w, h, true)
+            net.lattice_block(cells[0].0 as usize, cells[0].1 as usize, w, h)
                 .filter(|(_, c)| *c == cells)
                 .map(|(g, _)| g)
         } else {
@@ -423,17 +423,13 @@ fn merge_edge_chains(solid: Solid) -> Solid {
     // Chains: walk from every edge end that is not mergeable.
     let mut chain_of = vec![u32::MAX; ne];
     let mut new_edges: Vec<Edge> = Vec::new();
-    let mut order: Vec<Vec<(u32, bool)>> = Vec::new(); // (old edge, along the chain's direction)
-    let walk = |start_v: u32,
-                first: u32,
-                chain_of: &mut Vec<u32>,
-                new_edges: &mut Vec<Edge>,
-                order: &mut Vec<Vec<(u32, bool)>>| {
+    // Whether each old edge runs along its chain's direction.
+    let mut along = vec![true; ne];
+    let walk = |start_v: u32, first: u32, chain_of: &mut Vec<u32>, new_edges: &mut Vec<Edge>, along: &mut Vec<bool>| {
         let id = new_edges.len() as u32;
         let mut v = start_v;
         let mut e = first;
         let mut pts: Vec<V3> = Vec::new();
-        let mut seq = Vec::new();
         loop {
             chain_of[e as usize] = id;
             let edge = &solid.edges[e as usize];
@@ -447,7 +443,7 @@ fn merge_edge_chains(solid: Solid) -> Solid {
             } else {
                 pts.extend(c.into_iter().skip(1));
             }
-            seq.push((e, forward));
+            along[e as usize] = forward;
             v = if forward { edge.end } else { edge.start };
             if v == start_v || !mergeable[v as usize] {
                 break;
@@ -460,7 +456,6 @@ fn merge_edge_chains(solid: Solid) -> Solid {
             e = next;
         }
         new_edges.push(Edge { start: start_v, end: v, curve: pts });
-        order.push(seq);
     };
     for v in 0..nv as u32 {
         if mergeable[v as usize] {
@@ -468,7 +463,7 @@ fn merge_edge_chains(solid: Solid) -> Solid {
         }
         for &e in &incident[v as usize].clone() {
             if chain_of[e as usize] == u32::MAX {
-                walk(v, e, &mut chain_of, &mut new_edges, &mut order);
+                walk(v, e, &mut chain_of, &mut new_edges, &mut along);
             }
         }
     }
@@ -476,7 +471,7 @@ fn merge_edge_chains(solid: Solid) -> Solid {
     for e in 0..ne as u32 {
         if chain_of[e as usize] == u32::MAX {
             let v = solid.edges[e as usize].start;
-            walk(v, e, &mut chain_of, &mut new_edges, &mut order);
+            walk(v, e, &mut chain_of, &mut new_edges, &mut along);
         }
     }
     // Rebuild loops: a run of coedges of one chain becomes one coedge.
@@ -497,10 +492,8 @@ fn merge_edge_chains(solid: Solid) -> Solid {
                 last = f.bound[(start + k + len) % n];
                 len += 1;
             }
-            // Direction of the loop relative to the chain: the chain's first old edge, as the loop meets it.
-            let (first_old, first_fwd) = order[chain as usize][0];
-            let pos = f.bound.iter().position(|c| c.edge == first_old).unwrap_or(0);
-            let forward = f.bound[pos].forward == first_fwd;
+            // The loop runs along the chain when it runs along an old edge that runs along the chain.
+            let forward = c0.forward == along[c0.edge as usize];
             bound.push(Coedge { edge: chain, forward, uv: [c0.uv[0], last.uv[1]] });
             k += len;
         }

@@ -2,17 +2,19 @@
 //!
 //! - Regular faces: the exact B-spline patch converted to Bézier form.
 //! - Edge curves: from a regular neighbour when there is one (exact); otherwise (both faces extraordinary)
-//!   a cubic fitted to the exact limit along the edge, with its end tangents projected into the limit
-//!   tangent planes of the end vertices (so all patches at a vertex share its tangent plane).
+//!   a cubic fitted to the exact limit along the edge with its derivative in the limit's tangent planes,
+//!   and its end tangents exactly in the tangent planes of the end vertices (so all patches at a vertex
+//!   share its tangent plane).
 //! - Extraordinary faces: the 12 boundary points come from the edge curves; the 4 interior points are a
-//!   least-squares fit to the exact limit (positions inside, cross-boundary derivatives on the edges, so
-//!   neighbours agree in their tangent planes).
+//!   least-squares fit to the exact limit (positions inside; along the edges, the cross-boundary
+//!   derivative in the limit's tangent plane, so neighbours agree in their normals).
 
 use crate::error::{Error, Result};
 use crate::geometry::linalg::NormalEquations;
 use crate::geometry::vec3::{self, V3};
 use crate::stages::brep::bspline::bernstein;
 use crate::stages::surface::limit::{EvPatch, FaceKind, LimitSurface, limit_stencil, point_weights, tangent_stencils};
+use crate::stages::surface::net::combine;
 use rayon::prelude::*;
 
 /// The Bézier net of every refined face (in its patch frame) and the curve of every refined edge.
@@ -36,14 +38,6 @@ const B2BEZ: [[f64; 4]; 4] = [
     [0.0, 2.0 / 6.0, 4.0 / 6.0, 0.0],
     [0.0, 1.0 / 6.0, 4.0 / 6.0, 1.0 / 6.0],
 ];
-
-fn combine(row: &[(u32, f64)], p: &[V3]) -> V3 {
-    let mut acc = [0.0; 3];
-    for &(g, w) in row {
-        acc = vec3::add(acc, vec3::scale(p[g as usize], w));
-    }
-    acc
-}
 
 /// Positions of the 16 Bézier control points of a uniform B-spline patch with grid `g[4·j + i]`.
 pub fn bspline_to_bezier(g: &[V3; 16]) -> [V3; 16] {
@@ -80,16 +74,6 @@ fn boundary_slots(k: usize) -> [usize; 4] {
     }
 }
 
-/// The slots of the row next to the boundary row of [`boundary_slots`] (same order).
-fn inner_slots(k: usize) -> [usize; 4] {
-    match k {
-        0 => [4, 5, 6, 7],
-        1 => [2, 6, 10, 14],
-        2 => [11, 10, 9, 8],
-        _ => [13, 9, 5, 1],
-    }
-}
-
 /// Parameter `(u, v)` of a point at fraction `t` along frame half-edge `k`, and the inward unit direction
 /// in parameter space.
 fn edge_param(k: usize, t: f64) -> ((f64, f64), (f64, f64)) {
@@ -109,18 +93,7 @@ fn edge_param(k: usize, t: f64) -> ((f64, f64), (f64, f64)) {
 /// Cost: O(F) with a constant of a few thousand flops per extraordinary face.
 pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
     let net = &surface.net;
-    let nh = net.faces.len() * 4;
-    // Edges.
-    let mut edge_of = vec![u32::MAX; nh];
-    let mut edge_half = Vec::with_capacity(nh / 2);
-    for h in 0..nh {
-        if edge_of[h] == u32::MAX {
-            let t = net.twin[h] as usize;
-            edge_of[h] = edge_half.len() as u32;
-            edge_of[t] = edge_half.len() as u32;
-            edge_half.push(h as u32);
-        }
-    }
+    let (edge_of, edge_half) = net.edges();
     let vertex: Vec<V3> =
         (0..net.vertex_count as u32).into_par_iter().map(|v| combine(&limit_stencil(net, v), p1)).collect();
     let normal: Vec<V3> = (0..net.vertex_count as u32)
@@ -171,78 +144,8 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
             let f = (h / 4) as usize;
             let k = ((h % 4) as usize + 4 - surface.frame_start(f)) % 4;
             let ev = ev_tables[f].as_ref().expect("extraordinary face has a table");
-            let (p0, p3) = (vertex[a as usize], vertex[b as usize]);
-            // Unknowns c1, c2 (6 coordinates): positions of the exact limit along the edge, its tangent plane
-            // containing the curve's derivative (n · c'(t) = 0), and the end tangents in the vertices'
-            // tangent planes (heavily weighted, so all patches at a vertex share its plane).
-            let mut ne = NormalEquations::<6>::default();
-            let mut add_row = |row: &[(usize, f64)], rhs: f64, weight: f64| ne.add_row(row, rhs, weight);
-            let n = 16;
-            for m in 1..n {
-                let t_ = m as f64 / n as f64;
-                let ((u, v), _) = edge_param(k, t_);
-                let w = point_weights(surface, f, u, v, Some(ev));
-                let x = combine(&w.pos, p1);
-                let (bb, db) = bernstein(t_);
-                for c in 0..3 {
-                    let rhs = x[c] - bb[0] * p0[c] - bb[3] * p3[c];
-                    add_row(&[(c, bb[1]), (3 + c, bb[2])], rhs, 1.0);
-                }
-                let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
-                if nrm != [0.0; 3] {
-                    let rhs = -(db[0] * vec3::dot(nrm, p0) + db[3] * vec3::dot(nrm, p3));
-                    let row: Vec<(usize, f64)> =
-                        (0..3).flat_map(|c| [(c, db[1] * nrm[c]), (3 + c, db[2] * nrm[c])]).collect();
-                    add_row(&row, rhs, G1_WEIGHT);
-                }
-            }
-            for (off, origin, nrm) in [(0, p0, normal[a as usize]), (3, p3, normal[b as usize])] {
-                let row: Vec<(usize, f64)> = (0..3).map(|c| (off + c, nrm[c])).collect();
-                add_row(&row, vec3::dot(nrm, origin), 1e6);
-            }
-            // Positions-only fit: the reference for the end tangents' direction and length.
-            let mut pa = [[0.0f64; 2]; 2];
-            let mut pb = [[0.0f64; 3]; 2];
-            for m in 1..n {
-                let t_ = m as f64 / n as f64;
-                let ((u, v), _) = edge_param(k, t_);
-                let x = combine(&point_weights(surface, f, u, v, Some(ev)).pos, p1);
-                let (bb, _) = bernstein(t_);
-                for i in 0..2 {
-                    for j in 0..2 {
-                        pa[i][j] += bb[1 + i] * bb[1 + j];
-                    }
-                    for c in 0..3 {
-                        pb[i][c] += bb[1 + i] * (x[c] - bb[0] * p0[c] - bb[3] * p3[c]);
-                    }
-                }
-            }
-            let det = pa[0][0] * pa[1][1] - pa[0][1] * pa[1][0];
-            let plain: [V3; 2] = [
-                std::array::from_fn(|c| (pb[0][c] * pa[1][1] - pb[1][c] * pa[0][1]) / det),
-                std::array::from_fn(|c| (pa[0][0] * pb[1][c] - pa[1][0] * pb[0][c]) / det),
-            ];
-            let (mut c1, mut c2) = match ne.solve() {
-                Some(x) => ([x[0], x[1], x[2]], [x[3], x[4], x[5]]),
-                None => (plain[0], plain[1]),
-            };
-            // Keep the tangent-plane fit only when its end tangents point the way the plain fit's do, with
-            // a comparable length; otherwise (a fold near two close extraordinary vertices) the plain one.
-            let agrees = |q: V3, r: V3, origin: V3| {
-                let (a, b) = (vec3::sub(q, origin), vec3::sub(r, origin));
-                vec3::dot(a, b) > 0.0 && (0.25..4.0).contains(&(vec3::norm(a) / vec3::norm(b).max(f64::MIN_POSITIVE)))
-            };
-            if !(agrees(c1, plain[0], p0) && agrees(c2, plain[1], p3)) {
-                (c1, c2) = (plain[0], plain[1]);
-            }
-            // Exactly into the end tangent planes.
-            let project = |q: V3, origin: V3, nrm: V3| -> V3 {
-                let d = vec3::sub(q, origin);
-                vec3::sub(q, vec3::scale(nrm, vec3::dot(d, nrm)))
-            };
-            c1 = project(c1, p0, normal[a as usize]);
-            c2 = project(c2, p3, normal[b as usize]);
-            [p0, c1, c2, p3]
+            let ends = [(vertex[a as usize], normal[a as usize]), (vertex[b as usize], normal[b as usize])];
+            fit_edge_curve(surface, f, k, ev, p1, ends)
         })
         .collect();
 
@@ -271,6 +174,56 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
 
 /// Weight of a tangent-plane row (per unit of length residual) against a position row.
 const G1_WEIGHT: f64 = 100.0;
+
+/// The cubic of an edge between two extraordinary faces, from `ends[0]` to `ends[1]` (position, limit
+/// normal), along frame side `k` of face `f`. Unknowns c1, c2: positions of the exact limit at 15 points
+/// along the edge, the curve's derivative in the limit's tangent plane there (`n · c'(t) = 0`), and the end
+/// tangents in the vertices' tangent planes (heavily weighted, then projected exactly). That fit is kept
+/// only when its end tangents point the way a positions-only fit's do, with a comparable length;
+/// otherwise (a fold near two close extraordinary vertices) the positions-only fit is used.
+fn fit_edge_curve(surface: &LimitSurface, f: usize, k: usize, ev: &EvPatch, p1: &[V3], ends: [(V3, V3); 2]) -> [V3; 4] {
+    let [(p0, n0), (p3, n3)] = ends;
+    let mut plain = NormalEquations::<6>::default();
+    let mut ne = NormalEquations::<6>::default();
+    let n = 16;
+    for m in 1..n {
+        let t = m as f64 / n as f64;
+        let ((u, v), _) = edge_param(k, t);
+        let w = point_weights(surface, f, u, v, Some(ev));
+        let x = combine(&w.pos, p1);
+        let (bb, db) = bernstein(t);
+        for c in 0..3 {
+            let rhs = x[c] - bb[0] * p0[c] - bb[3] * p3[c];
+            plain.add_row(&[(c, bb[1]), (3 + c, bb[2])], rhs, 1.0);
+            ne.add_row(&[(c, bb[1]), (3 + c, bb[2])], rhs, 1.0);
+        }
+        let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
+        if nrm != [0.0; 3] {
+            let rhs = -(db[0] * vec3::dot(nrm, p0) + db[3] * vec3::dot(nrm, p3));
+            let row: Vec<(usize, f64)> = (0..3).flat_map(|c| [(c, db[1] * nrm[c]), (3 + c, db[2] * nrm[c])]).collect();
+            ne.add_row(&row, rhs, G1_WEIGHT);
+        }
+    }
+    for (off, origin, nrm) in [(0, p0, n0), (3, p3, n3)] {
+        let row: Vec<(usize, f64)> = (0..3).map(|c| (off + c, nrm[c])).collect();
+        ne.add_row(&row, vec3::dot(nrm, origin), 1e6);
+    }
+    let split = |x: [f64; 6]| -> (V3, V3) { ([x[0], x[1], x[2]], [x[3], x[4], x[5]]) };
+    // The positions-only system is the 2×2 Bernstein system per coordinate: singular only for a
+    // degenerate sampling, never here.
+    let reference = plain.solve().map(split).unwrap_or((p0, p3));
+    let (mut c1, mut c2) = ne.solve().map(split).unwrap_or(reference);
+    let agrees = |q: V3, r: V3, origin: V3| {
+        let (a, b) = (vec3::sub(q, origin), vec3::sub(r, origin));
+        vec3::dot(a, b) > 0.0 && (0.25..4.0).contains(&(vec3::norm(a) / vec3::norm(b).max(f64::MIN_POSITIVE)))
+    };
+    if !(agrees(c1, reference.0, p0) && agrees(c2, reference.1, p3)) {
+        (c1, c2) = reference;
+    }
+    let project =
+        |q: V3, origin: V3, nrm: V3| -> V3 { vec3::sub(q, vec3::scale(nrm, vec3::dot(vec3::sub(q, origin), nrm))) };
+    [p0, project(c1, p0, n0), project(c2, p3, n3), p3]
+}
 
 /// Least-squares fit of the 4 interior points of an extraordinary face's Bézier net `b` (boundary fixed):
 /// positions on an 8×8 grid of the exact limit, and along each edge the condition that the patch's
@@ -437,15 +390,4 @@ pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> NormalJumps {
     let p99_deg = crate::stages::quality::percentile(&mut v, 0.99);
     let max_at_valences = [surface.net.valence(surface.net.from(h)), surface.net.valence(surface.net.to(h))];
     NormalJumps { max_deg, max_at, max_at_extraordinary, max_at_fraction, max_at_valences, p99_deg }
-}
-
-/// Position of the Bézier net boundary under frame half-edge `k` at fraction `t` (exposed for checks).
-pub fn boundary_point(b: &[V3; 16], k: usize, t: f64) -> V3 {
-    let ((u, v), _) = edge_param(k, t);
-    bezier_eval(b, u, v).0
-}
-
-/// The inner row next to frame edge `k` (exposed for tests).
-pub fn inner_row(b: &[V3; 16], k: usize) -> [V3; 4] {
-    inner_slots(k).map(|s| b[s])
 }

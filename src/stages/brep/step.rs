@@ -7,7 +7,8 @@
 //! numbers, so the same input gives the same bytes.
 
 use super::{Solid, bspline::knot_multiplicities};
-use crate::error::{Error, ErrorCode, Result};
+use crate::error::Result;
+use crate::geometry::io::write_atomic;
 use crate::geometry::vec3::V3;
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -258,25 +259,5 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
 /// `resource.output` when the file cannot be written or renamed.
 pub fn write_step(path: &Path, solid: &Solid, opts: &StepOptions) -> Result<()> {
     let body = to_step(solid, opts);
-    let tmp = path.with_file_name(format!(
-        ".{}.partial-{}",
-        path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out.step".into()),
-        std::process::id()
-    ));
-    let fail =
-        |e: std::io::Error, what: &str| Error::new(ErrorCode::ResourceOutput, format!("{what}: {e}")).in_file(path);
-    let result = (|| -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(body.as_bytes())?;
-        f.sync_all()?;
-        Ok(())
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(fail(e, "writing the STEP file failed"));
-    }
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        fail(e, "renaming the finished STEP file failed")
-    })
+    write_atomic(path, |w| w.write_all(body.as_bytes()))
 }

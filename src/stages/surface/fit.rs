@@ -9,7 +9,7 @@
 //! refinement stencils and A the per-sample weights on the refined net.
 
 use super::limit::{EvPatch, FaceKind, LimitSurface, bspline_basis, limit_stencil, point_weights};
-use super::net::{QuadNet, Stencils};
+use super::net::{QuadNet, Stencils, combine};
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::mesh::TriMesh;
@@ -353,18 +353,7 @@ pub fn fit_control_points(
     let lim: Vec<Vec<(u32, f64)>> = (0..n0 as u32).map(|v| limit_stencil(control, v)).collect();
     let mut p: Vec<V3> = initial.to_vec();
     for _ in 0..30 {
-        let next: Vec<V3> = (0..n0)
-            .map(|i| {
-                let mut l = [0.0; 3];
-                for &(j, w) in &lim[i] {
-                    for c in 0..3 {
-                        l[c] += w * p[j as usize][c];
-                    }
-                }
-                vec3::add(p[i], vec3::sub(initial[i], l))
-            })
-            .collect();
-        p = next;
+        p = (0..n0).map(|i| vec3::add(p[i], vec3::sub(initial[i], combine(&lim[i], &p)))).collect();
     }
 
     // Area weights from the initial surface.
@@ -380,37 +369,32 @@ pub fn fit_control_points(
     let umbrella = Umbrella::new(control);
     let lambda = opts.smoothing * total_area / n0 as f64;
 
-    // Jacobi preconditioner: diagonal of Sᵀ Aᵀ W A S (+ λ LᵀL, whose diagonal is ≈ 1 + 1/n), scaled by
-    // the mean of the per-sample metric's diagonal (1/3 + μ).
-    let mu = opts.tangential_weight.max(0.0);
-    let mut diag = jacobi_diagonal(&surface, &samples, n0, 0.0);
-    for d in &mut diag {
-        *d = *d * (1.0 / 3.0 + mu) + lambda * 1.25;
-    }
+    // Jacobi preconditioner: the diagonal of Sᵀ Aᵀ W A S, scaled each round by the mean of the per-sample
+    // metric's diagonal (1/3 + μ), plus that of λ LᵀL (≈ 1 + 1/n).
+    let data_diag = jacobi_diagonal(&surface, &samples, n0);
 
     let rms_of = |x: &[V3], y: &[V3]| -> f64 {
         let s: f64 = x.iter().zip(y).zip(&samples.area).map(|((a, b), w)| w * vec3::norm2(vec3::sub(*a, *b))).sum();
         (s / total_area).sqrt()
     };
-    let targets = |p: &[V3]| -> (Vec<V3>, Vec<V3>, Vec<V3>) {
+    // Sample positions, their targets, the targets' normals and the surface's own (unnormalised) normals.
+    let targets = |p: &[V3]| -> (Vec<V3>, Vec<V3>, Vec<V3>, Vec<V3>) {
         let p1 = surface.refine.apply(p);
         let x = samples.eval(&surface, &p1, 0);
         let nu = samples.eval(&surface, &p1, 1);
         let nv = samples.eval(&surface, &p1, 2);
+        let facing: Vec<V3> = nu.iter().zip(&nv).map(|(a, b)| vec3::cross(*a, *b)).collect();
         let (y, n): (Vec<V3>, Vec<V3>) = (0..x.len())
             .into_par_iter()
-            .map(|s| {
-                let facing = vec3::cross(nu[s], nv[s]);
-                target.closest(x[s], facing).unwrap_or((x[s], vec3::unit_or(facing, [0.0; 3])))
-            })
+            .map(|s| target.closest(x[s], facing[s]).unwrap_or((x[s], vec3::unit_or(facing[s], [0.0; 3]))))
             .unzip();
-        (x, y, n)
+        (x, y, n, facing)
     };
 
     // Rounds: closest points, then a solve. A round that leaves the surface farther from the target than
     // before is undone and the tangential weight raised 10× (damping); a good round halves it again.
-    let mut mu = mu;
-    let (mut x, mut y, mut normal) = targets(&p);
+    let mut mu = opts.tangential_weight.max(0.0);
+    let (mut x, mut y, mut normal, mut facing) = targets(&p);
     let mut current = rms_of(&x, &y);
     let mut bad_rounds = 0;
     for round in 0..opts.rounds {
@@ -436,8 +420,7 @@ pub fn fit_control_points(
             }
             out
         };
-        let diag_mu: Vec<f64> =
-            diag.iter().map(|d| d * (1.0 / 3.0 + mu) / (1.0 / 3.0 + opts.tangential_weight.max(0.0))).collect();
+        let diag_mu: Vec<f64> = data_diag.iter().map(|d| d * (1.0 / 3.0 + mu) + 1.25 * lambda).collect();
         // Right-hand side Sᵀ Aᵀ M y; the smoothness term pulls toward zero Laplacian.
         let my: Vec<V3> = (0..y.len()).map(|s| metric(s, y[s])).collect();
         let b = refine_transpose(&surface.refine, &samples.scatter(&surface, &my, n1), n0);
@@ -448,13 +431,13 @@ pub fn fit_control_points(
                 format!("round {round}: the solve produced non-finite control points"),
             ));
         }
-        let (nx, ny, nn) = targets(&sol);
+        let (nx, ny, nn, nf) = targets(&sol);
         let after = rms_of(&nx, &ny);
         report.rounds.push(RoundReport { rms_before: current, rms_after: after, cg_iterations: iters });
         tracing::debug!(round, seconds = t0.elapsed().as_secs_f64(), iters, after, mu, "surface fit: round");
         if after <= current {
             p = sol;
-            (x, y, normal) = (nx, ny, nn);
+            (x, y, normal, facing) = (nx, ny, nn, nf);
             current = after;
             mu = (mu * 0.5).max(1e-3);
         } else {
@@ -466,18 +449,12 @@ pub fn fit_control_points(
         }
     }
     report.final_rms = current;
+    report.flipped_samples = (0..x.len()).filter(|&s| vec3::dot(facing[s], normal[s]) < 0.0).count();
+    if let Some((s, d)) =
+        (0..x.len()).map(|s| (s, vec3::norm(vec3::sub(x[s], y[s])))).max_by(|a, b| a.1.total_cmp(&b.1))
     {
-        let p1 = surface.refine.apply(&p);
-        let nu = samples.eval(&surface, &p1, 1);
-        let nv = samples.eval(&surface, &p1, 2);
-        report.flipped_samples =
-            (0..x.len()).filter(|&s| vec3::dot(vec3::cross(nu[s], nv[s]), normal[s]) < 0.0).count();
-        if let Some((s, d)) =
-            (0..x.len()).map(|s| (s, vec3::norm(vec3::sub(x[s], y[s])))).max_by(|a, b| a.1.total_cmp(&b.1))
-        {
-            report.final_max = d;
-            report.final_max_at = x[s];
-        }
+        report.final_max = d;
+        report.final_max_at = x[s];
     }
     if !current.is_finite() {
         return Err(Error::new(ErrorCode::SurfaceFitDiverged, "the fitted surface is not finite"));
@@ -486,8 +463,9 @@ pub fn fit_control_points(
     Ok((p, surface, report))
 }
 
-fn jacobi_diagonal(surface: &LimitSurface, samples: &Samples, n0: usize, lambda: f64) -> Vec<f64> {
-    let mut diag = vec![lambda * 1.25; n0];
+/// Diagonal of Sᵀ Aᵀ W A S (the data term's normal matrix with scalar sample weights); 1 where zero.
+fn jacobi_diagonal(surface: &LimitSurface, samples: &Samples, n0: usize) -> Vec<f64> {
+    let mut diag = vec![0.0; n0];
     let mut acc = vec![0.0f64; n0];
     let mut touched: Vec<u32> = Vec::with_capacity(256);
     let mm = samples.m * samples.m;

@@ -129,9 +129,8 @@ impl LimitSurface {
 pub struct EvPatch {
     /// Level-1 vertex ids the weights refer to.
     pub local: Vec<u32>,
-    /// `levels × 3 quadrants × 16 grid points × local.len()` weights.
+    /// `EV_LEVELS × 3 quadrants × 16 grid points × local.len()` weights.
     weights: Vec<f64>,
-    levels: usize,
 }
 
 /// Weights of a surface point and its two parameter derivatives.
@@ -149,7 +148,8 @@ impl EvPatch {
     /// # Errors
     /// `internal.bug` when a sub-patch that must be regular is not (a bug in refinement or cropping).
     pub fn new(net: &QuadNet, f: usize, start: usize) -> Result<Self> {
-        let (mut local_net, local, mut lf) = crop(net, f);
+        // The cropped net has the face of interest first, so its sub-face at corner i is 4·0 + i.
+        let (mut local_net, local) = crop(net, f);
         let k = local.len();
         let mut values: Vec<Vec<f64>> =
             (0..k).map(|i| (0..k).map(|j| if i == j { 1.0 } else { 0.0 }).collect()).collect();
@@ -169,7 +169,7 @@ impl EvPatch {
                 })
                 .collect();
             for q in 1..4 {
-                let sub = 4 * lf + (s + q) % 4;
+                let sub = (s + q) % 4;
                 let grid = rnet
                     .grid16(sub, (4 - q) % 4)
                     .ok_or_else(|| Error::internal(format!("sub-patch {q} of an extraordinary face is not regular")))?;
@@ -178,14 +178,12 @@ impl EvPatch {
                 }
             }
             // Recurse into the corner sub-face, whose frame starts at its corner 0 (the vertex point).
-            let corner = 4 * lf + s;
-            let (cnet, cl, cf) = crop(&rnet, corner);
+            let (cnet, cl) = crop(&rnet, s);
             values = cl.iter().map(|&v| rvalues[v as usize].clone()).collect();
             local_net = cnet;
-            lf = cf;
             s = 0;
         }
-        Ok(EvPatch { local, weights, levels: EV_LEVELS })
+        Ok(EvPatch { local, weights })
     }
 
     /// Weights of the limit point at `(u, v)` (frame from the extraordinary corner) and of its derivatives,
@@ -193,7 +191,7 @@ impl EvPatch {
     pub fn eval(&self, u: f64, v: f64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
         let k = self.local.len();
         let m = u.max(v).clamp(0.0, 1.0);
-        let level = if m <= 0.0 { self.levels } else { ((-m.log2()).floor() as usize + 1).clamp(1, self.levels) };
+        let level = if m <= 0.0 { EV_LEVELS } else { ((-m.log2()).floor() as usize + 1).clamp(1, EV_LEVELS) };
         let scale = (1u64 << level) as f64;
         let (s, t) = (u * scale, v * scale);
         let (q, a, b) = if s >= 1.0 && t < 1.0 {
@@ -228,9 +226,9 @@ impl EvPatch {
     }
 }
 
-/// The faces touching any corner of face `f`, as a local net; returns (net, local→global vertex ids, local
-/// index of `f`).
-fn crop(net: &QuadNet, f: usize) -> (QuadNet, Vec<u32>, usize) {
+/// The faces touching any corner of face `f`, as a local net whose face 0 is `f`; returns (net,
+/// local→global vertex ids).
+fn crop(net: &QuadNet, f: usize) -> (QuadNet, Vec<u32>) {
     let mut faces: Vec<usize> = vec![f];
     for &c in &net.faces[f] {
         for h in net.outgoing(c) {
@@ -254,7 +252,7 @@ fn crop(net: &QuadNet, f: usize) -> (QuadNet, Vec<u32>, usize) {
         })
         .collect();
     let lnet = QuadNet::new(lfaces, local.len(), false).expect("a sub-net of a valid net is valid");
-    (lnet, local, 0)
+    (lnet, local)
 }
 
 /// Sparse weights of a point of the limit surface on level-1 face `f` at `(u, v)` in its patch frame,

@@ -5,7 +5,7 @@
 //! seen from outside, so `∂u × ∂v` of a face frame that starts at a corner points outward.
 
 use crate::error::{Error, ErrorCode, Result};
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 /// Marks a half-edge without a twin (boundary of a local patch).
 pub const NO_TWIN: u32 = u32::MAX;
@@ -63,6 +63,17 @@ impl Stencils {
             })
             .collect()
     }
+}
+
+/// `Σ w · p[i]` over a stencil row.
+pub fn combine(row: &[(u32, f64)], p: &[[f64; 3]]) -> [f64; 3] {
+    let mut acc = [0.0; 3];
+    for &(i, w) in row {
+        for k in 0..3 {
+            acc[k] += w * p[i as usize][k];
+        }
+    }
+    acc
 }
 
 /// A quad mesh with half-edge twins. Closed nets have a twin for every half-edge; local patches (used to
@@ -183,6 +194,25 @@ impl QuadNet {
         self.twin[prev(start) as usize] != NO_TWIN
     }
 
+    /// Undirected edges: the edge of every half-edge, and a representative half-edge (the lower-numbered
+    /// of the two) of every edge, in order of first half-edge.
+    pub fn edges(&self) -> (Vec<u32>, Vec<u32>) {
+        let nh = self.faces.len() * 4;
+        let mut edge_of = vec![u32::MAX; nh];
+        let mut edge_half: Vec<u32> = Vec::with_capacity(nh / 2 + 1);
+        for h in 0..nh {
+            if edge_of[h] == u32::MAX {
+                edge_of[h] = edge_half.len() as u32;
+                let t = self.twin[h];
+                if t != NO_TWIN {
+                    edge_of[t as usize] = edge_half.len() as u32;
+                }
+                edge_half.push(h as u32);
+            }
+        }
+        (edge_of, edge_half)
+    }
+
     /// One Catmull–Clark step. New vertices: vertex points (same index as the old vertex), then one edge
     /// point per undirected edge (in order of first half-edge), then one face point per face. Sub-face
     /// `4·f + i` is the one at corner `i` of face `f`: `[vertex point, edge point of (i, i+1), face point,
@@ -190,19 +220,7 @@ impl QuadNet {
     /// values are never used for the regular sub-patches this module extracts.
     pub fn refine(&self) -> (QuadNet, Stencils) {
         let nv = self.vertex_count;
-        let nh = self.faces.len() * 4;
-        let mut edge_of = vec![u32::MAX; nh];
-        let mut edges: Vec<u32> = Vec::with_capacity(nh / 2 + 1);
-        for h in 0..nh {
-            if edge_of[h] == u32::MAX {
-                edge_of[h] = edges.len() as u32;
-                let t = self.twin[h];
-                if t != NO_TWIN {
-                    edge_of[t as usize] = edges.len() as u32;
-                }
-                edges.push(h as u32);
-            }
-        }
+        let (edge_of, edges) = self.edges();
         let ne = edges.len();
         let nf = self.faces.len();
         let mut st = Stencils { offsets: Vec::with_capacity(nv + ne + nf + 1), entries: Vec::new() };
@@ -270,36 +288,20 @@ impl QuadNet {
     /// `(i − 1, j − 1)`. `None` when the neighbourhood is not a regular 3×3 block of faces (a corner of
     /// valence ≠ 4, a boundary, or a fold).
     pub fn grid16(&self, f: usize, start: usize) -> Option<[u32; 16]> {
-        let g = self.lattice_block(f, start, 1, 1)?;
-        let mut out = [0u32; 16];
-        out.copy_from_slice(&g);
-        Some(out)
+        let (g, _) = self.lattice_block(f, start, 1, 1)?;
+        g.try_into().ok()
     }
 
     /// Control grid of a `w × h` block of faces whose lower-left face is `f` (frame from corner `start`):
-    /// `(w + 3) × (h + 3)` vertices, row-major in v (`grid[(w + 3)·j + i]` at lattice `(i − 1, j − 1)`).
-    /// `None` when the faces do not form such a block with a regular one-ring.
-    pub fn lattice_block(&self, f: usize, start: usize, w: usize, h: usize) -> Option<Vec<u32>> {
-        self.lattice_block_cells(f, start, w, h, true).map(|(g, _)| g)
-    }
-
-    /// As [`QuadNet::lattice_block`], also returning the block's own faces row-major over its cells
-    /// (`cells[w·j + i]`), each with the corner where its frame (aligned with the block's) starts. With
-    /// `ring == false` only the block's own faces must form the grid (any valence on its boundary) and the
-    /// grid is `(w + 1) × (h + 1)` (`grid[(w + 1)·j + i]` at lattice `(i, j)`).
-    pub fn lattice_block_cells(
-        &self,
-        f: usize,
-        start: usize,
-        w: usize,
-        h: usize,
-        ring: bool,
-    ) -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
-        let r = i64::from(ring);
-        let (gw, gh) = (w + 1 + 2 * r as usize, h + 1 + 2 * r as usize);
+    /// `(w + 3) × (h + 3)` vertices, row-major in v (`grid[(w + 3)·j + i]` at lattice `(i − 1, j − 1)`), and
+    /// the block's own faces row-major over its cells (`cells[w·j + i]`), each with the corner where its
+    /// frame (aligned with the block's) starts. `None` when the faces do not form such a block with a
+    /// regular one-ring.
+    pub fn lattice_block(&self, f: usize, start: usize, w: usize, h: usize) -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
+        let (gw, gh) = (w + 3, h + 3);
         let mut grid = vec![u32::MAX; gw * gh];
-        let mut seen: HashMap<u32, ()> = HashMap::new();
-        let in_block = |x: i64, y: i64| x >= -r && x <= w as i64 - 1 + r && y >= -r && y <= h as i64 - 1 + r;
+        let mut seen: HashSet<u32> = HashSet::new();
+        let in_block = |x: i64, y: i64| x >= -1 && x <= w as i64 && y >= -1 && y <= h as i64;
         // Face with its four corner lattice points, in the face's own corner order.
         let unit = [(0i64, 0i64), (1, 0), (1, 1), (0, 1)];
         let mut coords = [(0i64, 0i64); 4];
@@ -307,12 +309,12 @@ impl QuadNet {
             coords[(start + k) % 4] = unit[k];
         }
         let mut queue = vec![(f, coords)];
-        seen.insert(f as u32, ());
-        let mut used_cells: HashMap<(i64, i64), u32> = HashMap::new();
+        seen.insert(f as u32);
+        let mut used_cells: HashSet<(i64, i64)> = HashSet::new();
         let mut cells = vec![(u32::MAX, 0u8); w * h];
         while let Some((face, c)) = queue.pop() {
             let cell = (c.iter().map(|p| p.0).min().unwrap(), c.iter().map(|p| p.1).min().unwrap());
-            if used_cells.insert(cell, face as u32).is_some() {
+            if !used_cells.insert(cell) {
                 return None;
             }
             if cell.0 >= 0 && cell.1 >= 0 && (cell.0 as usize) < w && (cell.1 as usize) < h {
@@ -321,7 +323,7 @@ impl QuadNet {
             }
             for k in 0..4 {
                 let (x, y) = c[k];
-                let slot = ((y + r) as usize) * gw + (x + r) as usize;
+                let slot = ((y + 1) as usize) * gw + (x + 1) as usize;
                 let v = self.faces[face][k];
                 if grid[slot] == u32::MAX {
                     grid[slot] = v;
@@ -342,10 +344,9 @@ impl QuadNet {
                     return None;
                 }
                 let g = (t / 4) as usize;
-                if seen.contains_key(&(g as u32)) {
+                if !seen.insert(g as u32) {
                     continue;
                 }
-                seen.insert(g as u32, ());
                 let j = (t % 4) as usize;
                 let mut gc = [(0i64, 0i64); 4];
                 gc[j] = b;
@@ -355,18 +356,9 @@ impl QuadNet {
                 queue.push((g, gc));
             }
         }
-        if grid.contains(&u32::MAX) || used_cells.len() != (w + 2 * r as usize) * (h + 2 * r as usize) {
-            return None;
-        }
-        // The block must not touch itself across its boundary (a strip wrapped around a handle): exactly the
-        // interior edges join two of its faces.
-        let members: std::collections::HashSet<u32> = cells.iter().map(|c| c.0).collect();
-        let joins = cells
-            .iter()
-            .flat_map(|&(g, _)| (0..4).map(move |i| self.twin[4 * g as usize + i]))
-            .filter(|&t| t != NO_TWIN && members.contains(&(t / 4)))
-            .count();
-        if joins != 2 * ((w - 1) * h + w * (h - 1)) {
+        // Every cell of the block and its ring filled by a distinct face (a block wrapped around a handle
+        // meets itself and leaves a cell empty).
+        if grid.contains(&u32::MAX) || used_cells.len() != (w + 2) * (h + 2) {
             return None;
         }
         Some((grid, cells))
