@@ -68,6 +68,16 @@ pub enum ErrorCode {
     /// The B-rep failed our own validity check (open shell, unshared edge, edge curve off a face boundary,
     /// inward orientation); the message names the first offending element.
     BrepInvalid,
+    /// An FEA spec is malformed or holds absurd values (negative modulus, ν ≥ 0.5, a zero radius, no load).
+    FeaBadSpec,
+    /// FEA needs a closed, consistently oriented surface (the inside of the solid must be defined).
+    FeaOpenSurface,
+    /// A support or load region of the FEA spec selects no part of the surface; the message names it.
+    FeaEmptySelection,
+    /// The FEA system is singular: no supports, or supports that cannot hold every rigid motion.
+    FeaSingular,
+    /// The iterative FEA solver (used when the direct factor would not fit the memory budget) did not converge.
+    FeaNotConverged,
     /// The operation would need more memory than its budget allows.
     ResourceMemoryBudget,
     /// Writing an output failed (disk full, permissions) or would overwrite an input.
@@ -100,6 +110,11 @@ impl ErrorCode {
             ErrorCode::SurfaceBadNet => "surface.bad-net",
             ErrorCode::SurfaceFitDiverged => "surface.fit-diverged",
             ErrorCode::BrepInvalid => "brep.invalid",
+            ErrorCode::FeaBadSpec => "fea.bad-spec",
+            ErrorCode::FeaOpenSurface => "fea.open-surface",
+            ErrorCode::FeaEmptySelection => "fea.empty-selection",
+            ErrorCode::FeaSingular => "fea.singular",
+            ErrorCode::FeaNotConverged => "fea.not-converged",
             ErrorCode::ResourceMemoryBudget => "resource.memory-budget",
             ErrorCode::ResourceOutput => "resource.output",
             ErrorCode::InternalBug => "internal.bug",
@@ -109,7 +124,9 @@ impl ErrorCode {
     /// The class this code belongs to.
     pub const fn class(self) -> ErrorClass {
         match self {
-            ErrorCode::ResourceMemoryBudget | ErrorCode::ResourceOutput => ErrorClass::Resource,
+            ErrorCode::ResourceMemoryBudget | ErrorCode::ResourceOutput | ErrorCode::FeaNotConverged => {
+                ErrorClass::Resource
+            }
             ErrorCode::InternalBug | ErrorCode::BrepInvalid => ErrorClass::Internal,
             _ => ErrorClass::BadInput,
         }

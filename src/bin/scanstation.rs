@@ -119,6 +119,18 @@ enum Command {
         #[arg(long)]
         split_only: bool,
     },
+    /// Immersed (meshless) linear statics on a solid: a closed mesh, or a STEP file `convert` wrote (through
+    /// the NAME.solid.ply it writes beside it). Writes result.json and surface.vtu into OUTPUT.
+    Fea {
+        /// The solid: a closed tri-mesh (PLY, OBJ, STL, OFF) or a STEP file from `convert`.
+        input: PathBuf,
+        /// The spec (TOML): material, loads, supports, resolution, probes.
+        #[arg(long)]
+        spec: PathBuf,
+        /// The result directory.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare {
         /// The surface to measure.
@@ -210,6 +222,11 @@ fn main() -> ExitCode {
             &read,
         )
         .map(|r| if cli.json { print_json(&r) } else { print_convert(&r) }),
+        Command::Fea { input, spec, output } => {
+            let opts = scanstation::stages::fea::FeaOptions { memory_budget: cli.memory_budget };
+            pipeline::fea::fea_file(input, spec, output, &read, &opts, &NoProgress)
+                .map(|r| if cli.json { print_json(&r) } else { print_fea(&r) })
+        }
         Command::Compare { test, reference, samples, seed, error_map } => {
             let opts = CompareOptions {
                 samples: *samples,
@@ -225,6 +242,20 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => report_error(&e, cli.json),
     }
+}
+
+fn print_fea(r: &pipeline::fea::FeaFileReport) {
+    let f = &r.result;
+    println!("{}: {} unknowns on a {:?} grid of h = {} ({} active cells, {} cut)", r.input_file.display(),
+        f.grid.unknowns, f.grid.cells, f.grid.cell_size, f.grid.active_cells, f.grid.cut_cells);
+    println!("  volume {:.6} (surface {:.6})", f.volume, f.surface_volume);
+    println!("  max displacement {:.6} at {:?}", f.max_displacement.value, f.max_displacement.at);
+    println!("  max von Mises {:.4} at {:?}", f.max_von_mises.value, f.max_von_mises.at);
+    println!("  reaction {:?} for load {:?} (imbalance {:.2e})", f.reaction, f.total_load, f.imbalance);
+    for p in &f.probes {
+        println!("  probe {}: displacement {:?}, von Mises {:.4}", p.name, p.displacement, p.von_mises);
+    }
+    println!("  {:.2} s, written to {}", r.seconds, r.output_dir.display());
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -100,6 +100,37 @@ pub fn cuboid(min: [f64; 3], max: [f64; 3]) -> TriMesh {
     TriMesh { positions, triangles }
 }
 
+/// A round rod along x from 0 to `length`: `n` segments around, `rings` + 1 rings of side vertices, each end
+/// cap a fan of `n` triangles around its centre. Closed and outward; `n·(rings + 1) + 2` vertices.
+pub fn rod(radius: f64, length: f64, n: usize, rings: usize) -> TriMesh {
+    let n = n.max(3);
+    let rings = rings.max(1);
+    let mut positions = Vec::with_capacity(n * (rings + 1) + 2);
+    for r in 0..=rings {
+        let x = length * r as f64 / rings as f64;
+        for i in 0..n {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            positions.push([x as f32, (radius * a.cos()) as f32, (radius * a.sin()) as f32]);
+        }
+    }
+    let (c0, c1) = (positions.len() as u32, positions.len() as u32 + 1);
+    positions.push([0.0, 0.0, 0.0]);
+    positions.push([length as f32, 0.0, 0.0]);
+    let v = |r: usize, i: usize| (r * n + i % n) as u32;
+    let mut triangles = Vec::with_capacity(2 * n * (rings + 1));
+    for r in 0..rings {
+        for i in 0..n {
+            triangles.push([v(r, i), v(r, i + 1), v(r + 1, i + 1)]);
+            triangles.push([v(r, i), v(r + 1, i + 1), v(r + 1, i)]);
+        }
+    }
+    for i in 0..n {
+        triangles.push([c0, v(0, i + 1), v(0, i)]);
+        triangles.push([c1, v(rings, i), v(rings, i + 1)]);
+    }
+    TriMesh { positions, triangles }
+}
+
 /// A torus around the z axis with major radius `major`, tube radius `minor`, `n` segments around the axis
 /// and `m` around the tube: closed, outward, genus 1; `n·m` vertices, `2·n·m` triangles.
 pub fn torus(major: f64, minor: f64, n: usize, m: usize) -> TriMesh {

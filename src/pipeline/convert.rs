@@ -90,6 +90,8 @@ pub struct Attempt {
 pub struct ConvertReport {
     pub input_file: PathBuf,
     pub output_file: PathBuf,
+    /// The solid's watertight tessellation written beside the STEP file for `fea` (NAME.solid.ply).
+    pub solid_mesh_file: PathBuf,
     pub unit: LengthUnit,
     pub input_vertices: usize,
     pub input_faces: usize,
@@ -143,6 +145,28 @@ fn solid_self_intersections(solid: &Solid) -> Result<(usize, Option<[f64; 3]>)> 
     let (pts, tris, _) = crate::stages::repair::weld::weld(&p, &t.triangles, tol);
     let pairs = crate::geometry::intersect::self_intersections(&pts, &tris);
     Ok((pairs.len(), pairs.first().map(|&(a, _)| pts[tris[a as usize][0] as usize])))
+}
+
+/// Write the solid's watertight tessellation (each face's knot spans sampled 8 × 8 at most, welded along the
+/// exactly shared edges) beside the STEP file as NAME.solid.ply, its header naming the STEP's sha256 (see
+/// [`super::fea`]). Removes the STEP file again when this fails, so the pair is written or neither.
+fn write_solid_mesh(step: &Path, solid: &Solid) -> Result<PathBuf> {
+    let result = (|| {
+        let t = tessellate_for_check(solid, 1_500_000)?;
+        let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
+        let tol = crate::geometry::tolerance::BREP_EDGE_REL * t.bbox().diagonal();
+        let (pts, tris, _) = crate::stages::repair::weld::weld(&p, &t.triangles, tol);
+        let positions = pts.iter().map(|q| q.map(|x| x as f32)).collect();
+        let mesh = TriMesh::new(positions, tris)?;
+        let path = super::fea::solid_artifact_path(step);
+        let comment = format!("{}{}", super::fea::SOLID_OF, super::fea::sha256_file(step)?);
+        crate::geometry::io::write_ply(&path, &PolyMesh::from(mesh), &Default::default(), &[&comment])?;
+        Ok(path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(step);
+    }
+    result
 }
 
 /// Tessellation density for the solid's quality check: about `budget` triangles in all.
@@ -283,6 +307,7 @@ pub fn convert_file(
     progress.report(0.95, "step");
     let name = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
     write_step(output, &solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
+    let solid_mesh_file = write_solid_mesh(output, &solid)?;
     if let Some(q) = &opts.quads_output {
         super::write_mesh(q, &quads, "quad control net by scanstation")?;
     }
@@ -292,6 +317,7 @@ pub fn convert_file(
     Ok(ConvertReport {
         input_file: input.to_path_buf(),
         output_file: output.to_path_buf(),
+        solid_mesh_file,
         unit: opts.unit,
         input_vertices: mesh.positions.len(),
         input_faces: mesh.face_count(),

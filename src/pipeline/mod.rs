@@ -5,6 +5,7 @@
 //! files ([`repair_file`], [`remesh_file`]) and the whole chain to a STEP solid ([`convert_file`]).
 
 pub mod convert;
+pub mod fea;
 pub mod memory;
 
 pub use convert::{ConvertOptions, ConvertReport, Resolution, convert_file};

@@ -6,6 +6,7 @@
 //! Surface, brep/step, fea and reconstruction arrive with their issues.
 
 pub mod brep;
+pub mod fea;
 pub mod quality;
 pub mod remesh;
 pub mod repair;

@@ -1,0 +1,138 @@
+//! `scanstation fea`: read a solid (a closed tri-mesh, or a STEP written by `convert` through the solid mesh
+//! artifact beside it), solve the spec, write `result.json` and `surface.vtu` into the result directory.
+//!
+//! The artifact: `convert … -o NAME.step` also writes `NAME.solid.ply`, a watertight tessellation of the
+//! B-rep's own surfaces (faces sampled on their knot spans and welded along their shared edges), whose header
+//! comment `scanstation-solid-of sha256=…` names the STEP bytes it was made from. Given a STEP file, `fea`
+//! reads that artifact and refuses it when the hash does not match (a STEP edited or replaced since).
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use sha2::{Digest, Sha256};
+
+use super::memory::StageMeter;
+use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh, write_atomic};
+use crate::stages::Progress;
+use crate::stages::fea::{self, FeaOptions, FeaReport, FeaSpec};
+
+/// Comment key of the solid artifact's PLY header.
+pub const SOLID_OF: &str = "scanstation-solid-of sha256=";
+
+/// What `scanstation fea` reports.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct FeaFileReport {
+    pub input_file: PathBuf,
+    /// The mesh the solid was taken from (the input, or the STEP's solid artifact).
+    pub solid_mesh_file: PathBuf,
+    pub spec_file: PathBuf,
+    pub spec: FeaSpec,
+    pub output_dir: PathBuf,
+    pub outputs: Vec<PathBuf>,
+    pub peak_rss_mib: Option<f64>,
+    pub seconds: f64,
+    #[serde(flatten)]
+    pub result: FeaReport,
+}
+
+/// Hex SHA-256 of a file's bytes.
+pub fn sha256_file(path: &Path) -> Result<String> {
+    let mut f = std::fs::File::open(path).map_err(|e| Error::new(ErrorCode::InputIo, e.to_string()).in_file(path))?;
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = f.read(&mut buf).map_err(|e| Error::new(ErrorCode::InputIo, e.to_string()).in_file(path))?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// The solid artifact path beside a STEP file: `NAME.step` → `NAME.solid.ply`.
+pub fn solid_artifact_path(step: &Path) -> PathBuf {
+    step.with_extension("solid.ply")
+}
+
+fn is_step(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("step") || e.eq_ignore_ascii_case("stp"))
+}
+
+/// The mesh file to solve on for `input`, checking a STEP's artifact against the STEP's hash.
+fn solid_mesh_for(input: &Path) -> Result<PathBuf> {
+    if !is_step(input) {
+        return Ok(input.to_path_buf());
+    }
+    if !input.exists() {
+        return Err(Error::new(ErrorCode::InputNotFound, "no such file").in_file(input));
+    }
+    let artifact = solid_artifact_path(input);
+    let head = std::fs::read(&artifact)
+        .map(|b| b[..b.len().min(4096)].to_vec())
+        .map_err(|_| {
+            Error::new(ErrorCode::InputUnknownFormat, format!("no solid mesh artifact {} beside the STEP file", artifact.display()))
+                .in_file(input)
+                .with_hint("fea reads STEP files that `scanstation convert` wrote (it writes NAME.solid.ply beside NAME.step); for other solids give a closed mesh")
+        })?;
+    let text = String::from_utf8_lossy(&head);
+    let want = sha256_file(input)?;
+    let found = text.lines().find_map(|l| l.strip_prefix("comment ").and_then(|c| c.strip_prefix(SOLID_OF)));
+    if found.map(str::trim) != Some(want.as_str()) {
+        return Err(Error::new(
+            ErrorCode::InputBadHeader,
+            format!("{} was not made from this STEP file (its sha256 differs)", artifact.display()),
+        )
+        .in_file(input)
+        .with_hint("run `scanstation convert` again to rewrite both"));
+    }
+    Ok(artifact)
+}
+
+/// Solve `spec_file` on the solid `input` and write `result.json` and `surface.vtu` into `output_dir`
+/// (each file atomically, the JSON last; nothing is written when the solve fails).
+///
+/// # Errors
+/// Reader errors; `fea.*` (see [`fea::solve`]); `resource.output`.
+pub fn fea_file(
+    input: &Path,
+    spec_file: &Path,
+    output_dir: &Path,
+    read: &ReadOptions,
+    options: &FeaOptions,
+    progress: &dyn Progress,
+) -> Result<FeaFileReport> {
+    let meter = StageMeter::start();
+    let spec = FeaSpec::read(spec_file)?;
+    let mesh_file = solid_mesh_for(input)?;
+    let mesh = read_mesh(&mesh_file, read)?;
+    let (tri, _) = mesh.triangulate();
+    let solution = fea::solve(&tri, &spec, options, progress).map_err(|e| e.in_file(input))?;
+    let (tri, _) = fea::closed_solid(&tri)?;
+    let vtu = output_dir.join("surface.vtu");
+    let json = output_dir.join("result.json");
+    for out in [&vtu, &json] {
+        ensure_not_input(out, &[input, spec_file, &mesh_file])?;
+    }
+    write_atomic(&vtu, |w| fea::vtu::write_vtu(w, &tri, &solution.fields))?;
+    let (seconds, peak_rss_mib) = meter.finish();
+    let report = FeaFileReport {
+        input_file: input.to_path_buf(),
+        solid_mesh_file: mesh_file,
+        spec_file: spec_file.to_path_buf(),
+        spec,
+        output_dir: output_dir.to_path_buf(),
+        outputs: vec![vtu, json.clone()],
+        peak_rss_mib,
+        seconds,
+        result: solution.report,
+    };
+    write_atomic(&json, |w| {
+        serde_json::to_writer_pretty(&mut *w, &report).map_err(std::io::Error::other)?;
+        w.write_all(b"\n")
+    })?;
+    Ok(report)
+}
+
+use std::io::Write as _;

@@ -1,0 +1,478 @@
+//! **fea** — immersed ("meshless") linear elastostatics on a closed surface, after the finite cell method:
+//! no volume mesh. A uniform background grid carries tri-quadratic C¹ B-splines ([`basis`]); cells that touch
+//! the solid are active, cut cells are integrated exactly from their inside moments ([`domain`]), their
+//! outside part keeps a small stiffness α; supports and loads are picked on the surface by location (sphere
+//! or half-space), supports imposed weakly by a penalty on surface quadrature points; the system is solved by
+//! sparse Cholesky ([`system`]). Results: displacement, von Mises and principal stresses on the surface,
+//! extremes with their location, probes, and the reaction balance.
+//!
+//! Units are the solid's (mm, N, MPa, t/mm³ by default). Deterministic for the same input and spec.
+
+pub mod basis;
+pub mod domain;
+pub mod spec;
+pub mod system;
+pub mod vtu;
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::mesh::{PolyMesh, TriMesh};
+use crate::geometry::topology::TopologyReport;
+use crate::geometry::vec3::{V3, add, cross, norm, scale, sub, wide};
+use crate::stages::Progress;
+use domain::{Domain, Grid};
+pub use spec::FeaSpec;
+use system::{SolverReport, SurfacePoint};
+
+/// Settings that are not part of the spec (they belong to the machine, not the problem).
+#[derive(Clone, Debug)]
+pub struct FeaOptions {
+    /// Bytes the solver may use; the Cholesky factor gets at most half, else PCG is used.
+    pub memory_budget: u64,
+}
+
+impl Default for FeaOptions {
+    fn default() -> Self {
+        FeaOptions { memory_budget: 8 << 30 }
+    }
+}
+
+/// A value with the place it occurs.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Extreme {
+    pub value: f64,
+    pub at: V3,
+}
+
+/// What one load or support region selected.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SelectionReport {
+    pub name: String,
+    /// Selected surface area.
+    pub area: f64,
+    /// Surface quadrature points selected.
+    pub points: usize,
+    /// Total force this load applies (zero for supports).
+    pub force: V3,
+}
+
+/// Results at a probe.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ProbeReport {
+    pub name: String,
+    pub point: V3,
+    pub displacement: V3,
+    pub von_mises: f64,
+    /// Principal stresses, largest first.
+    pub principal_stress: [f64; 3],
+    /// σxx, σyy, σzz, σxy, σyz, σzx.
+    pub stress: [f64; 6],
+}
+
+/// The grid as solved.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct GridReport {
+    pub cell_size: f64,
+    pub cells: [usize; 3],
+    pub active_cells: usize,
+    pub cut_cells: usize,
+    pub functions: usize,
+    pub unknowns: usize,
+    /// Lines through cut cells whose surface crossings were odd (0 for a closed surface).
+    pub odd_lines: usize,
+}
+
+/// The whole FEA report (the JSON `fea --json` prints).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct FeaReport {
+    pub grid: GridReport,
+    /// Volume of the immersed domain (integrated inside moments).
+    pub volume: f64,
+    /// Volume enclosed by the surface (divergence theorem).
+    pub surface_volume: f64,
+    pub solver: SolverReport,
+    pub supports: Vec<SelectionReport>,
+    pub loads: Vec<SelectionReport>,
+    /// Sum of applied forces: loads plus self-weight.
+    pub total_load: V3,
+    /// Sum of support reactions (force the supports exert on the solid).
+    pub reaction: V3,
+    /// |reaction + total_load| / |total_load|.
+    pub imbalance: f64,
+    pub max_displacement: Extreme,
+    pub max_von_mises: Extreme,
+    pub max_principal_stress: Extreme,
+    pub min_principal_stress: Extreme,
+    pub probes: Vec<ProbeReport>,
+    /// Seconds per phase: domain, assemble, solve, results.
+    pub seconds: std::collections::BTreeMap<&'static str, f64>,
+}
+
+/// Fields on the surface's vertices, for the VTU file.
+pub struct SurfaceFields {
+    pub displacement: Vec<V3>,
+    pub von_mises: Vec<f64>,
+    pub principal_stress: Vec<[f64; 3]>,
+}
+
+/// A solved problem: report and surface fields.
+pub struct FeaSolution {
+    pub report: FeaReport,
+    pub fields: SurfaceFields,
+}
+
+/// 7-point degree-5 rule on a triangle: barycentric (a, b, c) and weight (sum 1).
+const TRI_RULE: [([f64; 3], f64); 7] = {
+    const A1: f64 = 0.059715871789770;
+    const B1: f64 = 0.470142064105115;
+    const W1: f64 = 0.132394152788506;
+    const A2: f64 = 0.797426985353087;
+    const B2: f64 = 0.101286507323456;
+    const W2: f64 = 0.125939180544827;
+    [
+        ([1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0], 0.225),
+        ([A1, B1, B1], W1),
+        ([B1, A1, B1], W1),
+        ([B1, B1, A1], W1),
+        ([A2, B2, B2], W2),
+        ([B2, A2, B2], W2),
+        ([B2, B2, A2], W2),
+    ]
+};
+
+/// Quadrature points on the triangles `tris` of the surface: each triangle split into m² pieces of edge ≤
+/// `max_edge`, 7 points each.
+fn surface_points(mesh: &TriMesh, tris: &[usize], max_edge: f64) -> Vec<SurfacePoint> {
+    tris.par_iter()
+        .flat_map_iter(|&t| {
+            let [a, b, c] = mesh.corners(t);
+            let nrm = cross(sub(b, a), sub(c, a));
+            let area2 = norm(nrm);
+            let mut out = Vec::new();
+            if area2 <= 0.0 {
+                return out.into_iter();
+            }
+            let n = scale(nrm, 1.0 / area2);
+            let longest = norm(sub(b, a)).max(norm(sub(c, b))).max(norm(sub(a, c)));
+            let m = ((longest / max_edge).ceil() as usize).clamp(1, 64);
+            let inv = 1.0 / m as f64;
+            let w_sub = 0.5 * area2 * inv * inv;
+            let at = |i: f64, j: f64| add(a, add(scale(sub(b, a), i * inv), scale(sub(c, a), j * inv)));
+            for i in 0..m {
+                for j in 0..m - i {
+                    let (fi, fj) = (i as f64, j as f64);
+                    let mut tris = vec![[at(fi, fj), at(fi + 1.0, fj), at(fi, fj + 1.0)]];
+                    if i + j + 1 < m {
+                        tris.push([at(fi + 1.0, fj), at(fi + 1.0, fj + 1.0), at(fi, fj + 1.0)]);
+                    }
+                    for [p, q, r] in tris {
+                        for (bc, w) in TRI_RULE {
+                            let x = add(scale(p, bc[0]), add(scale(q, bc[1]), scale(r, bc[2])));
+                            out.push(SurfacePoint { p: x, w: w * w_sub, n });
+                        }
+                    }
+                }
+            }
+            out.into_iter()
+        })
+        .collect()
+}
+
+/// Stress (σxx, σyy, σzz, σxy, σyz, σzx) from the displacement gradient.
+fn stress(grad: &[[f64; 3]; 3], lambda: f64, mu: f64) -> [f64; 6] {
+    let e = |i: usize, j: usize| 0.5 * (grad[i][j] + grad[j][i]);
+    let tr = grad[0][0] + grad[1][1] + grad[2][2];
+    [
+        lambda * tr + 2.0 * mu * e(0, 0),
+        lambda * tr + 2.0 * mu * e(1, 1),
+        lambda * tr + 2.0 * mu * e(2, 2),
+        2.0 * mu * e(0, 1),
+        2.0 * mu * e(1, 2),
+        2.0 * mu * e(2, 0),
+    ]
+}
+
+/// Von Mises equivalent stress.
+pub fn von_mises(s: &[f64; 6]) -> f64 {
+    (0.5 * ((s[0] - s[1]).powi(2) + (s[1] - s[2]).powi(2) + (s[2] - s[0]).powi(2))
+        + 3.0 * (s[3] * s[3] + s[4] * s[4] + s[5] * s[5]))
+        .sqrt()
+}
+
+/// Eigenvalues of the symmetric stress tensor, largest first (closed form, Smith 1961).
+pub fn principal(s: &[f64; 6]) -> [f64; 3] {
+    let p1 = s[3] * s[3] + s[4] * s[4] + s[5] * s[5];
+    let q = (s[0] + s[1] + s[2]) / 3.0;
+    if p1 <= 1e-30 * (q * q + 1e-300) {
+        let mut e = [s[0], s[1], s[2]];
+        e.sort_by(|a, b| b.total_cmp(a));
+        return e;
+    }
+    let p2 = (s[0] - q).powi(2) + (s[1] - q).powi(2) + (s[2] - q).powi(2) + 2.0 * p1;
+    let p = (p2 / 6.0).sqrt();
+    let b = [(s[0] - q) / p, (s[1] - q) / p, (s[2] - q) / p, s[3] / p, s[4] / p, s[5] / p];
+    // det(B)/2 with B symmetric: [b0 b3 b5; b3 b1 b4; b5 b4 b2].
+    let det = b[0] * (b[1] * b[2] - b[4] * b[4]) - b[3] * (b[3] * b[2] - b[4] * b[5]) + b[5] * (b[3] * b[4] - b[1] * b[5]);
+    let r = (det / 2.0).clamp(-1.0, 1.0);
+    let phi = r.acos() / 3.0;
+    let e1 = q + 2.0 * p * phi.cos();
+    let e3 = q + 2.0 * p * (phi + 2.0 * std::f64::consts::PI / 3.0).cos();
+    [e1, 3.0 * q - e1 - e3, e3]
+}
+
+/// Check that `mesh` bounds a solid: closed, consistently oriented 2-manifold with non-zero volume. Returns
+/// the mesh oriented outward (flipped when its volume is negative) and the enclosed volume.
+///
+/// # Errors
+/// `fea.open-surface` naming what is wrong.
+pub fn closed_solid(mesh: &TriMesh) -> Result<(TriMesh, f64)> {
+    let report = TopologyReport::compute(&PolyMesh::from(mesh.clone()));
+    if !report.closed || !report.consistently_oriented || report.nonmanifold_edges > 0 {
+        return Err(Error::new(
+            ErrorCode::FeaOpenSurface,
+            format!(
+                "the surface does not bound a solid: {} boundary edges in {} holes, {} non-manifold edges, {} orientation conflicts",
+                report.boundary_edges, report.boundary_loops, report.nonmanifold_edges, report.orientation_conflicts
+            ),
+        )
+        .with_hint("run `scanstation repair` first"));
+    }
+    let v = mesh.signed_volume();
+    if !(v.abs() > 0.0) {
+        return Err(Error::new(ErrorCode::FeaOpenSurface, "the surface encloses no volume"));
+    }
+    if v < 0.0 {
+        let tris = mesh.triangles.iter().map(|t| [t[0], t[2], t[1]]).collect();
+        return Ok((TriMesh::new(mesh.positions.clone(), tris)?, -v));
+    }
+    Ok((mesh.clone(), v))
+}
+
+/// Solve the spec on the solid bounded by `mesh` (closed; see [`closed_solid`]).
+///
+/// # Errors
+/// `fea.open-surface`, `fea.bad-spec`, `fea.empty-selection` (a region that selects no surface, named),
+/// `fea.singular` (no supports, or supports that cannot hold the solid), `fea.not-converged`.
+/// Cost: see [`domain::Domain::new`] and [`system::assemble`]; the solve dominates for large grids.
+pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dyn Progress) -> Result<FeaSolution> {
+    spec.validate()?;
+    let (mesh, surface_volume) = closed_solid(mesh)?;
+    let mut seconds = std::collections::BTreeMap::new();
+    let t0 = Instant::now();
+    progress.report(0.0, "domain");
+    let bbox = mesh.bbox();
+    let ext = bbox.extent();
+    let longest = ext[0].max(ext[1]).max(ext[2]);
+    let h = spec.resolution.cell_size.unwrap_or(longest / spec.resolution.cells_along_longest as f64);
+    let grid = Grid::around(&bbox, h);
+    let cells = grid.cells() as u64;
+    if cells > 50_000_000 || cells * 16 > options.memory_budget {
+        return Err(Error::new(
+            ErrorCode::ResourceMemoryBudget,
+            format!("a grid of {:?} cells (h = {h}) is too large", grid.n),
+        )
+        .with_hint("raise resolution.cell_size"));
+    }
+    let domain = Domain::new(&mesh, grid.clone(), spec.resolution.subcells);
+    // Surface quadrature only where a region may select something.
+    let regions: Vec<spec::Region> =
+        spec.supports.iter().map(|s| s.region()).chain(spec.loads.iter().map(|l| l.region())).collect();
+    let candidates: Vec<usize> = (0..mesh.triangles.len())
+        .filter(|&t| {
+            let c = mesh.corners(t);
+            regions.iter().any(|r| r.may_touch(&c))
+        })
+        .collect();
+    let points = surface_points(&mesh, &candidates, 0.5 * h);
+    seconds.insert("domain", t0.elapsed().as_secs_f64());
+
+    // Select supports and loads by location.
+    let pick = |region: &spec::Region| -> Vec<SurfacePoint> {
+        points.iter().filter(|sp| region.contains(sp.p)).copied().collect()
+    };
+    let supports: Vec<(String, Vec<SurfacePoint>)> =
+        spec.supports.iter().enumerate().map(|(i, s)| (s.label(i), pick(&s.region()))).collect();
+    let loads: Vec<(String, Vec<SurfacePoint>)> =
+        spec.loads.iter().enumerate().map(|(i, l)| (l.label(i), pick(&l.region()))).collect();
+    for (name, pts) in supports.iter().chain(&loads) {
+        if pts.is_empty() {
+            return Err(Error::new(ErrorCode::FeaEmptySelection, format!("{name} selects no part of the surface"))
+                .with_hint("check the region against the solid's bounding box (same units)"));
+        }
+    }
+    check_supports_hold(&supports)?;
+
+    // Assemble.
+    let t1 = Instant::now();
+    progress.report(0.2, "assemble");
+    let m = &spec.material;
+    let (lambda, mu) = system::lame(m.youngs_modulus, m.poissons_ratio);
+    let gravity = spec.gravity.unwrap_or([0.0; 3]);
+    let body = scale(gravity, m.density);
+    let mut extra: Vec<usize> = points.iter().map(|sp| grid.cell_index(grid.locate(sp.p).0)).collect();
+    extra.extend(mesh.positions.iter().map(|&p| grid.cell_index(grid.locate(wide(p)).0)));
+    extra.extend(spec.probes.iter().map(|p| grid.cell_index(grid.locate(p.point).0)));
+    extra.sort_unstable();
+    extra.dedup();
+    let mut sys = system::assemble(&domain, &extra, lambda, mu, spec.resolution.fictitious_stiffness, body);
+    let beta = spec.resolution.penalty_factor * m.youngs_modulus / h;
+    for (_, pts) in &supports {
+        sys.add_support(&grid, pts, beta);
+    }
+    let mut load_reports = Vec::new();
+    let mut total_load = scale(body, domain.volume());
+    for (l, (name, pts)) in spec.loads.iter().zip(&loads) {
+        let area: f64 = pts.iter().map(|sp| sp.w).sum();
+        let force = if let Some(f) = l.force {
+            let t = scale(f, 1.0 / area);
+            sys.add_traction(&grid, pts, |_| t);
+            f
+        } else {
+            let p = l.pressure.unwrap_or(0.0);
+            sys.add_traction(&grid, pts, |sp| scale(sp.n, -p));
+            pts.iter().fold([0.0; 3], |acc, sp| add(acc, scale(sp.n, -p * sp.w)))
+        };
+        total_load = add(total_load, force);
+        load_reports.push(SelectionReport { name: name.clone(), area, points: pts.len(), force });
+    }
+    seconds.insert("assemble", t1.elapsed().as_secs_f64());
+
+    // Solve.
+    let t2 = Instant::now();
+    progress.report(0.4, "solve");
+    let (u, solver) = sys.solve(options.memory_budget)?;
+    seconds.insert("solve", t2.elapsed().as_secs_f64());
+
+    // Results.
+    let t3 = Instant::now();
+    progress.report(0.9, "results");
+    let eval = |p: V3| -> (V3, [[f64; 3]; 3]) {
+        let (c, t) = grid.locate(p);
+        let f = sys.dofs.cell_functions(c);
+        let (n, g) = basis::shape(t, h);
+        let mut disp = [0.0; 3];
+        let mut grad = [[0.0; 3]; 3];
+        for a in 0..27 {
+            let r = sys.dofs.rank[f[a]];
+            if r == u32::MAX {
+                continue;
+            }
+            let r = r as usize;
+            for i in 0..3 {
+                let ui = u[3 * r + i];
+                disp[i] += ui * n[a];
+                for j in 0..3 {
+                    grad[i][j] += ui * g[a][j];
+                }
+            }
+        }
+        (disp, grad)
+    };
+    let mut reaction = [0.0; 3];
+    let mut support_reports = Vec::new();
+    for (name, pts) in &supports {
+        let mut area = 0.0;
+        for sp in pts {
+            let (d, _) = eval(sp.p);
+            reaction = sub(reaction, scale(d, beta * sp.w));
+            area += sp.w;
+        }
+        support_reports.push(SelectionReport { name: name.clone(), area, points: pts.len(), force: [0.0; 3] });
+    }
+    let imbalance = norm(add(reaction, total_load)) / norm(total_load).max(1e-300);
+    let per_vertex: Vec<(V3, f64, [f64; 3])> = mesh
+        .positions
+        .par_iter()
+        .map(|&p| {
+            let (d, g) = eval(wide(p));
+            let s = stress(&g, lambda, mu);
+            (d, von_mises(&s), principal(&s))
+        })
+        .collect();
+    let extreme = |key: &dyn Fn(&(V3, f64, [f64; 3])) -> f64| -> Extreme {
+        let (i, v) = per_vertex
+            .iter()
+            .enumerate()
+            .map(|(i, x)| (i, key(x)))
+            .fold((0, f64::NEG_INFINITY), |b, x| if x.1 > b.1 { x } else { b });
+        Extreme { value: v, at: wide(mesh.positions[i]) }
+    };
+    let max_displacement = extreme(&|x| norm(x.0));
+    let max_von_mises = extreme(&|x| x.1);
+    let max_principal_stress = extreme(&|x| x.2[0]);
+    let mut min_principal_stress = extreme(&|x| -x.2[2]);
+    min_principal_stress.value = -min_principal_stress.value;
+    let probes = spec
+        .probes
+        .iter()
+        .map(|p| {
+            let (d, g) = eval(p.point);
+            let s = stress(&g, lambda, mu);
+            ProbeReport {
+                name: p.name.clone(),
+                point: p.point,
+                displacement: d,
+                von_mises: von_mises(&s),
+                principal_stress: principal(&s),
+                stress: s,
+            }
+        })
+        .collect();
+    seconds.insert("results", t3.elapsed().as_secs_f64());
+    progress.report(1.0, "done");
+    let report = FeaReport {
+        grid: GridReport {
+            cell_size: h,
+            cells: grid.n,
+            active_cells: sys.active_cells,
+            cut_cells: sys.cut_cells,
+            functions: sys.dofs.functions.len(),
+            unknowns: sys.dofs.len(),
+            odd_lines: domain.odd_lines,
+        },
+        volume: domain.volume(),
+        surface_volume,
+        solver,
+        supports: support_reports,
+        loads: load_reports,
+        total_load,
+        reaction,
+        imbalance,
+        max_displacement,
+        max_von_mises,
+        max_principal_stress,
+        min_principal_stress,
+        probes,
+        seconds,
+    };
+    let fields = SurfaceFields {
+        displacement: per_vertex.iter().map(|x| x.0).collect(),
+        von_mises: per_vertex.iter().map(|x| x.1).collect(),
+        principal_stress: per_vertex.iter().map(|x| x.2).collect(),
+    };
+    Ok(FeaSolution { report, fields })
+}
+
+/// Supports must hold every rigid motion: their points together must not lie on one line.
+fn check_supports_hold(supports: &[(String, Vec<SurfacePoint>)]) -> Result<()> {
+    let pts: Vec<V3> = supports.iter().flat_map(|s| s.1.iter().map(|sp| sp.p)).collect();
+    let n = pts.len() as f64;
+    let c = pts.iter().fold([0.0; 3], |a, &p| add(a, scale(p, 1.0 / n)));
+    // Largest distance from the centroid, then the largest distance from that line.
+    let far = pts.iter().map(|&p| sub(p, c)).fold([0.0; 3], |a, d| if norm(d) > norm(a) { d } else { a });
+    let r = norm(far);
+    if r == 0.0 {
+        return Err(Error::new(ErrorCode::FeaSingular, "the supports hold a single point: the solid can rotate")
+            .with_hint("fix an area, not a point"));
+    }
+    let dir = scale(far, 1.0 / r);
+    let off = pts.iter().map(|&p| norm(cross(sub(p, c), dir))).fold(0.0, f64::max);
+    if off <= 1e-9 * r {
+        return Err(Error::new(ErrorCode::FeaSingular, "the supports hold points on one line: the solid can rotate about it")
+            .with_hint("fix an area, not a line"));
+    }
+    Ok(())
+}
