@@ -247,3 +247,62 @@ fn convert_with_a_tolerance_refines_until_it_is_met() {
     assert_eq!(last["target_vertices"].as_u64().unwrap() as usize, 2500 << (attempts.len() - 1));
     assert!(out.is_file());
 }
+
+const ROD: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rod.ply");
+const ROD_SPEC: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/fea/cantilever-rod.toml");
+
+/// `fea` on the bundled rod: beam theory within 1 %, result.json and surface.vtu written; then the same spec
+/// on the solid that `convert` makes of the rod (read back through the artifact beside its STEP file)
+/// agrees within 0.5 %: supports and loads are picked by location, not by B-rep face.
+#[test]
+fn fea_on_the_rod_and_on_its_converted_solid_agree() {
+    let dir = scratch("cli_fea");
+    let out = dir.join("mesh-result");
+    let (code, v) = json(&["fea", ROD, "--spec", ROD_SPEC, "-o", out.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{v}");
+    let tip_mesh = v["max_displacement"]["value"].as_f64().unwrap();
+    assert_rel_near!(tip_mesh, 4.2399, 0.01);
+    assert!(v["imbalance"].as_f64().unwrap() <= 1e-6, "{}", v["imbalance"]);
+    let written: Value = serde_json::from_str(&std::fs::read_to_string(out.join("result.json")).unwrap()).unwrap();
+    assert_eq!(written["max_displacement"], v["max_displacement"]);
+    let vtu = std::fs::read_to_string(out.join("surface.vtu")).unwrap();
+    assert!(vtu.contains(r#"NumberOfPoints="9698""#), "{}", &vtu[..300]);
+    for field in ["displacement", "von_mises", "principal_stress"] {
+        assert!(vtu.contains(&format!(r#"Name="{field}""#)), "{field}");
+    }
+
+    let step = dir.join("rod.step");
+    let (code, c) = json(&["convert", ROD, "-o", step.to_str().unwrap(), "--vertices", "6000", "--json"]);
+    assert_eq!(code, 0, "{c}");
+    assert!(dir.join("rod.solid.ply").exists());
+    let out2 = dir.join("solid-result");
+    let (code, w) = json(&["fea", step.to_str().unwrap(), "--spec", ROD_SPEC, "-o", out2.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{w}");
+    assert!(w["solid_mesh_file"].as_str().unwrap().ends_with("rod.solid.ply"), "{}", w["solid_mesh_file"]);
+    let tip_solid = w["max_displacement"]["value"].as_f64().unwrap();
+    assert_rel_near!(tip_solid, tip_mesh, 0.005);
+    let s_mesh = v["probes"][0]["von_mises"].as_f64().unwrap();
+    let s_solid = w["probes"][0]["von_mises"].as_f64().unwrap();
+    assert_rel_near!(s_solid, s_mesh, 0.01);
+}
+
+/// Bad input to `fea`: a STEP file without (or with a stale) solid artifact, an open mesh, a bad spec:
+/// stable codes, and no result directory appears.
+#[test]
+fn fea_refuses_bad_input_and_writes_nothing() {
+    let dir = scratch("cli_fea_bad");
+    let out = dir.join("result");
+    let step = file(&dir, "foreign.step", "ISO-10303-21;\nEND-ISO-10303-21;\n");
+    let (code, v) = json(&["fea", step.to_str().unwrap(), "--spec", ROD_SPEC, "-o", out.to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (2, Some("input.unknown-format")), "{v}");
+    file(&dir, "foreign.solid.ply", "ply\nformat ascii 1.0\ncomment scanstation-solid-of sha256=00\nend_header\n");
+    let (code, v) = json(&["fea", step.to_str().unwrap(), "--spec", ROD_SPEC, "-o", out.to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (2, Some("input.bad-header")), "{v}");
+    let open = file(&dir, "open.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let (code, v) = json(&["fea", open.to_str().unwrap(), "--spec", ROD_SPEC, "-o", out.to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (2, Some("fea.open-surface")), "{v}");
+    let spec = file(&dir, "bad.toml", "[material]\nyoungs_modulus = -1\npoissons_ratio = 0.3\n");
+    let (code, v) = json(&["fea", ROD, "--spec", spec.to_str().unwrap(), "-o", out.to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (2, Some("fea.bad-spec")), "{v}");
+    assert!(!out.exists(), "nothing written on failure");
+}
