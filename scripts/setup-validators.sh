@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Install what the conformance suite needs: a Python virtualenv (.venv-validators/) with the pinned packages of
 # ../shared/validators that our suites call (point-cloud-utils, trimesh, numpy, scipy; pyinstantmeshes, the peer remesher;
-# cadquery-ocp (OpenCASCADE) and gmsh for the STEP checks). Idempotent.
+# cadquery-ocp (OpenCASCADE) and gmsh for the STEP checks; meshio for the FEA's VTU files). Idempotent.
 # Usage: bash scripts/setup-validators.sh            (SCANSTATION_VALIDATORS overrides ../shared/validators)
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
@@ -16,4 +16,6 @@ fi
 pins=$(grep -E '^(numpy|scipy|trimesh|rtree|point-cloud-utils|pyinstantmeshes|cadquery-ocp|gmsh)==' "$kit/requirements.txt" | sed 's/[[:space:]]*#.*//')
 # shellcheck disable=SC2086
 "$venv/bin/pip" install -q --disable-pip-version-check $pins
-"$venv/bin/python" -c "import point_cloud_utils, trimesh, numpy, scipy, pyinstantmeshes, OCP, gmsh; print('validators venv ok:', '$venv')"
+# meshio reads our FEA result files (VTU) the way ParaView users' scripts do; not in the kit's list.
+"$venv/bin/pip" install -q --disable-pip-version-check meshio==5.3.5
+"$venv/bin/python" -c "import point_cloud_utils, trimesh, numpy, scipy, pyinstantmeshes, OCP, gmsh, meshio; print('validators venv ok:', '$venv')"

