@@ -15,8 +15,12 @@ fn main() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let rod = shapes::rod(4.97 / 2.0, 200.0, 96, 100);
     let base = FeaSpec::read(&root.join("config/fea/cantilever-rod.toml")).unwrap();
-    println!("**Cantilever rod** (d = 4.97, L = 200, Fy = 10 N; beam theory: tip 4.2399 mm, σ(x=50) 124.46 MPa, σ(root) 165.94 MPa)\n");
-    println!("| h (mm) | cells across d | unknowns | tip error % | σ(x=50) error % | σvM 2h from clamp vs root % | imbalance | domain s | assemble s | solve s | total s | peak RSS MiB |");
+    println!(
+        "**Cantilever rod** (d = 4.97, L = 200, Fy = 10 N; beam theory: tip 4.2399 mm, σ(x=50) 124.46 MPa, σ(root) 165.94 MPa)\n"
+    );
+    println!(
+        "| h (mm) | cells across d | unknowns | tip error % | σ(x=50) error % | σvM 2h from clamp vs root % | imbalance | domain s | assemble s | solve s | total s | peak RSS MiB |"
+    );
     println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for h in [2.5, 2.0, 1.66, 1.25, 1.0, 0.8, 0.6] {
         let mut spec = base.clone();
@@ -43,7 +47,9 @@ fn main() {
     let spot = read_mesh(&root.join("examples/spot.ply"), &ReadOptions::default()).unwrap().triangulate().0;
     let base = FeaSpec::read(&root.join("config/fea/spot-standing.toml")).unwrap();
     println!("\n**Spot standing** (self-weight + 2e-5 N on the back, four hooves fixed)\n");
-    println!("| cells along longest | h | unknowns | solver | max |u| | change vs previous % | total s | peak RSS MiB |");
+    println!(
+        "| cells along longest | h | unknowns | solver | max |u| | change vs previous % | total s | peak RSS MiB |"
+    );
     println!("|---:|---:|---:|---|---:|---:|---:|---:|");
     let mut prev: Option<f64> = None;
     for n in [24, 32, 48] {

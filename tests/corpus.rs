@@ -312,13 +312,18 @@ fn every_closed_shared_mesh_carries_its_own_weight_in_fea() {
              [[supports]]\nplane = {{ point = [0, {y0}, 0], normal = [0, -1, 0] }}\n[resolution]\ncells_along_longest = 24\n"
         ))
         .unwrap();
-        let r = fea::solve(&mesh, &spec, &FeaOptions::default(), &NoProgress).unwrap_or_else(|e| panic!("{f}: {e}")).report;
+        let r =
+            fea::solve(&mesh, &spec, &FeaOptions::default(), &NoProgress).unwrap_or_else(|e| panic!("{f}: {e}")).report;
         assert_eq!(r.grid.odd_lines, 0, "{f}");
         assert_near!(r.volume, r.surface_volume, 0.01 * r.surface_volume, "{f}: immersed volume");
         let weight = 1.2e-9 * 9810.0 * r.volume;
         assert_near!(r.total_load[1], -weight, 1e-9 * weight, "{f}: self-weight");
         assert!(r.imbalance <= 1e-6, "{f}: reaction {:?} vs load {:?}", r.reaction, r.total_load);
-        assert!(r.max_displacement.value.is_finite() && r.max_displacement.value > 0.0, "{f}: {:?}", r.max_displacement);
+        assert!(
+            r.max_displacement.value.is_finite() && r.max_displacement.value > 0.0,
+            "{f}: {:?}",
+            r.max_displacement
+        );
         assert!(r.max_displacement.at[1] > y0, "{f}: the largest displacement lies above the supports");
     }
 }

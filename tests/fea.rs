@@ -105,7 +105,12 @@ fn results_do_not_depend_on_where_the_solid_sits_and_runs_repeat_exactly() {
         let b = fea::solve(&m, &s, &FeaOptions::default(), &NoProgress).unwrap().report;
         let (ua, ub) = (a.probes[0].displacement, b.probes[0].displacement);
         assert!(norm(sub(ua, ub)) <= 2e-3 * norm(ua), "offset {offset:?}: {ua:?} vs {ub:?}");
-        assert_near!(a.max_displacement.value, b.max_displacement.value, 2e-3 * a.max_displacement.value, "offset {offset:?}");
+        assert_near!(
+            a.max_displacement.value,
+            b.max_displacement.value,
+            2e-3 * a.max_displacement.value,
+            "offset {offset:?}"
+        );
         assert!(b.imbalance <= 1e-6, "offset {offset:?}: imbalance {:.2e}", b.imbalance);
     }
 }
@@ -211,7 +216,8 @@ fn bundled_rod_is_the_generated_rod() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/rod.ply");
     let mesh = scanstation::PolyMesh::from(rod());
     if std::env::var_os("SCANSTATION_REGENERATE").is_some() {
-        let comment = "round rod d = 4.97 mm, L = 200 mm along x (scanstation shapes::rod(2.485, 200, 96, 100)); units mm";
+        let comment =
+            "round rod d = 4.97 mm, L = 200 mm along x (scanstation shapes::rod(2.485, 200, 96, 100)); units mm";
         scanstation::geometry::io::write_ply(&path, &mesh, &Default::default(), &[comment]).unwrap();
     }
     let read = scanstation::geometry::io::read_mesh(&path, &Default::default()).unwrap();

@@ -246,8 +246,15 @@ fn main() -> ExitCode {
 
 fn print_fea(r: &pipeline::fea::FeaFileReport) {
     let f = &r.result;
-    println!("{}: {} unknowns on a {:?} grid of h = {} ({} active cells, {} cut)", r.input_file.display(),
-        f.grid.unknowns, f.grid.cells, f.grid.cell_size, f.grid.active_cells, f.grid.cut_cells);
+    println!(
+        "{}: {} unknowns on a {:?} grid of h = {} ({} active cells, {} cut)",
+        r.input_file.display(),
+        f.grid.unknowns,
+        f.grid.cells,
+        f.grid.cell_size,
+        f.grid.active_cells,
+        f.grid.cut_cells
+    );
     println!("  volume {:.6} (surface {:.6})", f.volume, f.surface_volume);
     println!("  max displacement {:.6} at {:?}", f.max_displacement.value, f.max_displacement.at);
     println!("  max von Mises {:.4} at {:?}", f.max_von_mises.value, f.max_von_mises.at);

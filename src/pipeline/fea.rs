@@ -6,7 +6,7 @@
 //! comment `scanstation-solid-of sha256=…` names the STEP bytes it was made from. Given a STEP file, `fea`
 //! reads that artifact and refuses it when the hash does not match (a STEP edited or replaced since).
 
-use std::io::Read;
+use std::io::{Read, Write as _};
 use std::path::{Path, PathBuf};
 
 use sha2::{Digest, Sha256};
@@ -69,8 +69,9 @@ fn solid_mesh_for(input: &Path) -> Result<PathBuf> {
         return Err(Error::new(ErrorCode::InputNotFound, "no such file").in_file(input));
     }
     let artifact = solid_artifact_path(input);
-    let head = std::fs::read(&artifact)
-        .map(|b| b[..b.len().min(4096)].to_vec())
+    let mut head = Vec::with_capacity(4096);
+    std::fs::File::open(&artifact)
+        .and_then(|f| f.take(4096).read_to_end(&mut head))
         .map_err(|_| {
             Error::new(ErrorCode::InputUnknownFormat, format!("no solid mesh artifact {} beside the STEP file", artifact.display()))
                 .in_file(input)
@@ -109,13 +110,12 @@ pub fn fea_file(
     let mesh = read_mesh(&mesh_file, read)?;
     let (tri, _) = mesh.triangulate();
     let solution = fea::solve(&tri, &spec, options, progress).map_err(|e| e.in_file(input))?;
-    let (tri, _) = fea::closed_solid(&tri)?;
     let vtu = output_dir.join("surface.vtu");
     let json = output_dir.join("result.json");
     for out in [&vtu, &json] {
         ensure_not_input(out, &[input, spec_file, &mesh_file])?;
     }
-    write_atomic(&vtu, |w| fea::vtu::write_vtu(w, &tri, &solution.fields))?;
+    write_atomic(&vtu, |w| fea::vtu::write_vtu(w, &solution.surface, &solution.fields))?;
     let (seconds, peak_rss_mib) = meter.finish();
     let report = FeaFileReport {
         input_file: input.to_path_buf(),
@@ -134,5 +134,3 @@ pub fn fea_file(
     })?;
     Ok(report)
 }
-
-use std::io::Write as _;

@@ -123,9 +123,10 @@ pub struct SurfaceFields {
     pub principal_stress: Vec<[f64; 3]>,
 }
 
-/// A solved problem: report and surface fields.
+/// A solved problem: report, the surface as solved (oriented outward) and the fields on its vertices.
 pub struct FeaSolution {
     pub report: FeaReport,
+    pub surface: TriMesh,
     pub fields: SurfaceFields,
 }
 
@@ -220,7 +221,8 @@ pub fn principal(s: &[f64; 6]) -> [f64; 3] {
     let p = (p2 / 6.0).sqrt();
     let b = [(s[0] - q) / p, (s[1] - q) / p, (s[2] - q) / p, s[3] / p, s[4] / p, s[5] / p];
     // det(B)/2 with B symmetric: [b0 b3 b5; b3 b1 b4; b5 b4 b2].
-    let det = b[0] * (b[1] * b[2] - b[4] * b[4]) - b[3] * (b[3] * b[2] - b[4] * b[5]) + b[5] * (b[3] * b[4] - b[1] * b[5]);
+    let det =
+        b[0] * (b[1] * b[2] - b[4] * b[4]) - b[3] * (b[3] * b[2] - b[4] * b[5]) + b[5] * (b[3] * b[4] - b[1] * b[5]);
     let r = (det / 2.0).clamp(-1.0, 1.0);
     let phi = r.acos() / 3.0;
     let e1 = q + 2.0 * p * phi.cos();
@@ -397,14 +399,17 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
             (d, von_mises(&s), principal(&s))
         })
         .collect();
-    let extreme = |key: &dyn Fn(&(V3, f64, [f64; 3])) -> f64| -> Extreme {
+    // The largest `key` over the vertices that `keep` admits.
+    let extreme_where = |keep: &dyn Fn(usize) -> bool, key: &dyn Fn(&(V3, f64, [f64; 3])) -> f64| -> Extreme {
         let (i, v) = per_vertex
             .iter()
             .enumerate()
+            .filter(|(i, _)| keep(*i))
             .map(|(i, x)| (i, key(x)))
             .fold((0, f64::NEG_INFINITY), |b, x| if x.1 > b.1 { x } else { b });
         Extreme { value: v, at: wide(mesh.positions[i]) }
     };
+    let extreme = |key: &dyn Fn(&(V3, f64, [f64; 3])) -> f64| extreme_where(&|_| true, key);
     let max_displacement = extreme(&|x| norm(x.0));
     let max_von_mises = extreme(&|x| x.1);
     let exclusion_distance = 2.0 * h;
@@ -413,15 +418,8 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
     let support_bvh = crate::geometry::bvh::PointBvh::new(&support_cloud);
     let far: Vec<bool> =
         mesh.positions.par_iter().map(|&p| support_bvh.distance(wide(p)) > exclusion_distance).collect();
-    let max_von_mises_away_from_supports = {
-        let (i, v) = per_vertex
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| far[*i])
-            .map(|(i, x)| (i, x.1))
-            .fold((0, f64::NEG_INFINITY), |b, x| if x.1 > b.1 { x } else { b });
-        Extreme { value: v.max(0.0), at: wide(mesh.positions[i]) }
-    };
+    let mut max_von_mises_away_from_supports = extreme_where(&|i| far[i], &|x| x.1);
+    max_von_mises_away_from_supports.value = max_von_mises_away_from_supports.value.max(0.0);
     let max_principal_stress = extreme(&|x| x.2[0]);
     let mut min_principal_stress = extreme(&|x| -x.2[2]);
     min_principal_stress.value = -min_principal_stress.value;
@@ -475,7 +473,7 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
         von_mises: per_vertex.iter().map(|x| x.1).collect(),
         principal_stress: per_vertex.iter().map(|x| x.2).collect(),
     };
-    Ok(FeaSolution { report, fields })
+    Ok(FeaSolution { report, surface: mesh, fields })
 }
 
 /// Supports must hold every rigid motion: their points together must not lie on one line.
@@ -493,8 +491,11 @@ fn check_supports_hold(supports: &[(String, Vec<SurfacePoint>)]) -> Result<()> {
     let dir = scale(far, 1.0 / r);
     let off = pts.iter().map(|&p| norm(cross(sub(p, c), dir))).fold(0.0, f64::max);
     if off <= 1e-9 * r {
-        return Err(Error::new(ErrorCode::FeaSingular, "the supports hold points on one line: the solid can rotate about it")
-            .with_hint("fix an area, not a line"));
+        return Err(Error::new(
+            ErrorCode::FeaSingular,
+            "the supports hold points on one line: the solid can rotate about it",
+        )
+        .with_hint("fix an area, not a line"));
     }
     Ok(())
 }

@@ -207,10 +207,16 @@ impl Region {
     }
 }
 
+impl Region {
+    fn of(sphere: &Option<Sphere>, plane: &Option<HalfSpace>) -> Region {
+        Region { sphere: sphere.clone(), plane: plane.clone() }
+    }
+}
+
 impl Load {
     /// Where it acts.
     pub fn region(&self) -> Region {
-        Region { sphere: self.sphere.clone(), plane: self.plane.clone() }
+        Region::of(&self.sphere, &self.plane)
     }
 
     /// The name used in reports: the given one or `load N`.
@@ -222,7 +228,7 @@ impl Load {
 impl Support {
     /// Where it holds.
     pub fn region(&self) -> Region {
-        Region { sphere: self.sphere.clone(), plane: self.plane.clone() }
+        Region::of(&self.sphere, &self.plane)
     }
 
     /// The name used in reports: the given one or `support N`.
@@ -311,7 +317,10 @@ impl FeaSpec {
             }
         }
         if !(2..=4096).contains(&r.cells_along_longest) {
-            return Err(bad(format!("resolution.cells_along_longest = {} must lie in [2, 4096]", r.cells_along_longest)));
+            return Err(bad(format!(
+                "resolution.cells_along_longest = {} must lie in [2, 4096]",
+                r.cells_along_longest
+            )));
         }
         if !(1..=64).contains(&r.subcells) {
             return Err(bad(format!("resolution.subcells = {} must lie in [1, 64]", r.subcells)));

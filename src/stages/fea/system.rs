@@ -149,54 +149,67 @@ impl Stiffness {
         Stiffness { blocks: vec![[0.0; 9]; n_functions * SLOTS] }
     }
 
-    /// Add an 81 × 81 element matrix over the cell's functions `f` (upper half only).
-    fn add_element(&mut self, dofs: &Dofs, f: &[usize; 27], k: &[f64]) {
+    /// Call `f(rank of a, slot, a, b)` for every local pair (a, b) of the cell's functions `f` in the upper half.
+    fn upper_pairs(dofs: &Dofs, funcs: &[usize; 27], mut f: impl FnMut(usize, usize, usize, usize)) {
         for a in 0..27 {
-            let ra = dofs.rank[f[a]] as usize;
+            let ra = dofs.rank[funcs[a]] as usize;
             for b in 0..27 {
-                let d = [(b % 3) as i64 - (a % 3) as i64, ((b / 3) % 3) as i64 - ((a / 3) % 3) as i64,
-                    (b / 9) as i64 - (a / 9) as i64];
-                let Some(s) = slot(d) else { continue };
-                let blk = &mut self.blocks[ra * SLOTS + s];
-                for p in 0..3 {
-                    for q in 0..3 {
-                        blk[p * 3 + q] += k[(3 * a + p) * 81 + 3 * b + q];
-                    }
+                let d = [
+                    (b % 3) as i64 - (a % 3) as i64,
+                    ((b / 3) % 3) as i64 - ((a / 3) % 3) as i64,
+                    (b / 9) as i64 - (a / 9) as i64,
+                ];
+                if let Some(s) = slot(d) {
+                    f(ra, s, a, b);
                 }
             }
         }
     }
 
+    /// Add an 81 × 81 element matrix over the cell's functions `f` (upper half only).
+    fn add_element(&mut self, dofs: &Dofs, f: &[usize; 27], k: &[f64]) {
+        Self::upper_pairs(dofs, f, |ra, s, a, b| {
+            let blk = &mut self.blocks[ra * SLOTS + s];
+            for p in 0..3 {
+                for q in 0..3 {
+                    blk[p * 3 + q] += k[(3 * a + p) * 81 + 3 * b + q];
+                }
+            }
+        });
+    }
+
     /// Add β·w·N_a·N_b·I₃ for one surface point with the cell's function values `n`.
     fn add_penalty(&mut self, dofs: &Dofs, f: &[usize; 27], n: &[f64; 27], bw: f64) {
-        for a in 0..27 {
-            let ra = dofs.rank[f[a]] as usize;
-            for b in 0..27 {
-                let d = [(b % 3) as i64 - (a % 3) as i64, ((b / 3) % 3) as i64 - ((a / 3) % 3) as i64,
-                    (b / 9) as i64 - (a / 9) as i64];
-                let Some(s) = slot(d) else { continue };
-                let v = bw * n[a] * n[b];
-                let blk = &mut self.blocks[ra * SLOTS + s];
-                blk[0] += v;
-                blk[4] += v;
-                blk[8] += v;
+        Self::upper_pairs(dofs, f, |ra, s, a, b| {
+            let v = bw * n[a] * n[b];
+            let blk = &mut self.blocks[ra * SLOTS + s];
+            blk[0] += v;
+            blk[4] += v;
+            blk[8] += v;
+        });
+    }
+
+    /// The stored blocks of function rank `r`: (slot, rank of the neighbour, block), skipping zero blocks
+    /// off the diagonal.
+    fn row<'a>(&'a self, dofs: &'a Dofs, r: usize) -> impl Iterator<Item = (usize, usize, &'a [f64; 9])> + 'a {
+        let f = dofs.functions[r] as i64;
+        let [nx, ny, _] = dofs.nf.map(|n| n as i64);
+        (0..SLOTS).filter_map(move |s| {
+            let blk = &self.blocks[r * SLOTS + s];
+            if s > 0 && blk.iter().all(|&v| v == 0.0) {
+                return None;
             }
-        }
+            let d = slot_offset(s);
+            let g = (f + (d[2] * ny + d[1]) * nx + d[0]) as usize;
+            Some((s, dofs.rank[g] as usize, blk))
+        })
     }
 
     /// y = K x (full symmetric product from the upper half).
     fn apply(&self, dofs: &Dofs, x: &[f64], y: &mut [f64]) {
         y.iter_mut().for_each(|v| *v = 0.0);
-        let nf = dofs.nf;
-        for (r, &f) in dofs.functions.iter().enumerate() {
-            for s in 0..SLOTS {
-                let blk = &self.blocks[r * SLOTS + s];
-                if s > 0 && blk.iter().all(|&v| v == 0.0) {
-                    continue;
-                }
-                let d = slot_offset(s);
-                let g = (f as i64 + (d[2] * nf[1] as i64 + d[1]) * nf[0] as i64 + d[0]) as usize;
-                let rg = dofs.rank[g] as usize;
+        for r in 0..dofs.functions.len() {
+            for (s, rg, blk) in self.row(dofs, r) {
                 for p in 0..3 {
                     for q in 0..3 {
                         let v = blk[p * 3 + q];
@@ -331,21 +344,13 @@ impl System {
 
     /// The lower triangle in compressed columns (column = row of the upper-half blocks).
     fn lower_csc(&self) -> (Vec<usize>, Vec<usize>, Vec<f64>) {
-        let nf = self.dofs.nf;
         let mut col_ptr = Vec::with_capacity(self.dofs.len() + 1);
         let mut row_idx = Vec::new();
         let mut val = Vec::new();
         col_ptr.push(0);
-        for (r, &f) in self.dofs.functions.iter().enumerate() {
+        for r in 0..self.dofs.functions.len() {
             for p in 0..3 {
-                for s in 0..SLOTS {
-                    let blk = &self.stiffness.blocks[r * SLOTS + s];
-                    if s > 0 && blk.iter().all(|&v| v == 0.0) {
-                        continue;
-                    }
-                    let d = slot_offset(s);
-                    let g = (f as i64 + (d[2] * nf[1] as i64 + d[1]) * nf[0] as i64 + d[0]) as usize;
-                    let rg = self.dofs.rank[g] as usize;
+                for (s, rg, blk) in self.stiffness.row(&self.dofs, r) {
                     let q0 = if s == 0 { p } else { 0 };
                     for q in q0..3 {
                         row_idx.push(3 * rg + q);
@@ -374,17 +379,14 @@ impl System {
         let sym = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
         let mat = SparseColMatRef::new(sym, &val);
         let order = nested_dissection(&self.dofs);
-        let fwd: Vec<usize> = order.iter().flat_map(|&r| [3 * r as usize, 3 * r as usize + 1, 3 * r as usize + 2]).collect();
+        let fwd: Vec<usize> =
+            order.iter().flat_map(|&r| [3 * r as usize, 3 * r as usize + 1, 3 * r as usize + 2]).collect();
         let mut inv = vec![0usize; n];
         for (new, &old) in fwd.iter().enumerate() {
             inv[old] = new;
         }
         let perm = faer::perm::PermRef::new_checked(&fwd, &inv, n);
-        let ordering = if std::env::var_os("SCANSTATION_FEA_AMD").is_some() {
-            faer::sparse::linalg::cholesky::SymmetricOrdering::Amd
-        } else {
-            faer::sparse::linalg::cholesky::SymmetricOrdering::Custom(perm)
-        };
+        let ordering = faer::sparse::linalg::cholesky::SymmetricOrdering::Custom(perm);
         let symbolic = factorize_symbolic_cholesky(sym, faer::Side::Lower, ordering, Default::default())
             .map_err(|e| Error::internal(format!("symbolic Cholesky: {e:?}")))?;
         let factor_bytes = symbolic.len_val() as u64 * 8;
@@ -417,7 +419,16 @@ impl System {
             return Err(Error::new(ErrorCode::FeaSingular, "the solution is not finite: the system is singular"));
         }
         let residual = self.relative_residual(&u);
-        Ok((u, SolverReport { kind: "cholesky", matrix_nonzeros: nnz, factor_nonzeros: symbolic.len_val(), iterations: 1, relative_residual: residual }))
+        Ok((
+            u,
+            SolverReport {
+                kind: "cholesky",
+                matrix_nonzeros: nnz,
+                factor_nonzeros: symbolic.len_val(),
+                iterations: 1,
+                relative_residual: residual,
+            },
+        ))
     }
 
     fn relative_residual(&self, u: &[f64]) -> f64 {
@@ -447,7 +458,16 @@ impl System {
         for it in 0..max_iter {
             let rn = r.iter().map(|v| v * v).sum::<f64>().sqrt();
             if rn <= 1e-10 * fnorm {
-                return Ok((x, SolverReport { kind: "pcg", matrix_nonzeros: nnz, factor_nonzeros: 0, iterations: it, relative_residual: rn / fnorm }));
+                return Ok((
+                    x,
+                    SolverReport {
+                        kind: "pcg",
+                        matrix_nonzeros: nnz,
+                        factor_nonzeros: 0,
+                        iterations: it,
+                        relative_residual: rn / fnorm,
+                    },
+                ));
             }
             self.stiffness.apply(&self.dofs, &p, &mut ap);
             let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
