@@ -78,12 +78,20 @@ pub enum ErrorCode {
     FeaSingular,
     /// The iterative FEA solver (used when the direct factor would not fit the memory budget) did not converge.
     FeaNotConverged,
+    /// The same input (by sha256) was already processed within the daemon's de-duplication window.
+    InputDuplicate,
+    /// The input file is larger than the configured `limits.max_input_size`.
+    InputTooLarge,
     /// The operation would need more memory than its budget allows.
     ResourceMemoryBudget,
     /// Writing an output failed (disk full, permissions) or would overwrite an input.
     ResourceOutput,
     /// An internal invariant failed.
     InternalBug,
+    /// The job was cancelled on request; the work stopped at a checkpoint between stages.
+    Cancelled,
+    /// The process stopped (crash, `kill -9`, power loss) while the job ran, and it was not resumed.
+    Interrupted,
 }
 
 impl ErrorCode {
@@ -115,18 +123,25 @@ impl ErrorCode {
             ErrorCode::FeaEmptySelection => "fea.empty-selection",
             ErrorCode::FeaSingular => "fea.singular",
             ErrorCode::FeaNotConverged => "fea.not-converged",
-            ErrorCode::ResourceMemoryBudget => "resource.memory-budget",
+            ErrorCode::InputDuplicate => "input.duplicate",
+            ErrorCode::InputTooLarge => "input.too-large",
+            ErrorCode::ResourceMemoryBudget => "resource.memory",
             ErrorCode::ResourceOutput => "resource.output",
             ErrorCode::InternalBug => "internal.bug",
+            ErrorCode::Cancelled => "cancelled",
+            ErrorCode::Interrupted => "interrupted",
         }
     }
 
     /// The class this code belongs to.
     pub const fn class(self) -> ErrorClass {
         match self {
-            ErrorCode::ResourceMemoryBudget | ErrorCode::ResourceOutput | ErrorCode::FeaNotConverged => {
-                ErrorClass::Resource
-            }
+            ErrorCode::ResourceMemoryBudget
+            | ErrorCode::ResourceOutput
+            | ErrorCode::FeaNotConverged
+            | ErrorCode::InputTooLarge
+            | ErrorCode::Cancelled
+            | ErrorCode::Interrupted => ErrorClass::Resource,
             ErrorCode::InternalBug | ErrorCode::BrepInvalid => ErrorClass::Internal,
             _ => ErrorClass::BadInput,
         }

@@ -6,7 +6,8 @@
 //! * [`geometry`] — **geometry core**: mesh/cloud types, adjacency, spatial indices, sampling, file formats.
 //! * [`stages`] — the pipeline stages as plain functions (so far: [`stages::quality`]).
 //! * [`pipeline`] — runs stages on a file and assembles reports.
-//! * daemon / devices — arrive with their own issue (tokio, zbus, watch folders, serial/CAN drivers).
+//! * [`daemon`] — the unattended station: watch folders, job journal, D-Bus, systemd (tokio, zbus). Devices
+//!   (turntable, trigger) arrive with their own issue.
 //!
 //! Errors everywhere are [`Error`] values with a stable [`ErrorCode`].
 //!
@@ -28,6 +29,7 @@
 // zipped iterators in the geometry kernels.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop, clippy::collapsible_match)]
 
+pub mod daemon;
 pub mod error;
 pub mod geometry;
 pub mod pipeline;

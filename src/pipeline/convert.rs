@@ -9,7 +9,7 @@ use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::geometry::vec3::Aabb;
-use crate::stages::Progress;
+use crate::stages::{Progress, ProgressSpan, check_cancelled};
 use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
 use crate::stages::quality::{CompareOptions, DistanceReport, compare};
@@ -182,7 +182,11 @@ fn tessellate_for_check(solid: &Solid, budget: usize) -> Result<TriMesh> {
 /// # Errors
 /// Reader errors; `input.no-geometry` for a point cloud (reconstruction is not part of this chain yet);
 /// `repair.failed`; `remesh.*`; `surface.*`; `brep.invalid`; `resource.output` when the output cannot be
-/// written or would overwrite the input; `input.bad-argument` for a bad resolution.
+/// written or would overwrite the input; `input.bad-argument` for a bad resolution; `cancelled` when
+/// `progress` asks to stop (checked between stages, so nothing is written).
+///
+/// Progress: one monotonic overall fraction with phases `STAGE/phase`, STAGE one of `read`, `repair`,
+/// `remesh`, `surface`, `brep`, `step` (see [`ProgressSpan`]).
 pub fn convert_file(
     input: &Path,
     output: &Path,
@@ -203,18 +207,21 @@ pub fn convert_file(
         memory_budget: opts.memory_budget,
     };
 
+    // Overall progress: read 0–0.02, repair –0.1, then per resolution attempt remesh –0.5, surface –0.8,
+    // brep –0.95 (a tolerance's later attempts do not move it back), step –1.
     let clock = Clock::start();
-    progress.report(0.0, "read");
+    ProgressSpan::new(progress, 0.0, 0.02, "read");
     let mesh = read_mesh(input, read)?;
     let input_geom = Geometry::Mesh(mesh.clone());
     let bbox: Aabb = mesh.bbox();
     let diag = bbox.diagonal();
     stages.push(clock.stop("read", None));
 
+    check_cancelled(progress)?;
     let clock = Clock::start();
-    progress.report(0.02, "repair");
-    let (repaired, repair_report) = repair(&mesh, &opts.repair, progress).map_err(|e| e.in_file(input))?;
-    let d = compare(&Geometry::Mesh(PolyMesh::from(repaired.clone())), &input_geom, &cmp_opts, progress)?;
+    let span = ProgressSpan::new(progress, 0.02, 0.1, "repair");
+    let (repaired, repair_report) = repair(&mesh, &opts.repair, &span).map_err(|e| e.in_file(input))?;
+    let d = compare(&Geometry::Mesh(PolyMesh::from(repaired.clone())), &input_geom, &cmp_opts, &span)?;
     stages.push(clock.stop("repair", Some(d)));
     let input_volume = repaired.signed_volume();
 
@@ -239,8 +246,9 @@ pub fn convert_file(
     let mut best = None;
     for (k, &n) in targets.iter().enumerate() {
         let mut attempt_stages = Vec::new();
+        check_cancelled(progress)?;
         let clock = Clock::start();
-        progress.report(0.1, "remesh");
+        let span = ProgressSpan::new(progress, 0.1, 0.5, "remesh");
         let ropts =
             RemeshOptions { target_vertices: n, seed: opts.seed, memory_budget: opts.memory_budget, ..opts.remesh };
         // A quad mesh that folds through itself would give a self-intersecting solid: try other seeds
@@ -248,7 +256,7 @@ pub fn convert_file(
         let mut best_quads: Option<(PolyMesh, RemeshReport, usize)> = None;
         for retry in 0..=REMESH_RETRIES {
             let ropts = RemeshOptions { seed: opts.seed.wrapping_add(retry as u64), ..ropts.clone() };
-            let (q, r) = remesh(&repaired, &ropts, progress).map_err(|e| e.in_file(input))?;
+            let (q, r) = remesh(&repaired, &ropts, &span).map_err(|e| e.in_file(input))?;
             let crossings = quad_self_intersections(&q);
             if crossings > 0 {
                 tracing::warn!(crossings, seed = ropts.seed, "the quad mesh intersects itself; trying another seed");
@@ -261,17 +269,19 @@ pub fn convert_file(
             }
         }
         let (quads, remesh_report, quad_crossings) = best_quads.expect("at least one remesh ran");
-        let d = compare(&Geometry::Mesh(quads.clone()), &input_geom, &cmp_opts, progress)?;
+        let d = compare(&Geometry::Mesh(quads.clone()), &input_geom, &cmp_opts, &span)?;
         attempt_stages.push(clock.stop("remesh", Some(d)));
 
+        check_cancelled(progress)?;
         let clock = Clock::start();
-        progress.report(0.5, "surface");
+        let span = ProgressSpan::new(progress, 0.5, 0.8, "surface");
         let (net, pos) = control_net(&quads)?;
-        let (p, surface, fit_report) = fit_control_points(&net, &pos, &target_bvh, &opts.fit, progress)?;
+        let (p, surface, fit_report) = fit_control_points(&net, &pos, &target_bvh, &opts.fit, &span)?;
         attempt_stages.push(clock.stop("surface", None));
 
+        check_cancelled(progress)?;
         let clock = Clock::start();
-        progress.report(0.8, "brep");
+        let span = ProgressSpan::new(progress, 0.8, 0.95, "brep");
         let p1 = surface.refine.apply(&p);
         let (solid, mut brep_report) = build_solid(&surface, &p1)?;
         brep_report.quad_self_intersections = quad_crossings;
@@ -280,7 +290,7 @@ pub fn convert_file(
             tracing::warn!(pairs = brep_report.self_intersections, "the solid's surface intersects itself");
         }
         let tess = tessellate_for_check(&solid, 1_500_000)?;
-        let d = compare(&Geometry::Mesh(PolyMesh::from(tess)), &input_geom, &cmp_opts, progress)?;
+        let d = compare(&Geometry::Mesh(PolyMesh::from(tess)), &input_geom, &cmp_opts, &span)?;
         let rms = d.symmetric.rms.value;
         attempt_stages.push(clock.stop("brep", Some(d)));
         attempts.push(Attempt {
@@ -303,8 +313,9 @@ pub fn convert_file(
         best.ok_or_else(|| Error::internal("no resolution attempted"))?;
     stages.extend(attempt_stages);
 
+    check_cancelled(progress)?;
     let clock = Clock::start();
-    progress.report(0.95, "step");
+    ProgressSpan::new(progress, 0.95, 1.0, "step");
     let name = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
     write_step(output, &solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
     let solid_mesh_file = write_solid_mesh(output, &solid)?;
@@ -312,7 +323,7 @@ pub fn convert_file(
         super::write_mesh(q, &quads, "quad control net by scanstation")?;
     }
     stages.push(clock.stop("step", None));
-    progress.report(1.0, "done");
+    progress.report(1.0, "step/done");
     let volume_error_pct = 100.0 * (brep_report.volume - input_volume) / input_volume.abs().max(f64::MIN_POSITIVE);
     Ok(ConvertReport {
         input_file: input.to_path_buf(),

@@ -82,7 +82,7 @@ pub fn inspect(geometry: &Geometry) -> (Option<TopologyReport>, Option<CloudSumm
 /// Read `path` and inspect it.
 ///
 /// # Errors
-/// Any reader error (`input.*`, `resource.memory-budget`).
+/// Any reader error (`input.*`, `resource.memory`).
 pub fn inspect_file(path: &Path, options: &ReadOptions) -> Result<InspectReport> {
     let t0 = Instant::now();
     let g = read_geometry(path, options)?;

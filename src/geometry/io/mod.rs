@@ -67,7 +67,7 @@ impl Input<'_> {
     /// reserved up front.
     ///
     /// A count larger than the number of bytes left (`left`) cannot be true for any format and is
-    /// `input.absurd-count`; `count × mem_bytes` beyond the budget is `resource.memory-budget`. A count that
+    /// `input.absurd-count`; `count × mem_bytes` beyond the budget is `resource.memory`. A count that
     /// is merely more than `left / min_bytes` may be a truncated file: the reservation is capped there and
     /// the reader reports `input.truncated` where the data actually ends.
     pub fn check_count(&self, left: u64, count: u64, min_bytes: u64, mem_bytes: u64, what: &str) -> Result<usize> {
@@ -81,7 +81,7 @@ impl Input<'_> {
         Ok(count.min(left / min_bytes.max(1)) as usize)
     }
 
-    /// Fail with `resource.memory-budget` when `bytes` exceed the budget.
+    /// Fail with `resource.memory` when `bytes` exceed the budget.
     pub fn check_memory(&self, bytes: u64, what: &str) -> Result<()> {
         if bytes > self.options.memory_budget {
             return Err(Error::new(
@@ -134,7 +134,7 @@ fn sniff_format(head: &[u8]) -> Option<Format> {
 /// Read a mesh or point cloud from `path`, any supported format, optionally gzip-compressed.
 ///
 /// # Errors
-/// Stable codes `input.*` for bad data (naming the file and line/byte), `resource.memory-budget` when the
+/// Stable codes `input.*` for bad data (naming the file and line/byte), `resource.memory` when the
 /// declared data exceeds `options.memory_budget`. Cost: one pass over the file; memory ≈ the returned data.
 pub fn read_geometry(path: &Path, options: &ReadOptions) -> Result<Geometry> {
     read_inner(path, options).map_err(|e| e.in_file(path))

@@ -308,7 +308,7 @@ pub fn vertex_distances(from: &Geometry, to: &Geometry) -> Result<Vec<f64>> {
 ///
 /// # Errors
 /// `input.no-geometry` when a mesh has zero area or a cloud no points; `input.bad-argument` for
-/// `samples == 0` with a mesh; `resource.memory-budget` when the estimate exceeds `opts.memory_budget`.
+/// `samples == 0` with a mesh; `resource.memory` when the estimate exceeds `opts.memory_budget`.
 ///
 /// Cost: O((F_t + F_r) log F + S log F) time for S samples, memory ≈ 40 bytes per triangle + 32 per sample.
 pub fn compare(

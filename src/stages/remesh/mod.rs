@@ -299,7 +299,7 @@ pub struct RemeshReport {
 ///
 /// # Errors
 /// `remesh.input-not-closed` for an open, non-manifold or inconsistently oriented input;
-/// `input.bad-argument` for a target below 8 or above 10⁷ vertices; `resource.memory-budget` when the
+/// `input.bad-argument` for a target below 8 or above 10⁷ vertices; `resource.memory` when the
 /// estimate exceeds `opts.memory_budget`; `remesh.failed` when no attempt yields a closed 2-manifold quad
 /// mesh. An attempt with the input's Euler characteristic is preferred; when none has it, the closest
 /// closed manifold one is returned with `euler_characteristic_changed` set.

@@ -1,0 +1,392 @@
+//! The daemon's configuration: `config/scanstation.toml` parsed strictly (unknown keys are refused) into a
+//! raw form, then validated into [`Config`] with human-readable durations ("2s", "7d") and sizes ("6GiB").
+//! Every error names the key and the reason.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+use sha2::{Digest, Sha256};
+
+/// A configuration error: the key (dotted, e.g. `limits.memory_budget`) and why it was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("config {file}: {key}: {reason}")]
+pub struct ConfigError {
+    pub file: String,
+    pub key: String,
+    pub reason: String,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct Raw {
+    #[serde(default)]
+    daemon: RawDaemon,
+    paths: Option<RawPaths>,
+    #[serde(default)]
+    watch: RawWatch,
+    #[serde(default)]
+    limits: RawLimits,
+    #[serde(default)]
+    pipeline: RawPipeline,
+    #[serde(default)]
+    dbus: RawDbus,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawDaemon {
+    bus: Option<String>,
+    log_format: Option<String>,
+    worker_threads: Option<usize>,
+    max_parallel_jobs: Option<usize>,
+    watchdog: Option<bool>,
+    stall_timeout: Option<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPaths {
+    spool: Option<PathBuf>,
+    state: Option<PathBuf>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawWatch {
+    settle: Option<String>,
+    reconcile_interval: Option<String>,
+    accept: Option<Vec<String>>,
+    ignore_suffixes: Option<Vec<String>>,
+    dedupe_window: Option<String>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawLimits {
+    memory_budget: Option<String>,
+    max_input_size: Option<String>,
+    keep_finished_jobs: Option<usize>,
+    finished_job_linger: Option<String>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawPipeline {
+    vertices: Option<usize>,
+    tolerance: Option<f64>,
+    seed: Option<u64>,
+    compare_samples: Option<usize>,
+    resume: Option<bool>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawDbus {
+    progress_max_rate_hz: Option<f64>,
+    ops_group: Option<String>,
+}
+
+/// Which message bus the daemon serves on.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Bus {
+    System,
+    Session,
+}
+
+/// How log lines are written.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LogFormat {
+    /// journald when its socket exists, else `pretty` on stderr.
+    Auto,
+    Journald,
+    Pretty,
+    Json,
+}
+
+/// The validated configuration (see `config/scanstation.toml` for every key's meaning).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Config {
+    pub bus: Bus,
+    pub log_format: LogFormat,
+    /// Threads of the CPU pool that runs stages (0 in the file = cores − 1, at least 1).
+    pub worker_threads: usize,
+    pub max_parallel_jobs: usize,
+    pub watchdog: bool,
+    #[serde(with = "secs")]
+    pub stall_timeout: Duration,
+    pub spool: PathBuf,
+    pub state: PathBuf,
+    #[serde(with = "secs")]
+    pub settle: Duration,
+    #[serde(with = "secs")]
+    pub reconcile_interval: Duration,
+    /// Accepted extensions, lower case, without the dot (".gz" variants are accepted too).
+    pub accept: Vec<String>,
+    pub ignore_suffixes: Vec<String>,
+    #[serde(with = "secs")]
+    pub dedupe_window: Duration,
+    pub memory_budget: u64,
+    pub max_input_size: u64,
+    pub keep_finished_jobs: usize,
+    #[serde(with = "secs")]
+    pub finished_job_linger: Duration,
+    /// Control vertices of the quad net (ignored when `tolerance` is set).
+    pub vertices: usize,
+    pub tolerance: Option<f64>,
+    pub seed: u64,
+    pub compare_samples: usize,
+    pub resume: bool,
+    pub progress_max_rate_hz: f64,
+    pub ops_group: String,
+}
+
+mod secs {
+    pub fn serialize<S: serde::Serializer>(d: &std::time::Duration, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(d.as_secs_f64())
+    }
+}
+
+/// Parse "250ms", "2s", "5m", "4h", "7d" (a bare number is seconds).
+pub fn parse_duration(s: &str) -> Result<Duration, String> {
+    let t = s.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let v: f64 = num.parse().map_err(|_| format!("{s:?} is not a duration like \"2s\", \"500ms\", \"7d\""))?;
+    let mult = match unit.trim() {
+        "ms" => 1e-3,
+        "" | "s" => 1.0,
+        "m" | "min" => 60.0,
+        "h" => 3600.0,
+        "d" => 86400.0,
+        u => return Err(format!("unknown duration unit {u:?} (ms, s, m, h, d)")),
+    };
+    let secs = v * mult;
+    if !(secs.is_finite() && (0.0..=1e9).contains(&secs)) {
+        return Err(format!("{s:?} is out of range"));
+    }
+    Ok(Duration::from_secs_f64(secs))
+}
+
+/// Parse "512MiB", "6GiB", "4G", "100M", "1024" (bytes); K/M/G/T are powers of 1024, as are KiB…TiB.
+pub fn parse_size(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let v: f64 = num.parse().map_err(|_| format!("{s:?} is not a size like \"512MiB\" or \"6GiB\""))?;
+    let mult = match unit.trim().trim_end_matches("iB").trim_end_matches('B') {
+        "" => 1.0,
+        "K" | "k" => 1024.0,
+        "M" => 1024.0 * 1024.0,
+        "G" => 1024.0 * 1024.0 * 1024.0,
+        "T" => 1024.0 * 1024.0 * 1024.0 * 1024.0,
+        u => return Err(format!("unknown size unit {u:?} (K, M, G, T, optionally with iB)")),
+    };
+    let b = v * mult;
+    if !(b.is_finite() && b >= 0.0 && b < 1.8e19) {
+        return Err(format!("{s:?} is out of range"));
+    }
+    Ok(b as u64)
+}
+
+impl Config {
+    /// Read and validate `path`.
+    ///
+    /// # Errors
+    /// [`ConfigError`] naming the key and the reason (unreadable file, TOML syntax, unknown key, bad value).
+    pub fn load(path: &Path) -> Result<Config, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            file: path.display().to_string(),
+            key: "(file)".into(),
+            reason: format!("cannot read: {e}"),
+        })?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Validate the text of a config file; `file` names it in errors.
+    ///
+    /// # Errors
+    /// As [`Config::load`].
+    pub fn parse(text: &str, file: &str) -> Result<Config, ConfigError> {
+        let err = |key: &str, reason: String| ConfigError { file: file.to_string(), key: key.into(), reason };
+        let raw: Raw = toml::from_str(text).map_err(|e| {
+            let msg = e.message().to_string();
+            // serde names unknown fields in the message; toml gives the span.
+            let key = e
+                .span()
+                .and_then(|s| text.get(s))
+                .map(|s| s.trim().split('=').next().unwrap_or("").trim().to_string())
+                .filter(|s| !s.is_empty() && s.len() < 80)
+                .unwrap_or_else(|| "(syntax)".into());
+            err(&key, msg)
+        })?;
+        let dur = |key: &str, v: &Option<String>, default: &str| -> Result<Duration, ConfigError> {
+            parse_duration(v.as_deref().unwrap_or(default)).map_err(|r| err(key, r))
+        };
+        let size = |key: &str, v: &Option<String>, default: &str| -> Result<u64, ConfigError> {
+            parse_size(v.as_deref().unwrap_or(default)).map_err(|r| err(key, r))
+        };
+        let bus = match raw.daemon.bus.as_deref().unwrap_or("system") {
+            "system" => Bus::System,
+            "session" => Bus::Session,
+            o => return Err(err("daemon.bus", format!("{o:?} is neither \"system\" nor \"session\""))),
+        };
+        let log_format = match raw.daemon.log_format.as_deref().unwrap_or("auto") {
+            "auto" => LogFormat::Auto,
+            "journald" => LogFormat::Journald,
+            "pretty" => LogFormat::Pretty,
+            "json" => LogFormat::Json,
+            o => return Err(err("daemon.log_format", format!("{o:?}: use auto, journald, pretty or json"))),
+        };
+        let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2);
+        let worker_threads = match raw.daemon.worker_threads.unwrap_or(0) {
+            0 => cores.saturating_sub(1).max(1),
+            n if n <= 1024 => n,
+            n => return Err(err("daemon.worker_threads", format!("{n} threads is absurd"))),
+        };
+        let max_parallel_jobs = raw.daemon.max_parallel_jobs.unwrap_or(1);
+        if !(1..=64).contains(&max_parallel_jobs) {
+            return Err(err("daemon.max_parallel_jobs", "must be between 1 and 64".into()));
+        }
+        let paths = raw.paths.ok_or_else(|| err("paths", "the [paths] table (spool, state) is required".into()))?;
+        let spool = paths.spool.ok_or_else(|| err("paths.spool", "required".into()))?;
+        let state = paths.state.ok_or_else(|| err("paths.state", "required".into()))?;
+        for (k, p) in [("paths.spool", &spool), ("paths.state", &state)] {
+            if !p.is_absolute() {
+                return Err(err(k, format!("{} is not an absolute path", p.display())));
+            }
+        }
+        let accept: Vec<String> = raw
+            .watch
+            .accept
+            .unwrap_or_else(|| ["ply", "obj", "stl", "off", "xyz", "pts"].map(String::from).to_vec())
+            .into_iter()
+            .map(|a| a.trim_start_matches('.').to_ascii_lowercase())
+            .collect();
+        if accept.is_empty() || accept.iter().any(|a| a.is_empty() || a.contains('/')) {
+            return Err(err("watch.accept", "a non-empty list of extensions such as \"ply\"".into()));
+        }
+        let ignore_suffixes = raw.watch.ignore_suffixes.unwrap_or_else(|| {
+            [".part", ".tmp", ".partial", ".crdownload", "~"].map(String::from).to_vec()
+        });
+        let memory_budget = size("limits.memory_budget", &raw.limits.memory_budget, "6GiB")?;
+        if memory_budget < 16 << 20 {
+            return Err(err("limits.memory_budget", "below 16 MiB nothing can run".into()));
+        }
+        let max_input_size = size("limits.max_input_size", &raw.limits.max_input_size, "4GiB")?;
+        let vertices = raw.pipeline.vertices.unwrap_or(10_000);
+        if !(8..=10_000_000).contains(&vertices) {
+            return Err(err("pipeline.vertices", format!("{vertices} is outside 8..=10000000")));
+        }
+        if let Some(t) = raw.pipeline.tolerance
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(err("pipeline.tolerance", "must be a positive length".into()));
+        }
+        let compare_samples = raw.pipeline.compare_samples.unwrap_or(200_000);
+        if !(1_000..=100_000_000).contains(&compare_samples) {
+            return Err(err("pipeline.compare_samples", "must be between 1000 and 100000000".into()));
+        }
+        let progress_max_rate_hz = raw.dbus.progress_max_rate_hz.unwrap_or(4.0);
+        if !(progress_max_rate_hz.is_finite() && (0.1..=100.0).contains(&progress_max_rate_hz)) {
+            return Err(err("dbus.progress_max_rate_hz", "must be between 0.1 and 100".into()));
+        }
+        let settle = dur("watch.settle", &raw.watch.settle, "2s")?;
+        let reconcile_interval = dur("watch.reconcile_interval", &raw.watch.reconcile_interval, "60s")?;
+        if reconcile_interval < Duration::from_millis(100) {
+            return Err(err("watch.reconcile_interval", "must be at least 100ms".into()));
+        }
+        let keep_finished_jobs = raw.limits.keep_finished_jobs.unwrap_or(100);
+        if keep_finished_jobs > 100_000 {
+            return Err(err("limits.keep_finished_jobs", "at most 100000".into()));
+        }
+        Ok(Config {
+            bus,
+            log_format,
+            worker_threads,
+            max_parallel_jobs,
+            watchdog: raw.daemon.watchdog.unwrap_or(true),
+            stall_timeout: dur("daemon.stall_timeout", &raw.daemon.stall_timeout, "10m")?,
+            spool,
+            state,
+            settle,
+            reconcile_interval,
+            accept,
+            ignore_suffixes,
+            dedupe_window: dur("watch.dedupe_window", &raw.watch.dedupe_window, "7d")?,
+            memory_budget,
+            max_input_size,
+            keep_finished_jobs,
+            finished_job_linger: dur("limits.finished_job_linger", &raw.limits.finished_job_linger, "24h")?,
+            vertices,
+            tolerance: raw.pipeline.tolerance,
+            seed: raw.pipeline.seed.unwrap_or(0),
+            compare_samples,
+            resume: raw.pipeline.resume.unwrap_or(true),
+            progress_max_rate_hz,
+            ops_group: raw.dbus.ops_group.unwrap_or_else(|| "scanstation".into()),
+        })
+    }
+
+    /// The effective configuration as pretty JSON (what `--check-config` prints).
+    pub fn effective_json(&self) -> String {
+        serde_json::to_string_pretty(self).unwrap_or_default()
+    }
+
+    /// sha256 (hex) of the effective configuration's canonical JSON; written into every report.
+    pub fn digest(&self) -> String {
+        let s = serde_json::to_string(self).unwrap_or_default();
+        let mut h = Sha256::new();
+        h.update(s.as_bytes());
+        hex(&h.finalize())
+    }
+}
+
+/// Lower-case hex of bytes.
+pub fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+/// Per-job options: from a sidecar `NAME.job.toml` or the `a{sv}` of `SubmitFile`.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct JobOptions {
+    /// Control vertices of the quad net.
+    pub vertices: Option<usize>,
+    /// Raise the resolution until the solid's RMS distance to the input is at most this length.
+    pub tolerance: Option<f64>,
+    /// Seed of the randomised steps.
+    pub seed: Option<u64>,
+}
+
+impl JobOptions {
+    /// Parse and check a sidecar file's text.
+    ///
+    /// # Errors
+    /// A message naming the key and the reason.
+    pub fn parse_toml(text: &str) -> Result<JobOptions, String> {
+        let o: JobOptions = toml::from_str(text).map_err(|e| e.message().to_string())?;
+        o.validate()?;
+        Ok(o)
+    }
+
+    /// Check ranges.
+    ///
+    /// # Errors
+    /// A message naming the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if let Some(v) = self.vertices
+            && !(8..=10_000_000).contains(&v)
+        {
+            return Err(format!("vertices: {v} is outside 8..=10000000"));
+        }
+        if let Some(t) = self.tolerance
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err("tolerance: must be a positive length".into());
+        }
+        Ok(())
+    }
+}

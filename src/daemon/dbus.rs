@@ -1,0 +1,450 @@
+//! The D-Bus face of the station (zbus 5): `org.scanstation.Station1.Manager` and one
+//! `org.scanstation.Station1.Job` object per job, under an `org.freedesktop.DBus.ObjectManager`.
+//!
+//! The interface structs are thin (after InputPlumber): properties are read from a snapshot ([`JobView`],
+//! [`ManagerView`]) that the station actor owns and updates, and methods send a [`Command`] to the actor and
+//! wait for its reply. No handler holds domain state or registers objects itself. Mutating methods re-check
+//! the caller's credentials (root, the daemon's own user, or a member of the ops group) besides the bus
+//! policy file.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use tokio::sync::{mpsc, oneshot};
+use zbus::message::Header;
+use zbus::object_server::SignalEmitter;
+use zbus::zvariant::{ObjectPath, OwnedObjectPath, OwnedValue, Value};
+use zbus::{Connection, interface};
+
+use super::config::JobOptions;
+use super::journal::JobId;
+
+/// The bus name.
+pub const BUS_NAME: &str = "org.scanstation.Station1";
+/// The manager's object path (also the ObjectManager's).
+pub const MANAGER_PATH: &str = "/org/scanstation/Station1";
+/// Interface names.
+pub const MANAGER_IFACE: &str = "org.scanstation.Station1.Manager";
+pub const JOB_IFACE: &str = "org.scanstation.Station1.Job";
+
+/// Object path of a job.
+pub fn job_path(id: &JobId) -> OwnedObjectPath {
+    OwnedObjectPath::try_from(format!("{MANAGER_PATH}/jobs/{id}")).expect("job ids are path-safe")
+}
+
+/// Errors returned to D-Bus callers as `org.scanstation.Station1.Error.*`.
+#[derive(Debug, zbus::DBusError)]
+#[zbus(prefix = "org.scanstation.Station1.Error")]
+pub enum StationError {
+    #[zbus(error)]
+    ZBus(zbus::Error),
+    /// A malformed argument (relative path, unknown option, value out of range).
+    InvalidArgument(String),
+    /// No such job, or the file does not exist.
+    NotFound(String),
+    /// The job is already finished.
+    NotCancelable(String),
+    /// Intake is paused.
+    IntakePaused(String),
+    /// The caller may read but not change anything.
+    AccessDenied(String),
+    /// The station could not do it (disk, journal, shutting down).
+    Internal(String),
+}
+
+/// A request to the station actor.
+pub enum Command {
+    Submit { path: PathBuf, options: JobOptions, source: String, reply: oneshot::Sender<Result<JobId, StationError>> },
+    Cancel { id: String, reply: oneshot::Sender<Result<(), StationError>> },
+    SetPaused { paused: bool, reply: oneshot::Sender<()> },
+    History { since_usec: u64, limit: u32, reply: oneshot::Sender<Vec<HashMap<String, OwnedValue>>> },
+    /// Liveness probe of the actor loop (the watchdog).
+    Ping { reply: oneshot::Sender<()> },
+}
+
+/// Who may change things.
+#[derive(Clone, Debug)]
+pub struct Access {
+    pub own_uid: u32,
+    pub ops_group: String,
+    pub ops_gid: Option<u32>,
+}
+
+impl Access {
+    /// The daemon's effective uid and the ops group's gid from `/etc/group` (None when it does not exist).
+    pub fn new(ops_group: &str) -> Access {
+        let own_uid = proc_status_id("Uid:").unwrap_or(u32::MAX);
+        let ops_gid = etc_entries("/etc/group").into_iter().find(|f| f[0] == ops_group).and_then(|f| f[2].parse().ok());
+        Access { own_uid, ops_group: ops_group.into(), ops_gid }
+    }
+
+    /// Whether a caller with this uid and these groups may change things.
+    pub fn allows(&self, uid: u32, gids: &[u32]) -> bool {
+        uid == 0 || uid == self.own_uid || self.ops_gid.is_some_and(|g| gids.contains(&g))
+    }
+}
+
+fn proc_status_id(key: &str) -> Option<u32> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    s.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(2)?.parse().ok()
+}
+
+fn etc_entries(path: &str) -> Vec<Vec<String>> {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split(':').map(String::from).collect::<Vec<_>>())
+        .filter(|f| f.len() >= 4)
+        .collect()
+}
+
+/// Groups of a user from the user databases (used when the bus does not report `UnixGroupIDs`).
+fn groups_of(uid: u32) -> Vec<u32> {
+    let passwd = etc_entries("/etc/passwd");
+    let Some(user) = passwd.iter().find(|f| f[2].parse() == Ok(uid)) else { return vec![] };
+    let mut g: Vec<u32> = user[3].parse().into_iter().collect();
+    for f in etc_entries("/etc/group") {
+        if f[3].split(',').any(|m| m == user[0])
+            && let Ok(x) = f[2].parse()
+        {
+            g.push(x);
+        }
+    }
+    g
+}
+
+/// Check the caller of a mutating method.
+async fn authorize(conn: &Connection, hdr: &Header<'_>, access: &Access, what: &str) -> Result<(), StationError> {
+    let Some(sender) = hdr.sender() else {
+        // A peer-to-peer connection has no bus to ask; only the daemon's own process can open one.
+        return Ok(());
+    };
+    let dbus = zbus::fdo::DBusProxy::new(conn).await?;
+    let creds = dbus
+        .get_connection_credentials(sender.clone().into())
+        .await
+        .map_err(|e| StationError::Internal(format!("cannot read the caller's credentials: {e}")))?;
+    let uid = creds.unix_user_id().ok_or_else(|| StationError::AccessDenied("the caller's uid is unknown".into()))?;
+    let gids = creds.unix_group_ids().cloned().unwrap_or_else(|| groups_of(uid));
+    if access.allows(uid, &gids) {
+        Ok(())
+    } else {
+        tracing::warn!(uid, sender = %sender, what, "refused: caller is not root, the daemon's user or in the ops group");
+        Err(StationError::AccessDenied(format!(
+            "{what} needs root or membership in group {:?} (uid {uid} is neither)",
+            access.ops_group
+        )))
+    }
+}
+
+async fn ask<T>(tx: &mpsc::Sender<Command>, make: impl FnOnce(oneshot::Sender<T>) -> Command) -> Result<T, StationError> {
+    let (reply, rx) = oneshot::channel();
+    tx.send(make(reply)).await.map_err(|_| StationError::Internal("the station is shutting down".into()))?;
+    rx.await.map_err(|_| StationError::Internal("the station is shutting down".into()))
+}
+
+/// What the Manager's properties show.
+#[derive(Clone, Debug, Default)]
+pub struct ManagerView {
+    pub state: String,
+    pub active: Vec<OwnedObjectPath>,
+    pub queued: Vec<OwnedObjectPath>,
+    pub succeeded: u64,
+    pub failed: u64,
+}
+
+/// `org.scanstation.Station1.Manager`.
+pub struct ManagerIface {
+    pub tx: mpsc::Sender<Command>,
+    pub view: Arc<Mutex<ManagerView>>,
+    pub memory_budget: u64,
+    pub access: Access,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Parse the `a{sv}` of `SubmitFile`: `vertices` (integer), `tolerance` (double), `seed` (integer).
+fn parse_options(options: &HashMap<String, OwnedValue>) -> Result<JobOptions, StationError> {
+    fn int(v: &Value<'_>) -> Option<u64> {
+        match v {
+            Value::U8(x) => Some(*x as u64),
+            Value::U16(x) => Some(*x as u64),
+            Value::U32(x) => Some(*x as u64),
+            Value::U64(x) => Some(*x),
+            Value::I16(x) => u64::try_from(*x).ok(),
+            Value::I32(x) => u64::try_from(*x).ok(),
+            Value::I64(x) => u64::try_from(*x).ok(),
+            Value::Value(b) => int(b),
+            _ => None,
+        }
+    }
+    let mut o = JobOptions::default();
+    for (k, v) in options {
+        let bad = || StationError::InvalidArgument(format!("option {k:?} has the wrong type ({})", v.value_signature()));
+        match k.as_str() {
+            "vertices" => o.vertices = Some(int(v).ok_or_else(bad)? as usize),
+            "seed" => o.seed = Some(int(v).ok_or_else(bad)?),
+            "tolerance" => match &**v {
+                Value::F64(x) => o.tolerance = Some(*x),
+                _ => return Err(bad()),
+            },
+            _ => {
+                return Err(StationError::InvalidArgument(format!(
+                    "unknown option {k:?} (known: vertices, tolerance, seed)"
+                )));
+            }
+        }
+    }
+    o.validate().map_err(StationError::InvalidArgument)?;
+    Ok(o)
+}
+
+#[interface(name = "org.scanstation.Station1.Manager")]
+impl ManagerIface {
+    /// Queue a file as a job. `path` must be absolute; a file in the spool's inbox is moved into the job
+    /// (as the watch folder would), any other file is copied. Options: `vertices` (u), `tolerance` (d),
+    /// `seed` (t). The job object exists when this returns.
+    async fn submit_file(
+        &self,
+        path: String,
+        options: HashMap<String, OwnedValue>,
+        #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+    ) -> Result<OwnedObjectPath, StationError> {
+        authorize(conn, &hdr, &self.access, "SubmitFile").await?;
+        let path = PathBuf::from(path);
+        if !path.is_absolute() {
+            return Err(StationError::InvalidArgument(format!("{} is not an absolute path", path.display())));
+        }
+        let options = parse_options(&options)?;
+        let source = format!("dbus:{}", hdr.sender().map(|s| s.to_string()).unwrap_or_default());
+        let id = ask(&self.tx, |reply| Command::Submit { path, options, source, reply }).await??;
+        Ok(job_path(&id))
+    }
+
+    /// Finished jobs (from the journal) since a time (µs since the epoch), newest first, at most `limit`
+    /// (0 = 100). Each entry holds the Job properties by name.
+    async fn get_history(&self, since_usec: u64, limit: u32) -> Result<Vec<HashMap<String, OwnedValue>>, StationError> {
+        ask(&self.tx, |reply| Command::History { since_usec, limit, reply }).await
+    }
+
+    /// Stop claiming new inbox files and refuse `SubmitFile`; running and queued jobs go on.
+    async fn pause_intake(
+        &self,
+        #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+    ) -> Result<(), StationError> {
+        authorize(conn, &hdr, &self.access, "PauseIntake").await?;
+        ask(&self.tx, |reply| Command::SetPaused { paused: true, reply }).await
+    }
+
+    /// Claim inbox files again (and rescan the inbox).
+    async fn resume_intake(
+        &self,
+        #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+    ) -> Result<(), StationError> {
+        authorize(conn, &hdr, &self.access, "ResumeIntake").await?;
+        ask(&self.tx, |reply| Command::SetPaused { paused: false, reply }).await
+    }
+
+    #[zbus(property(emits_changed_signal = "const"))]
+    fn version(&self) -> String {
+        env!("CARGO_PKG_VERSION").to_string()
+    }
+
+    /// idle, busy, paused or degraded.
+    #[zbus(property)]
+    fn state(&self) -> String {
+        lock(&self.view).state.clone()
+    }
+
+    #[zbus(property)]
+    fn active_jobs(&self) -> Vec<OwnedObjectPath> {
+        lock(&self.view).active.clone()
+    }
+
+    #[zbus(property)]
+    fn queued_jobs(&self) -> Vec<OwnedObjectPath> {
+        lock(&self.view).queued.clone()
+    }
+
+    /// Jobs that succeeded since the daemon started.
+    #[zbus(property)]
+    fn jobs_succeeded(&self) -> u64 {
+        lock(&self.view).succeeded
+    }
+
+    /// Jobs that failed (or were cancelled) since the daemon started.
+    #[zbus(property)]
+    fn jobs_failed(&self) -> u64 {
+        lock(&self.view).failed
+    }
+
+    /// Bytes a job may use (`limits.memory_budget`).
+    #[zbus(property(emits_changed_signal = "const"))]
+    fn memory_budget(&self) -> u64 {
+        self.memory_budget
+    }
+
+    /// A job reached a terminal state (emitted once per job, like its `Completed`).
+    #[zbus(signal)]
+    pub async fn job_finished(
+        emitter: &SignalEmitter<'_>,
+        job: ObjectPath<'_>,
+        result: &str,
+        error_code: &str,
+    ) -> zbus::Result<()>;
+}
+
+/// What a Job object's properties show.
+#[derive(Clone, Debug, Default)]
+pub struct JobView {
+    pub id: String,
+    pub input: String,
+    pub input_sha256: String,
+    pub state: String,
+    pub stage: String,
+    pub stage_index: u32,
+    pub stage_count: u32,
+    pub progress: f64,
+    pub message: String,
+    pub submitted_time: u64,
+    pub start_time: u64,
+    pub finish_time: u64,
+    pub peak_memory: u64,
+    pub cancelable: bool,
+    pub result: String,
+    pub error_code: String,
+    pub outputs: BTreeMap<String, String>,
+}
+
+/// `org.scanstation.Station1.Job`.
+pub struct JobIface {
+    pub tx: mpsc::Sender<Command>,
+    pub view: Arc<Mutex<JobView>>,
+    pub access: Access,
+}
+
+#[interface(name = "org.scanstation.Station1.Job")]
+impl JobIface {
+    /// Stop the job: a queued job ends at once, a running one at its next checkpoint between stages;
+    /// `Completed("cancelled", "cancelled", …)` follows once the work has really stopped. The input moves
+    /// to quarantine. Fails with `NotCancelable` once the job has finished.
+    async fn cancel(
+        &self,
+        #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+    ) -> Result<(), StationError> {
+        authorize(conn, &hdr, &self.access, "Cancel").await?;
+        let id = lock(&self.view).id.clone();
+        ask(&self.tx, |reply| Command::Cancel { id, reply }).await?
+    }
+
+    #[zbus(property(emits_changed_signal = "const"))]
+    fn id(&self) -> String {
+        lock(&self.view).id.clone()
+    }
+
+    /// The input's file name.
+    #[zbus(property(emits_changed_signal = "const"))]
+    fn input(&self) -> String {
+        lock(&self.view).input.clone()
+    }
+
+    #[zbus(property(emits_changed_signal = "const"), name = "InputSha256")]
+    fn input_sha256(&self) -> String {
+        lock(&self.view).input_sha256.clone()
+    }
+
+    /// queued, running, succeeded, failed or cancelled.
+    #[zbus(property)]
+    fn state(&self) -> String {
+        lock(&self.view).state.clone()
+    }
+
+    /// The stage running now: read, repair, remesh, surface, brep, step, quality, publish.
+    #[zbus(property)]
+    fn stage(&self) -> String {
+        lock(&self.view).stage.clone()
+    }
+
+    #[zbus(property)]
+    fn stage_index(&self) -> u32 {
+        lock(&self.view).stage_index
+    }
+
+    #[zbus(property(emits_changed_signal = "const"))]
+    fn stage_count(&self) -> u32 {
+        lock(&self.view).stage_count
+    }
+
+    /// 0–1 over all stages, weighted; never decreases; 1 only when the job has finished.
+    #[zbus(property)]
+    fn progress(&self) -> f64 {
+        lock(&self.view).progress
+    }
+
+    #[zbus(property)]
+    fn message(&self) -> String {
+        lock(&self.view).message.clone()
+    }
+
+    /// µs since the epoch.
+    #[zbus(property)]
+    fn submitted_time(&self) -> u64 {
+        lock(&self.view).submitted_time
+    }
+
+    #[zbus(property)]
+    fn start_time(&self) -> u64 {
+        lock(&self.view).start_time
+    }
+
+    #[zbus(property)]
+    fn finish_time(&self) -> u64 {
+        lock(&self.view).finish_time
+    }
+
+    /// Peak resident memory of the daemon while the job ran, bytes.
+    #[zbus(property)]
+    fn peak_memory(&self) -> u64 {
+        lock(&self.view).peak_memory
+    }
+
+    #[zbus(property)]
+    fn cancelable(&self) -> bool {
+        lock(&self.view).cancelable
+    }
+
+    /// "" until finished; then succeeded, failed or cancelled.
+    #[zbus(property)]
+    fn result(&self) -> String {
+        lock(&self.view).result.clone()
+    }
+
+    #[zbus(property)]
+    fn error_code(&self) -> String {
+        lock(&self.view).error_code.clone()
+    }
+
+    /// Kind → path: step, solid-mesh, report, error-map, manifest, quarantine, error.
+    #[zbus(property)]
+    fn outputs(&self) -> HashMap<String, String> {
+        lock(&self.view).outputs.clone().into_iter().collect()
+    }
+
+    /// Emitted exactly once per job, after its work has stopped (also, after a restart, for a job that a
+    /// crash interrupted: `failed`, `interrupted`).
+    #[zbus(signal)]
+    pub async fn completed(
+        emitter: &SignalEmitter<'_>,
+        result: &str,
+        error_code: &str,
+        message: &str,
+    ) -> zbus::Result<()>;
+}

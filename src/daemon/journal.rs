@@ -1,0 +1,225 @@
+//! The crash-safe job journal: one JSON record per job in `STATE/jobs/<id>.json`, each write atomic (temp
+//! file in the same directory, fsync, rename, fsync of the directory). The journal plus the spool layout is
+//! the whole truth after a restart; see [`super::station`] for the recovery rules.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use sha2::{Digest, Sha256};
+
+use super::config::JobOptions;
+
+/// Schema of a record; bumped on incompatible change.
+pub const SCHEMA: u32 = 1;
+
+/// Microseconds since the Unix epoch (0 never occurs for a real time).
+pub fn now_usec() -> u64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_micros() as u64).unwrap_or(0)
+}
+
+/// A job id: 26 characters of Crockford base32, sortable by creation time (48-bit milliseconds, then 80
+/// bits from a hash of time, pid and a counter). Valid as a D-Bus object-path element and a file name.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(transparent)]
+pub struct JobId(pub String);
+
+const CROCKFORD: &[u8; 32] = b"0123456789ABCDEFGHJKMNPQRSTVWXYZ";
+
+impl JobId {
+    /// A new id.
+    pub fn new() -> JobId {
+        static COUNTER: AtomicU64 = AtomicU64::new(0);
+        let ns = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
+        let ms = (ns / 1_000_000) as u64 & ((1 << 48) - 1);
+        let mut h = Sha256::new();
+        h.update(ns.to_le_bytes());
+        h.update(std::process::id().to_le_bytes());
+        h.update(COUNTER.fetch_add(1, Ordering::Relaxed).to_le_bytes());
+        let r = h.finalize();
+        let mut bits: u128 = (ms as u128) << 80;
+        for (i, b) in r.iter().take(10).enumerate() {
+            bits |= (*b as u128) << (8 * (9 - i));
+        }
+        let s: String = (0..26).rev().map(|k| CROCKFORD[((bits >> (5 * k)) & 31) as usize] as char).collect();
+        JobId(s)
+    }
+
+    /// Accept an id string only if it has the form of one of ours (so it can name paths safely).
+    pub fn parse(s: &str) -> Option<JobId> {
+        (s.len() == 26 && s.bytes().all(|b| CROCKFORD.contains(&b))).then(|| JobId(s.to_string()))
+    }
+
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+impl Default for JobId {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl std::fmt::Display for JobId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+/// Lifecycle of a job. Terminal states never change again.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JobState {
+    Queued,
+    Running,
+    Succeeded,
+    Failed,
+    Cancelled,
+}
+
+impl JobState {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Succeeded => "succeeded",
+            JobState::Failed => "failed",
+            JobState::Cancelled => "cancelled",
+        }
+    }
+
+    pub fn is_terminal(self) -> bool {
+        matches!(self, JobState::Succeeded | JobState::Failed | JobState::Cancelled)
+    }
+}
+
+/// One job as the journal keeps it.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct JobRecord {
+    pub schema: u32,
+    pub id: JobId,
+    /// The input's file name as it arrived.
+    pub input: String,
+    /// Where it came from: `inbox` or `dbus:<unique name>`.
+    pub source: String,
+    pub input_sha256: String,
+    pub input_size: u64,
+    pub options: JobOptions,
+    pub state: JobState,
+    pub stage: String,
+    pub submitted_usec: u64,
+    pub start_usec: u64,
+    pub finish_usec: u64,
+    /// Times this job was started (more than one after a resume).
+    pub runs: u32,
+    pub error_code: String,
+    pub message: String,
+    pub outputs: BTreeMap<String, String>,
+    pub peak_memory: u64,
+    /// Whether `Completed` was emitted (a terminal record without it is announced after a restart).
+    pub announced: bool,
+}
+
+impl JobRecord {
+    /// The stem used in outbox and quarantine names: the input name without its extension(s), reduced to
+    /// safe characters.
+    pub fn stem(&self) -> String {
+        let mut s = self.input.as_str();
+        for ext in [".gz"] {
+            if s.to_ascii_lowercase().ends_with(ext) {
+                s = &s[..s.len() - ext.len()];
+            }
+        }
+        let s = Path::new(s).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let clean: String =
+            s.chars().map(|c| if c.is_ascii_alphanumeric() || "-_.".contains(c) { c } else { '_' }).take(80).collect();
+        if clean.is_empty() || clean.starts_with('.') { format!("scan{clean}") } else { clean }
+    }
+
+    /// `result` for `Completed`: "" until terminal.
+    pub fn result(&self) -> &'static str {
+        if self.state.is_terminal() { self.state.as_str() } else { "" }
+    }
+}
+
+/// The journal directory.
+pub struct Journal {
+    dir: PathBuf,
+}
+
+/// Write `bytes` to `path` atomically and durably: a temp file beside it, fsync, rename, fsync the directory.
+///
+/// # Errors
+/// The I/O error.
+pub fn write_durable(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}",
+        path.file_name().map(|n| n.to_string_lossy()).unwrap_or_default(),
+        std::process::id()
+    ));
+    {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path)?;
+    sync_dir(dir)
+}
+
+/// fsync a directory (makes renames and creations in it durable).
+///
+/// # Errors
+/// The I/O error.
+pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
+    std::fs::File::open(dir)?.sync_all()
+}
+
+impl Journal {
+    /// Open (creating) `STATE/jobs`.
+    ///
+    /// # Errors
+    /// The I/O error.
+    pub fn open(state: &Path) -> std::io::Result<Journal> {
+        let dir = state.join("jobs");
+        std::fs::create_dir_all(&dir)?;
+        Ok(Journal { dir })
+    }
+
+    /// Persist a record (atomically).
+    ///
+    /// # Errors
+    /// The I/O error.
+    pub fn save(&self, r: &JobRecord) -> std::io::Result<()> {
+        let bytes = serde_json::to_vec_pretty(r).map_err(std::io::Error::other)?;
+        write_durable(&self.dir.join(format!("{}.json", r.id)), &bytes)
+    }
+
+    /// Every readable record, oldest id first; unreadable ones are logged and skipped (left in place).
+    pub fn load_all(&self) -> Vec<JobRecord> {
+        let mut out = Vec::new();
+        let Ok(rd) = std::fs::read_dir(&self.dir) else { return out };
+        for e in rd.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name.starts_with('.') {
+                // A temp file from an interrupted write: the rename never happened, the old record stands.
+                let _ = std::fs::remove_file(e.path());
+                continue;
+            }
+            if !name.ends_with(".json") {
+                continue;
+            }
+            match std::fs::read(e.path()).map_err(|e| e.to_string()).and_then(|b| {
+                serde_json::from_slice::<JobRecord>(&b).map_err(|e| e.to_string())
+            }) {
+                Ok(r) => out.push(r),
+                Err(err) => tracing::error!(file = %e.path().display(), %err, "unreadable job record skipped"),
+            }
+        }
+        out.sort_by(|a, b| a.id.cmp(&b.id));
+        out
+    }
+}

@@ -1,0 +1,152 @@
+//! **Daemon** — the unattended station: watch folders, a crash-safe job queue, progress on D-Bus, systemd
+//! integration. The top layer: it runs the pipeline and uses tokio and zbus; nothing below imports it.
+//!
+//! - [`config`]: `config/scanstation.toml`, strict, validated, with a digest;
+//! - [`spool`]: the watch-folder layout (`inbox/`, `work/`, `outbox/`, `quarantine/`) and its atomic moves;
+//! - [`watch`]: inotify on the inbox;
+//! - [`journal`]: one durable JSON record per job;
+//! - [`station`]: the actor that owns jobs, queue and recovery;
+//! - [`worker`]: a job's work on the CPU pool, publication and quarantine;
+//! - [`dbus`]: the `org.scanstation.Station1` interfaces (thin, actor-backed);
+//! - [`client`]: proxies for the `scanstation` CLI;
+//! - [`notify`]: sd_notify and the watchdog.
+
+pub mod client;
+pub mod config;
+pub mod dbus;
+pub mod journal;
+pub mod notify;
+pub mod spool;
+pub mod station;
+pub mod watch;
+pub mod worker;
+
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use tokio::sync::{mpsc, oneshot};
+
+use config::{Bus, Config};
+use dbus::{Access, BUS_NAME, Command, MANAGER_PATH, ManagerIface, ManagerView};
+
+/// A start-up failure: what could not be set up, for the operator.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    #[error(transparent)]
+    Config(#[from] config::ConfigError),
+    #[error(transparent)]
+    Spool(#[from] spool::SpoolError),
+    #[error("state directory {path}: {reason}")]
+    State { path: String, reason: String },
+    #[error("cannot connect to the {bus} bus: {reason}")]
+    Bus { bus: &'static str, reason: String },
+    #[error("cannot take the bus name {BUS_NAME}: {0} (is another scanstationd running, or does the policy forbid it?)")]
+    Name(String),
+    #[error("cannot export the D-Bus objects: {0}")]
+    Export(String),
+    #[error("cannot watch the inbox {path}: {reason}")]
+    Watch { path: String, reason: String },
+}
+
+/// Run the daemon until SIGTERM or SIGINT.
+///
+/// Order (so that clients never see a half-ready station): spool and journal are opened and recovered,
+/// the ObjectManager, Manager and job objects are exported, the inbox watch is added and the inbox
+/// scanned, then the bus name is requested, interrupted jobs are announced, and systemd is told READY.
+///
+/// # Errors
+/// [`StartError`] for anything that prevents start-up (bad spool, state directory, bus, name).
+pub async fn run(cfg: Config) -> Result<(), StartError> {
+    let cfg = Arc::new(cfg);
+    let spool = spool::Spool::open(&cfg.spool)?;
+    let journal = journal::Journal::open(&cfg.state)
+        .map_err(|e| StartError::State { path: cfg.state.display().to_string(), reason: e.to_string() })?;
+    let (bus_name, builder) = match cfg.bus {
+        Bus::System => ("system", zbus::connection::Builder::system()),
+        Bus::Session => ("session", zbus::connection::Builder::session()),
+    };
+    let bus_err = |e: zbus::Error| StartError::Bus { bus: bus_name, reason: e.to_string() };
+    let conn = builder.map_err(bus_err)?.build().await.map_err(bus_err)?;
+
+    let (cmd_tx, cmd_rx) = mpsc::channel::<Command>(64);
+    let (worker_tx, worker_rx) = mpsc::unbounded_channel();
+    let (watch_tx, watch_rx) = mpsc::unbounded_channel();
+    let manager_view = Arc::new(Mutex::new(ManagerView::default()));
+    let access = Access::new(&cfg.ops_group);
+    if access.ops_gid.is_none() {
+        tracing::warn!(group = %cfg.ops_group, "the ops group does not exist: only root and the daemon's user may submit");
+    }
+    let export_err = |e: zbus::Error| StartError::Export(e.to_string());
+    let server = conn.object_server();
+    server.at(MANAGER_PATH, zbus::fdo::ObjectManager).await.map_err(export_err)?;
+    server
+        .at(
+            MANAGER_PATH,
+            ManagerIface {
+                tx: cmd_tx.clone(),
+                view: manager_view.clone(),
+                memory_budget: cfg.memory_budget,
+                access: access.clone(),
+            },
+        )
+        .await
+        .map_err(export_err)?;
+    let mut station = station::Station::recover(
+        cfg.clone(),
+        spool.clone(),
+        journal,
+        conn.clone(),
+        access,
+        cmd_tx.clone(),
+        worker_tx,
+        manager_view.clone(),
+    )
+    .map_err(|e| StartError::State { path: cfg.state.display().to_string(), reason: e.to_string() })?;
+    station.export_all().await.map_err(export_err)?;
+    watch::start(&spool.inbox, watch_tx)
+        .map_err(|e| StartError::Watch { path: spool.inbox.display().to_string(), reason: e.to_string() })?;
+    conn.request_name(BUS_NAME).await.map_err(|e| StartError::Name(e.to_string()))?;
+    station.announce_pending().await;
+    tracing::info!(bus = bus_name, spool = %cfg.spool.display(), state = %cfg.state.display(), digest = %cfg.digest(), "scanstationd ready");
+    notify::notify("READY=1\nSTATUS=ready");
+
+    if cfg.watchdog
+        && let Some(period) = notify::watchdog_period()
+    {
+        let heartbeat = station.heartbeat.clone();
+        let tx = cmd_tx.clone();
+        let view = manager_view.clone();
+        let stall = cfg.stall_timeout;
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(period / 2);
+            loop {
+                tick.tick().await;
+                let (reply, rx) = oneshot::channel();
+                let alive = tx.send(Command::Ping { reply }).await.is_ok()
+                    && tokio::time::timeout(Duration::from_secs(2), rx).await.is_ok_and(|r| r.is_ok());
+                let busy = !view.lock().map(|v| v.active.is_empty()).unwrap_or(true);
+                let last = heartbeat.load(Ordering::Relaxed);
+                let moving = journal::now_usec().saturating_sub(last) < stall.as_micros() as u64;
+                if alive && (!busy || moving) {
+                    notify::notify("WATCHDOG=1");
+                } else {
+                    tracing::error!(alive, busy, "watchdog not fed: the station is stuck");
+                }
+            }
+        });
+    }
+
+    let shutdown = async {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {},
+            _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending::<()>().await } } => {},
+        }
+    };
+    let inputs = station::Inputs { commands: cmd_rx, watch: watch_rx, worker: worker_rx };
+    station.run(inputs, shutdown).await;
+    notify::notify("STOPPING=1");
+    // A running job is left `running` in the journal: the next start resumes (or fails) it.
+    Ok(())
+}

@@ -1,0 +1,299 @@
+//! One job's work, run on the CPU pool (never on the async runtime): the conversion chain on the claimed
+//! input, the quality artifacts, then publication of `outbox/<stem>-<id>/` (manifest last, one rename) — or,
+//! on any error, the input moved to `quarantine/<stem>-<id>/` with `error.json`. Progress goes back to the
+//! station as one monotonic, weighted fraction.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+use tokio::sync::mpsc;
+
+use super::config::Config;
+use super::journal::{JobId, JobRecord, now_usec, sync_dir, write_durable};
+use super::spool::{Spool, publish_dir};
+use crate::error::{Error, ErrorCode};
+use crate::geometry::io::{ReadOptions, read_mesh};
+use crate::geometry::mesh::Geometry;
+use crate::pipeline::convert::{ConvertOptions, Resolution, convert_file};
+use crate::pipeline::memory::StageMeter;
+use crate::stages::Progress;
+
+/// The stages a job goes through, in order (`StageIndex` indexes this).
+pub const STAGES: [&str; 8] = ["read", "repair", "remesh", "surface", "brep", "step", "quality", "publish"];
+
+/// Overall progress at the start of `quality` and `publish` (the conversion chain maps to 0 – 0.9).
+const QUALITY_AT: f64 = 0.9;
+const PUBLISH_AT: f64 = 0.97;
+/// Highest value reported before the job has finished.
+const BEFORE_DONE: f64 = 0.999;
+
+/// What the worker tells the station.
+#[derive(Debug)]
+pub enum WorkerEvent {
+    Progress { id: JobId, fraction: f64, stage: &'static str, message: String },
+    Done { id: JobId, outcome: Outcome },
+}
+
+/// How a job ended.
+#[derive(Debug)]
+pub struct Outcome {
+    /// None on success.
+    pub error: Option<Error>,
+    /// The stage that was running when it ended.
+    pub stage: String,
+    pub outputs: BTreeMap<String, String>,
+    pub peak_memory: u64,
+}
+
+/// Everything a job's run needs.
+pub struct JobRun {
+    pub record: JobRecord,
+    pub cfg: Arc<Config>,
+    pub config_digest: String,
+    pub spool: Spool,
+    /// An error decided before the work (duplicate, too large, bad sidecar): quarantine at once.
+    pub preset_error: Option<Error>,
+    pub cancel: Arc<AtomicBool>,
+    /// µs of the last progress report (the watchdog only pets while this moves).
+    pub heartbeat: Arc<AtomicU64>,
+    pub events: mpsc::UnboundedSender<WorkerEvent>,
+}
+
+struct Reporter<'a> {
+    run: &'a JobRun,
+    state: Mutex<(f64, &'static str)>,
+}
+
+impl Reporter<'_> {
+    fn send(&self, fraction: f64, stage: &'static str, message: String) {
+        self.run.heartbeat.store(now_usec(), Ordering::Relaxed);
+        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        let f = fraction.clamp(0.0, BEFORE_DONE).max(s.0);
+        if stage != s.1 || f >= s.0 + 0.002 {
+            *s = (f, stage);
+            let _ = self.run.events.send(WorkerEvent::Progress { id: self.run.record.id.clone(), fraction: f, stage, message });
+        }
+    }
+}
+
+impl Progress for Reporter<'_> {
+    fn report(&self, fraction: f64, phase: &str) {
+        let stage_name = phase.split('/').next().unwrap_or("");
+        let stage = STAGES.iter().copied().find(|s| *s == stage_name).unwrap_or(self.state.lock().map(|s| s.1).unwrap_or("read"));
+        self.send(fraction * QUALITY_AT, stage, phase.to_string());
+    }
+
+    fn cancelled(&self) -> bool {
+        self.run.cancel.load(Ordering::Relaxed)
+    }
+}
+
+/// Run the job to its end (success, error, or cancellation) and report [`WorkerEvent::Done`].
+pub fn run(job: JobRun) {
+    let meter = StageMeter::start();
+    let reporter = Reporter { run: &job, state: Mutex::new((0.0, "read")) };
+    let result = match &job.preset_error {
+        Some(e) => Err(e.clone()),
+        None => convert_and_publish(&job, &reporter),
+    };
+    let stage = reporter.state.lock().map(|s| s.1).unwrap_or("read").to_string();
+    let (_, peak_mib) = meter.finish();
+    let peak_memory = peak_mib.map(|m| (m * 1024.0 * 1024.0) as u64).unwrap_or(0);
+    let outcome = match result {
+        Ok(outputs) => Outcome { error: None, stage, outputs, peak_memory },
+        Err(e) => {
+            let error = e;
+            let outputs = match quarantine(&job, &error, &stage) {
+                Ok(o) => o,
+                Err(q) => {
+                    tracing::error!(job_id = %job.record.id, error = %q, "quarantine failed; the input stays in work/");
+                    BTreeMap::new()
+                }
+            };
+            Outcome { error: Some(error), stage, outputs, peak_memory }
+        }
+    };
+    let _ = job.events.send(WorkerEvent::Done { id: job.record.id.clone(), outcome });
+}
+
+/// The claimed input in `work/<id>/`.
+pub fn input_path(spool: &Spool, rec: &JobRecord) -> PathBuf {
+    spool.work_dir(&rec.id).join(&rec.input)
+}
+
+fn io_err(what: &str, path: &Path, e: std::io::Error) -> Error {
+    Error::new(ErrorCode::ResourceOutput, format!("{what} {}: {e}", path.display()))
+}
+
+fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<String, String>, Error> {
+    let rec = &job.record;
+    let stem = rec.stem();
+    let input = input_path(&job.spool, rec);
+    let part = job.spool.outbox_part(&stem, &rec.id);
+    if part.exists() {
+        std::fs::remove_dir_all(&part).map_err(|e| io_err("cannot clear", &part, e))?;
+    }
+    std::fs::create_dir_all(&part).map_err(|e| io_err("cannot create", &part, e))?;
+    let cfg = &job.cfg;
+    let resolution = match (rec.options.tolerance.or(cfg.tolerance), rec.options.vertices) {
+        (_, Some(v)) => Resolution::Vertices(v),
+        (Some(t), None) => Resolution::Tolerance(t),
+        (None, None) => Resolution::Vertices(cfg.vertices),
+    };
+    let opts = ConvertOptions {
+        resolution,
+        seed: rec.options.seed.unwrap_or(cfg.seed),
+        compare_samples: cfg.compare_samples,
+        memory_budget: cfg.memory_budget,
+        ..Default::default()
+    };
+    let read = ReadOptions { memory_budget: cfg.memory_budget };
+    let step = part.join(format!("{stem}.step"));
+    let report = convert_file(&input, &step, &read, &opts, rep)?;
+
+    // Quality artifacts: the solid's distance to the scan as a coloured mesh.
+    crate::stages::check_cancelled(rep)?;
+    rep.send(QUALITY_AT, "quality", "quality/error map".into());
+    let error_map = part.join(format!("{stem}.error-map.ply"));
+    let solid = read_mesh(&report.solid_mesh_file, &read)?;
+    let scan = read_mesh(&input, &read)?;
+    crate::stages::quality::write_error_map(&error_map, &Geometry::Mesh(solid), &Geometry::Mesh(scan))?;
+
+    crate::stages::check_cancelled(rep)?;
+    rep.send(PUBLISH_AT, "publish", "publish/report and manifest".into());
+    let report_path = part.join(format!("{stem}.report.json"));
+    let report_json = serde_json::json!({
+        "job_id": rec.id,
+        "input": rec.input,
+        "input_sha256": rec.input_sha256,
+        "config_digest": job.config_digest,
+        "daemon_version": env!("CARGO_PKG_VERSION"),
+        "convert": report,
+    });
+    write_durable(&report_path, serde_json::to_string_pretty(&report_json).unwrap_or_default().as_bytes())
+        .map_err(|e| io_err("cannot write", &report_path, e))?;
+    let files = [
+        ("step", step.clone()),
+        ("solid-mesh", report.solid_mesh_file.clone()),
+        ("error-map", error_map),
+        ("report", report_path),
+    ];
+    let mut manifest_files = serde_json::Map::new();
+    for (kind, p) in &files {
+        let f = std::fs::File::open(p).map_err(|e| io_err("cannot reopen", p, e))?;
+        f.sync_all().map_err(|e| io_err("cannot fsync", p, e))?;
+        manifest_files.insert(
+            kind.to_string(),
+            serde_json::json!({
+                "file": p.file_name().map(|n| n.to_string_lossy().into_owned()),
+                "bytes": f.metadata().map(|m| m.len()).unwrap_or(0),
+                "sha256": crate::pipeline::fea::sha256_file(p)?,
+            }),
+        );
+    }
+    let manifest = serde_json::json!({
+        "schema": 1,
+        "job_id": rec.id,
+        "input": rec.input,
+        "input_sha256": rec.input_sha256,
+        "config_digest": job.config_digest,
+        "daemon_version": env!("CARGO_PKG_VERSION"),
+        "finished_usec": now_usec(),
+        "files": manifest_files,
+    });
+    let manifest_path = part.join("manifest.json");
+    write_durable(&manifest_path, serde_json::to_string_pretty(&manifest).unwrap_or_default().as_bytes())
+        .map_err(|e| io_err("cannot write", &manifest_path, e))?;
+    let public = job.spool.outbox_dir(&stem, &rec.id);
+    publish_dir(&part, &public).map_err(|e| io_err("cannot publish", &public, e))?;
+    let mut outputs = BTreeMap::new();
+    for (kind, p) in files.iter().map(|(k, p)| (k.to_string(), p)).chain([("manifest".to_string(), &manifest_path)]) {
+        outputs.insert(kind, public.join(p.file_name().unwrap_or_default()).display().to_string());
+    }
+    Ok(outputs)
+}
+
+/// The `error.json` of a quarantined input.
+pub fn error_json(rec: &JobRecord, digest: &str, stage: &str, e: &Error) -> serde_json::Value {
+    serde_json::json!({
+        "schema": 1,
+        "job_id": rec.id,
+        "input": rec.input,
+        "sha256": rec.input_sha256,
+        "stage": stage,
+        "error_code": e.code.as_str(),
+        "error_class": e.class(),
+        "message": e.message,
+        "hint": e.hint.clone().unwrap_or_else(|| default_hint(e.code).to_string()),
+        "location": e.location,
+        "daemon_version": env!("CARGO_PKG_VERSION"),
+        "config_digest": digest,
+        "submitted_usec": rec.submitted_usec,
+        "started_usec": rec.start_usec,
+        "finished_usec": now_usec(),
+    })
+}
+
+fn default_hint(code: ErrorCode) -> &'static str {
+    use ErrorCode::*;
+    match code {
+        InputUnknownFormat => "use PLY, OBJ, STL, OFF or XYZ (optionally .gz)",
+        InputDuplicate => "the same content was processed recently; see the earlier job named in the message",
+        InputTooLarge => "raise limits.max_input_size or decimate the scan",
+        ResourceMemoryBudget => "raise limits.memory_budget or lower the resolution (vertices)",
+        Cancelled => "cancelled on request; drop the file into the inbox again to retry",
+        Interrupted => "the daemon stopped while the job ran; drop the file into the inbox again to retry",
+        InputBadArgument => "check the job options (sidecar NAME.job.toml or SubmitFile options)",
+        _ => "check the input with `scanstation inspect`, or `scanstation repair` it first",
+    }
+}
+
+/// Move the job's input (and sidecar) from `work/<id>/` to `quarantine/<stem>-<id>/` with `error.json`,
+/// built under a hidden `.part` name and renamed.
+///
+/// # Errors
+/// The I/O error as `resource.output`.
+pub fn quarantine(job: &JobRun, e: &Error, stage: &str) -> Result<BTreeMap<String, String>, Error> {
+    quarantine_record(&job.spool, &job.record, &job.config_digest, e, stage)
+}
+
+/// As [`quarantine`], from the record alone (also used at start-up for interrupted jobs).
+///
+/// # Errors
+/// The I/O error as `resource.output`.
+pub fn quarantine_record(
+    spool: &Spool,
+    rec: &JobRecord,
+    digest: &str,
+    e: &Error,
+    stage: &str,
+) -> Result<BTreeMap<String, String>, Error> {
+    let stem = rec.stem();
+    let part = spool.quarantine_part(&stem, &rec.id);
+    let public = spool.quarantine_dir(&stem, &rec.id);
+    // Remove any half-built outbox directory of this job.
+    let out_part = spool.outbox_part(&stem, &rec.id);
+    if out_part.exists() {
+        let _ = std::fs::remove_dir_all(&out_part);
+    }
+    std::fs::create_dir_all(&part).map_err(|x| io_err("cannot create", &part, x))?;
+    let work = spool.work_dir(&rec.id);
+    if let Ok(rd) = std::fs::read_dir(&work) {
+        for f in rd.flatten() {
+            let to = part.join(f.file_name());
+            std::fs::rename(f.path(), &to).map_err(|x| io_err("cannot move", &f.path(), x))?;
+        }
+    }
+    let ej = part.join("error.json");
+    write_durable(&ej, serde_json::to_string_pretty(&error_json(rec, digest, stage, e)).unwrap_or_default().as_bytes())
+        .map_err(|x| io_err("cannot write", &ej, x))?;
+    sync_dir(&part).map_err(|x| io_err("cannot fsync", &part, x))?;
+    std::fs::rename(&part, &public).map_err(|x| io_err("cannot publish", &public, x))?;
+    sync_dir(&spool.quarantine).map_err(|x| io_err("cannot fsync", &spool.quarantine, x))?;
+    let mut o = BTreeMap::new();
+    o.insert("quarantine".to_string(), public.display().to_string());
+    o.insert("error".to_string(), public.join("error.json").display().to_string());
+    Ok(o)
+}
