@@ -88,6 +88,10 @@ pub enum ErrorCode {
     ResourceOutput,
     /// An internal invariant failed.
     InternalBug,
+    /// The station daemon cannot be reached on the bus (not running, no bus, wrong bus).
+    DaemonUnavailable,
+    /// The station daemon refused a request; the message carries its D-Bus error name.
+    DaemonRefused,
     /// The job was cancelled on request; the work stopped at a checkpoint between stages.
     Cancelled,
     /// The process stopped (crash, `kill -9`, power loss) while the job ran, and it was not resumed.
@@ -128,6 +132,8 @@ impl ErrorCode {
             ErrorCode::ResourceMemoryBudget => "resource.memory",
             ErrorCode::ResourceOutput => "resource.output",
             ErrorCode::InternalBug => "internal.bug",
+            ErrorCode::DaemonUnavailable => "daemon.unavailable",
+            ErrorCode::DaemonRefused => "daemon.refused",
             ErrorCode::Cancelled => "cancelled",
             ErrorCode::Interrupted => "interrupted",
         }
@@ -141,7 +147,8 @@ impl ErrorCode {
             | ErrorCode::FeaNotConverged
             | ErrorCode::InputTooLarge
             | ErrorCode::Cancelled
-            | ErrorCode::Interrupted => ErrorClass::Resource,
+            | ErrorCode::Interrupted
+            | ErrorCode::DaemonUnavailable => ErrorClass::Resource,
             ErrorCode::InternalBug | ErrorCode::BrepInvalid => ErrorClass::Internal,
             _ => ErrorClass::BadInput,
         }

@@ -131,6 +131,45 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// The station daemon's state (D-Bus client of scanstationd).
+    Status {
+        /// Use the session bus instead of the system bus.
+        #[arg(long)]
+        session: bool,
+    },
+    /// The station's jobs: queued, running and recently finished.
+    Jobs {
+        #[arg(long)]
+        session: bool,
+    },
+    /// Queue a file on the station (its absolute path is sent; files outside the inbox are copied).
+    Submit {
+        file: PathBuf,
+        /// Control vertices of the quad net for this job.
+        #[arg(long)]
+        vertices: Option<u32>,
+        /// RMS tolerance (length) for this job instead of a vertex count.
+        #[arg(long)]
+        tolerance: Option<f64>,
+        /// Follow the job until it finishes (exit status 1 when it fails).
+        #[arg(long)]
+        wait: bool,
+        #[arg(long)]
+        session: bool,
+    },
+    /// Cancel a job (by id or object path).
+    Cancel {
+        id: String,
+        #[arg(long)]
+        session: bool,
+    },
+    /// Follow progress: one job until it finishes, or every job until interrupted. A progress bar on a
+    /// terminal, JSON lines otherwise (or with --json).
+    Watch {
+        id: Option<String>,
+        #[arg(long)]
+        session: bool,
+    },
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare {
         /// The surface to measure.
@@ -227,6 +266,11 @@ fn main() -> ExitCode {
             pipeline::fea::fea_file(input, spec, output, &read, &opts, &NoProgress)
                 .map(|r| if cli.json { print_json(&r) } else { print_fea(&r) })
         }
+        Command::Status { .. }
+        | Command::Jobs { .. }
+        | Command::Submit { .. }
+        | Command::Cancel { .. }
+        | Command::Watch { .. } => return station_client(&cli),
         Command::Compare { test, reference, samples, seed, error_map } => {
             let opts = CompareOptions {
                 samples: *samples,
@@ -439,6 +483,89 @@ fn print_remesh(r: &pipeline::RemeshFileReport) {
         );
     }
     println!("  seconds: {:?}", m.seconds);
+}
+
+/// The D-Bus client commands (thin: the work is in `scanstation::daemon::client::ops`).
+fn station_client(cli: &Cli) -> ExitCode {
+    use scanstation::daemon::client::ops;
+    let rt = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+        Ok(rt) => rt,
+        Err(e) => return report_error(&Error::internal(format!("cannot start the async runtime: {e}")), cli.json),
+    };
+    let json = cli.json;
+    let r: Result<bool, Error> = rt.block_on(async {
+        match &cli.command {
+            Command::Status { session } => {
+                let conn = ops::connect(*session).await?;
+                let s = ops::status(&conn).await?;
+                if json {
+                    print_json(&s);
+                } else {
+                    for (k, v) in s.as_object().into_iter().flatten() {
+                        println!("{k:<14} {v}");
+                    }
+                }
+                Ok(true)
+            }
+            Command::Jobs { session } => {
+                let conn = ops::connect(*session).await?;
+                let jobs = ops::jobs(&conn).await?;
+                if json {
+                    print_json(&serde_json::json!({ "jobs": jobs }));
+                } else {
+                    println!("{:<26}  {:<10}  {:>6}  {:<9}  {:<22}  input", "id", "state", "done", "stage", "error");
+                    for j in &jobs {
+                        println!(
+                            "{:<26}  {:<10}  {:>5.1}%  {:<9}  {:<22}  {}",
+                            j["Id"].as_str().unwrap_or(""),
+                            j["State"].as_str().unwrap_or(""),
+                            j["Progress"].as_f64().unwrap_or(0.0) * 100.0,
+                            j["Stage"].as_str().unwrap_or(""),
+                            j["ErrorCode"].as_str().unwrap_or(""),
+                            j["Input"].as_str().unwrap_or("")
+                        );
+                    }
+                }
+                Ok(true)
+            }
+            Command::Submit { file, vertices, tolerance, wait, session } => {
+                let conn = ops::connect(*session).await?;
+                let path = ops::submit(&conn, file, *vertices, *tolerance).await?;
+                if !*wait {
+                    if json {
+                        print_json(&serde_json::json!({ "job": path }));
+                    } else {
+                        println!("{path}");
+                    }
+                    return Ok(true);
+                }
+                let done = ops::watch(&conn, Some(&path), json).await?;
+                if !json {
+                    println!("{} {}", done["Result"], done["ErrorCode"]);
+                }
+                Ok(done["Result"] == "succeeded")
+            }
+            Command::Cancel { id, session } => {
+                let conn = ops::connect(*session).await?;
+                ops::cancel(&conn, id).await?;
+                if json {
+                    print_json(&serde_json::json!({ "cancelled": ops::job_path(id) }));
+                }
+                Ok(true)
+            }
+            Command::Watch { id, session } => {
+                let conn = ops::connect(*session).await?;
+                let done = ops::watch(&conn, id.as_deref(), json).await?;
+                Ok(id.is_none() || done["Result"] == "succeeded")
+            }
+            _ => Ok(true),
+        }
+    });
+    match r {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::from(1),
+        Err(e) => report_error(&e, json),
+    }
 }
 
 fn print_json<T: serde::Serialize>(v: &T) {

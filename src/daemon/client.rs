@@ -40,3 +40,267 @@ pub trait Job {
     #[zbus(signal)]
     fn completed(&self, result: String, error_code: String, message: String) -> zbus::Result<()>;
 }
+
+/// What the CLI client does, over D-Bus; every function returns JSON for `--json` and text output.
+pub mod ops {
+    use std::collections::HashMap;
+    use std::io::{IsTerminal, Write};
+
+    use futures_util::StreamExt;
+    use zbus::Connection;
+    use zbus::zvariant::{OwnedValue, Value};
+
+    use super::{JobProxy, ManagerProxy};
+    use crate::daemon::dbus::{BUS_NAME, JOB_IFACE, MANAGER_PATH};
+    use crate::error::{Error, ErrorCode, Result};
+
+    fn bus_err(e: zbus::Error) -> Error {
+        match &e {
+            zbus::Error::MethodError(name, msg, _) => {
+                let unavailable = name.as_str() == "org.freedesktop.DBus.Error.ServiceUnknown"
+                    || name.as_str() == "org.freedesktop.DBus.Error.NameHasNoOwner";
+                Error::new(
+                    if unavailable { ErrorCode::DaemonUnavailable } else { ErrorCode::DaemonRefused },
+                    format!("{name}: {}", msg.as_deref().unwrap_or("")),
+                )
+            }
+            _ => Error::new(ErrorCode::DaemonUnavailable, e.to_string())
+                .with_hint("is scanstationd running, and on this bus (--session)?"),
+        }
+    }
+
+    /// Connect to the system bus, or the session bus.
+    ///
+    /// # Errors
+    /// `daemon.unavailable`.
+    pub async fn connect(session: bool) -> Result<Connection> {
+        let c = if session { Connection::session().await } else { Connection::system().await };
+        c.map_err(bus_err)
+    }
+
+    fn to_json(v: &Value<'_>) -> serde_json::Value {
+        use serde_json::json;
+        match v {
+            Value::U8(x) => json!(x),
+            Value::Bool(x) => json!(x),
+            Value::I16(x) => json!(x),
+            Value::U16(x) => json!(x),
+            Value::I32(x) => json!(x),
+            Value::U32(x) => json!(x),
+            Value::I64(x) => json!(x),
+            Value::U64(x) => json!(x),
+            Value::F64(x) => json!(x),
+            Value::Str(s) => json!(s.as_str()),
+            Value::ObjectPath(p) => json!(p.as_str()),
+            Value::Value(b) => to_json(b),
+            Value::Array(a) => serde_json::Value::Array(a.iter().map(to_json).collect()),
+            Value::Dict(d) => {
+                let mut m = serde_json::Map::new();
+                for (k, v) in d.iter() {
+                    let key = match to_json(k) {
+                        serde_json::Value::String(s) => s,
+                        o => o.to_string(),
+                    };
+                    m.insert(key, to_json(v));
+                }
+                serde_json::Value::Object(m)
+            }
+            o => json!(o.to_string()),
+        }
+    }
+
+    fn props_json(p: &HashMap<String, OwnedValue>) -> serde_json::Value {
+        let mut m = serde_json::Map::new();
+        let mut keys: Vec<_> = p.keys().collect();
+        keys.sort();
+        for k in keys {
+            m.insert(k.clone(), to_json(&p[k]));
+        }
+        serde_json::Value::Object(m)
+    }
+
+    /// The Manager's properties.
+    ///
+    /// # Errors
+    /// `daemon.*`.
+    pub async fn status(conn: &Connection) -> Result<serde_json::Value> {
+        let props = zbus::fdo::PropertiesProxy::builder(conn)
+            .destination(BUS_NAME)
+            .map_err(bus_err)?
+            .path(MANAGER_PATH)
+            .map_err(bus_err)?
+            .build()
+            .await
+            .map_err(bus_err)?;
+        let all = props
+            .get_all(zbus::names::InterfaceName::from_static_str_unchecked(crate::daemon::dbus::MANAGER_IFACE))
+            .await
+            .map_err(|e| bus_err(e.into()))?;
+        Ok(props_json(&all))
+    }
+
+    /// Every job object (queued, running, and finished ones still lingering), oldest first.
+    ///
+    /// # Errors
+    /// `daemon.*`.
+    pub async fn jobs(conn: &Connection) -> Result<Vec<serde_json::Value>> {
+        let om = zbus::fdo::ObjectManagerProxy::builder(conn)
+            .destination(BUS_NAME)
+            .map_err(bus_err)?
+            .path(MANAGER_PATH)
+            .map_err(bus_err)?
+            .build()
+            .await
+            .map_err(bus_err)?;
+        let objects = om.get_managed_objects().await.map_err(|e| bus_err(e.into()))?;
+        let mut out: Vec<(String, serde_json::Value)> = objects
+            .iter()
+            .filter_map(|(path, ifaces)| {
+                ifaces.iter().find(|(n, _)| n.as_str() == JOB_IFACE).map(|(_, p)| {
+                    let mut j = props_json(p);
+                    j["Path"] = serde_json::json!(path.as_str());
+                    (path.to_string(), j)
+                })
+            })
+            .collect();
+        out.sort_by(|a, b| a.0.cmp(&b.0));
+        Ok(out.into_iter().map(|(_, j)| j).collect())
+    }
+
+    /// Submit a file (its absolute path) with options; the job's object path.
+    ///
+    /// # Errors
+    /// `daemon.*`; `input.not-found` when the path cannot be made absolute.
+    pub async fn submit(
+        conn: &Connection,
+        file: &std::path::Path,
+        vertices: Option<u32>,
+        tolerance: Option<f64>,
+    ) -> Result<String> {
+        let abs = std::fs::canonicalize(file)
+            .map_err(|e| Error::new(ErrorCode::InputNotFound, format!("{}: {e}", file.display())))?;
+        let mgr = ManagerProxy::new(conn).await.map_err(bus_err)?;
+        let mut opts: HashMap<&str, Value<'_>> = HashMap::new();
+        if let Some(v) = vertices {
+            opts.insert("vertices", Value::U32(v));
+        }
+        if let Some(t) = tolerance {
+            opts.insert("tolerance", Value::F64(t));
+        }
+        let p = mgr.submit_file(&abs.to_string_lossy(), opts).await.map_err(bus_err)?;
+        Ok(p.to_string())
+    }
+
+    /// A job's object path from an id or a path.
+    pub fn job_path(id_or_path: &str) -> String {
+        if id_or_path.starts_with('/') { id_or_path.to_string() } else { format!("{MANAGER_PATH}/jobs/{id_or_path}") }
+    }
+
+    /// Cancel a job.
+    ///
+    /// # Errors
+    /// `daemon.*` (`org.scanstation.Station1.Error.NotCancelable` once finished).
+    pub async fn cancel(conn: &Connection, id: &str) -> Result<()> {
+        let job = JobProxy::builder(conn).path(job_path(id)).map_err(bus_err)?.build().await.map_err(bus_err)?;
+        job.cancel().await.map_err(bus_err)
+    }
+
+    async fn job_props(conn: &Connection, p: String) -> Result<serde_json::Value> {
+        let props = zbus::fdo::PropertiesProxy::builder(conn)
+            .destination(BUS_NAME)
+            .map_err(bus_err)?
+            .path(p)
+            .map_err(bus_err)?
+            .build()
+            .await
+            .map_err(bus_err)?;
+        props
+            .get_all(zbus::names::InterfaceName::from_static_str_unchecked(JOB_IFACE))
+            .await
+            .map(|a| props_json(&a))
+            .map_err(|e| bus_err(e.into()))
+    }
+
+    /// Follow signals of the station (one job when `id` is given, until its `Completed`; all jobs
+    /// otherwise, until interrupted). Each event is printed as a JSON line when `json` or stdout is not a
+    /// terminal, else as a progress bar. Returns the job's final properties (one job) or null.
+    ///
+    /// # Errors
+    /// `daemon.*`.
+    pub async fn watch(conn: &Connection, id: Option<&str>, json: bool) -> Result<serde_json::Value> {
+        let path = id.map(job_path);
+        let mut rule = zbus::MatchRule::builder().msg_type(zbus::message::Type::Signal).sender(BUS_NAME).map_err(bus_err)?;
+        if let Some(p) = &path {
+            rule = rule.path(p.as_str()).map_err(bus_err)?;
+        }
+        let mut stream = zbus::MessageStream::for_match_rule(rule.build(), conn, Some(256)).await.map_err(bus_err)?;
+        let lines = json || !std::io::stdout().is_terminal();
+        // Subscribed first, then read: a job that finishes in between is seen as finished here.
+        let mut state = match &path {
+            Some(p) => job_props(conn, p.clone()).await?,
+            None => serde_json::Value::Null,
+        };
+        if path.is_some() && state["Result"].as_str().is_some_and(|r| !r.is_empty()) {
+            if lines {
+                println!("{}", serde_json::json!({"event": "finished", "path": path, "properties": state}));
+            }
+            return Ok(state);
+        }
+        let mut out = std::io::stdout();
+        while let Some(msg) = stream.next().await {
+            let Ok(msg) = msg else { continue };
+            let h = msg.header();
+            let member = h.member().map(|m| m.to_string()).unwrap_or_default();
+            let p = h.path().map(|p| p.to_string()).unwrap_or_default();
+            let body = msg.body();
+            let event = match member.as_str() {
+                "PropertiesChanged" => {
+                    let Ok((iface, changed, _inv)) = body.deserialize::<(String, HashMap<String, OwnedValue>, Vec<String>)>()
+                    else {
+                        continue;
+                    };
+                    if iface != JOB_IFACE {
+                        continue;
+                    }
+                    let c = props_json(&changed);
+                    if path.is_some()
+                        && let (Some(obj), Some(cm)) = (state.as_object_mut(), c.as_object())
+                    {
+                        for (k, v) in cm {
+                            obj.insert(k.clone(), v.clone());
+                        }
+                    }
+                    serde_json::json!({"event": "changed", "path": p, "properties": c})
+                }
+                "Completed" => {
+                    let Ok((result, code, message)) = body.deserialize::<(String, String, String)>() else { continue };
+                    serde_json::json!({"event": "completed", "path": p, "result": result, "error_code": code, "message": message})
+                }
+                "JobFinished" => {
+                    let Ok((job, result, code)) = body.deserialize::<(zbus::zvariant::OwnedObjectPath, String, String)>()
+                    else {
+                        continue;
+                    };
+                    serde_json::json!({"event": "job-finished", "path": job.as_str(), "result": result, "error_code": code})
+                }
+                _ => continue,
+            };
+            if lines {
+                let _ = writeln!(out, "{event}");
+                let _ = out.flush();
+            } else if let Some(pr) = event["properties"]["Progress"].as_f64() {
+                let n = (pr * 30.0).round() as usize;
+                let stage = event["properties"]["Stage"].as_str().unwrap_or("");
+                let _ = write!(out, "\r{} [{}{}] {:5.1}% {:<10}", p.rsplit('/').next().unwrap_or(""), "#".repeat(n), ".".repeat(30 - n.min(30)), pr * 100.0, stage);
+                let _ = out.flush();
+            } else if event["event"] == "completed" || event["event"] == "job-finished" {
+                let _ = writeln!(out, "\n{} {} {}", p.rsplit('/').next().unwrap_or(""), event["result"], event["error_code"]);
+            }
+            if path.is_some() && event["event"] == "completed" {
+                let done = job_props(conn, path.clone().unwrap_or_default()).await.unwrap_or(state);
+                return Ok(done);
+            }
+        }
+        Ok(state)
+    }
+}
