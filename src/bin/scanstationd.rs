@@ -25,7 +25,8 @@ fn init_logging(format: LogFormat) {
     use tracing_subscriber::prelude::*;
     let filter = tracing_subscriber::filter::LevelFilter::INFO;
     let journald = matches!(format, LogFormat::Journald)
-        || (matches!(format, LogFormat::Auto) && std::path::Path::new("/run/systemd/journal/socket").exists()
+        || (matches!(format, LogFormat::Auto)
+            && std::path::Path::new("/run/systemd/journal/socket").exists()
             && std::env::var_os("JOURNAL_STREAM").is_some());
     if journald && let Ok(layer) = tracing_journald::layer() {
         tracing_subscriber::registry().with(layer.with_filter(filter)).init();

@@ -229,7 +229,8 @@ pub mod ops {
     /// `daemon.*`.
     pub async fn watch(conn: &Connection, id: Option<&str>, json: bool) -> Result<serde_json::Value> {
         let path = id.map(job_path);
-        let mut rule = zbus::MatchRule::builder().msg_type(zbus::message::Type::Signal).sender(BUS_NAME).map_err(bus_err)?;
+        let mut rule =
+            zbus::MatchRule::builder().msg_type(zbus::message::Type::Signal).sender(BUS_NAME).map_err(bus_err)?;
         if let Some(p) = &path {
             rule = rule.path(p.as_str()).map_err(bus_err)?;
         }
@@ -255,7 +256,8 @@ pub mod ops {
             let body = msg.body();
             let event = match member.as_str() {
                 "PropertiesChanged" => {
-                    let Ok((iface, changed, _inv)) = body.deserialize::<(String, HashMap<String, OwnedValue>, Vec<String>)>()
+                    let Ok((iface, changed, _inv)) =
+                        body.deserialize::<(String, HashMap<String, OwnedValue>, Vec<String>)>()
                     else {
                         continue;
                     };
@@ -277,7 +279,8 @@ pub mod ops {
                     serde_json::json!({"event": "completed", "path": p, "result": result, "error_code": code, "message": message})
                 }
                 "JobFinished" => {
-                    let Ok((job, result, code)) = body.deserialize::<(zbus::zvariant::OwnedObjectPath, String, String)>()
+                    let Ok((job, result, code)) =
+                        body.deserialize::<(zbus::zvariant::OwnedObjectPath, String, String)>()
                     else {
                         continue;
                     };
@@ -291,10 +294,24 @@ pub mod ops {
             } else if let Some(pr) = event["properties"]["Progress"].as_f64() {
                 let n = (pr * 30.0).round() as usize;
                 let stage = event["properties"]["Stage"].as_str().unwrap_or("");
-                let _ = write!(out, "\r{} [{}{}] {:5.1}% {:<10}", p.rsplit('/').next().unwrap_or(""), "#".repeat(n), ".".repeat(30 - n.min(30)), pr * 100.0, stage);
+                let _ = write!(
+                    out,
+                    "\r{} [{}{}] {:5.1}% {:<10}",
+                    p.rsplit('/').next().unwrap_or(""),
+                    "#".repeat(n),
+                    ".".repeat(30 - n.min(30)),
+                    pr * 100.0,
+                    stage
+                );
                 let _ = out.flush();
             } else if event["event"] == "completed" || event["event"] == "job-finished" {
-                let _ = writeln!(out, "\n{} {} {}", p.rsplit('/').next().unwrap_or(""), event["result"], event["error_code"]);
+                let _ = writeln!(
+                    out,
+                    "\n{} {} {}",
+                    p.rsplit('/').next().unwrap_or(""),
+                    event["result"],
+                    event["error_code"]
+                );
             }
             if path.is_some() && event["event"] == "completed" {
                 let done = job_props(conn, path.clone().unwrap_or_default()).await.unwrap_or(state);

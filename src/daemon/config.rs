@@ -268,9 +268,10 @@ impl Config {
         if accept.is_empty() || accept.iter().any(|a| a.is_empty() || a.contains('/')) {
             return Err(err("watch.accept", "a non-empty list of extensions such as \"ply\"".into()));
         }
-        let ignore_suffixes = raw.watch.ignore_suffixes.unwrap_or_else(|| {
-            [".part", ".tmp", ".partial", ".crdownload", "~"].map(String::from).to_vec()
-        });
+        let ignore_suffixes = raw
+            .watch
+            .ignore_suffixes
+            .unwrap_or_else(|| [".part", ".tmp", ".partial", ".crdownload", "~"].map(String::from).to_vec());
         let memory_budget = size("limits.memory_budget", &raw.limits.memory_budget, "6GiB")?;
         if memory_budget < 16 << 20 {
             return Err(err("limits.memory_budget", "below 16 MiB nothing can run".into()));

@@ -55,12 +55,29 @@ pub enum StationError {
 
 /// A request to the station actor.
 pub enum Command {
-    Submit { path: PathBuf, options: JobOptions, source: String, reply: oneshot::Sender<Result<JobId, StationError>> },
-    Cancel { id: String, reply: oneshot::Sender<Result<(), StationError>> },
-    SetPaused { paused: bool, reply: oneshot::Sender<()> },
-    History { since_usec: u64, limit: u32, reply: oneshot::Sender<Vec<HashMap<String, OwnedValue>>> },
+    Submit {
+        path: PathBuf,
+        options: JobOptions,
+        source: String,
+        reply: oneshot::Sender<Result<JobId, StationError>>,
+    },
+    Cancel {
+        id: String,
+        reply: oneshot::Sender<Result<(), StationError>>,
+    },
+    SetPaused {
+        paused: bool,
+        reply: oneshot::Sender<()>,
+    },
+    History {
+        since_usec: u64,
+        limit: u32,
+        reply: oneshot::Sender<Vec<HashMap<String, OwnedValue>>>,
+    },
     /// Liveness probe of the actor loop (the watchdog).
-    Ping { reply: oneshot::Sender<()> },
+    Ping {
+        reply: oneshot::Sender<()>,
+    },
 }
 
 /// Who may change things.
@@ -139,7 +156,10 @@ async fn authorize(conn: &Connection, hdr: &Header<'_>, access: &Access, what: &
     }
 }
 
-async fn ask<T>(tx: &mpsc::Sender<Command>, make: impl FnOnce(oneshot::Sender<T>) -> Command) -> Result<T, StationError> {
+async fn ask<T>(
+    tx: &mpsc::Sender<Command>,
+    make: impl FnOnce(oneshot::Sender<T>) -> Command,
+) -> Result<T, StationError> {
     let (reply, rx) = oneshot::channel();
     tx.send(make(reply)).await.map_err(|_| StationError::Internal("the station is shutting down".into()))?;
     rx.await.map_err(|_| StationError::Internal("the station is shutting down".into()))
@@ -184,7 +204,8 @@ fn parse_options(options: &HashMap<String, OwnedValue>) -> Result<JobOptions, St
     }
     let mut o = JobOptions::default();
     for (k, v) in options {
-        let bad = || StationError::InvalidArgument(format!("option {k:?} has the wrong type ({})", v.value_signature()));
+        let bad =
+            || StationError::InvalidArgument(format!("option {k:?} has the wrong type ({})", v.value_signature()));
         match k.as_str() {
             "vertices" => o.vertices = Some(int(v).ok_or_else(bad)? as usize),
             "seed" => o.seed = Some(int(v).ok_or_else(bad)?),

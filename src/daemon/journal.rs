@@ -212,9 +212,10 @@ impl Journal {
             if !name.ends_with(".json") {
                 continue;
             }
-            match std::fs::read(e.path()).map_err(|e| e.to_string()).and_then(|b| {
-                serde_json::from_slice::<JobRecord>(&b).map_err(|e| e.to_string())
-            }) {
+            match std::fs::read(e.path())
+                .map_err(|e| e.to_string())
+                .and_then(|b| serde_json::from_slice::<JobRecord>(&b).map_err(|e| e.to_string()))
+            {
                 Ok(r) => out.push(r),
                 Err(err) => tracing::error!(file = %e.path().display(), %err, "unreadable job record skipped"),
             }

@@ -41,7 +41,9 @@ pub enum StartError {
     State { path: String, reason: String },
     #[error("cannot connect to the {bus} bus: {reason}")]
     Bus { bus: &'static str, reason: String },
-    #[error("cannot take the bus name {BUS_NAME}: {0} (is another scanstationd running, or does the policy forbid it?)")]
+    #[error(
+        "cannot take the bus name {BUS_NAME}: {0} (is another scanstationd running, or does the policy forbid it?)"
+    )]
     Name(String),
     #[error("cannot export the D-Bus objects: {0}")]
     Export(String),
@@ -107,7 +109,6 @@ pub async fn run(cfg: Config) -> Result<(), StartError> {
     watch::start(&spool.inbox, watch_tx)
         .map_err(|e| StartError::Watch { path: spool.inbox.display().to_string(), reason: e.to_string() })?;
     conn.request_name(BUS_NAME).await.map_err(|e| StartError::Name(e.to_string()))?;
-    station.announce_pending().await;
     tracing::info!(bus = bus_name, spool = %cfg.spool.display(), state = %cfg.state.display(), digest = %cfg.digest(), "scanstationd ready");
     notify::notify("READY=1\nSTATUS=ready");
 

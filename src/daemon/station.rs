@@ -34,6 +34,9 @@ use super::watch::WatchEvent;
 use super::worker::{self, JobRun, Outcome, STAGES, WorkerEvent};
 use crate::error::{Error, ErrorCode};
 
+/// Delay between taking the bus name and announcing jobs that ended while the daemon was down.
+pub const ANNOUNCE_DELAY: Duration = Duration::from_millis(750);
+
 struct Job {
     rec: JobRecord,
     view: Arc<Mutex<JobView>>,
@@ -216,9 +219,8 @@ impl Station {
                 if known.contains(&id) {
                     continue;
                 }
-                let files: Vec<PathBuf> = std::fs::read_dir(d.path())
-                    .map(|r| r.flatten().map(|f| f.path()).collect())
-                    .unwrap_or_default();
+                let files: Vec<PathBuf> =
+                    std::fs::read_dir(d.path()).map(|r| r.flatten().map(|f| f.path()).collect()).unwrap_or_default();
                 match files.iter().find(|f| !f.to_string_lossy().ends_with(spool::SIDECAR_SUFFIX)) {
                     Some(input) => orphans.push((id, input.clone())),
                     None => {
@@ -373,8 +375,12 @@ impl Station {
 
     /// Emit `Completed` (and the manager's `JobFinished`) for terminal jobs not yet announced.
     pub async fn announce_pending(&mut self) {
-        let ids: Vec<JobId> =
-            self.jobs.iter().filter(|(_, j)| j.rec.state.is_terminal() && !j.rec.announced).map(|(k, _)| k.clone()).collect();
+        let ids: Vec<JobId> = self
+            .jobs
+            .iter()
+            .filter(|(_, j)| j.rec.state.is_terminal() && !j.rec.announced)
+            .map(|(k, _)| k.clone())
+            .collect();
         for id in ids {
             self.announce(&id).await;
         }
@@ -389,7 +395,8 @@ impl Station {
         }
         job.rec.announced = true;
         job.finished_at = Some(Instant::now());
-        let (result, code, message) = (job.rec.result().to_string(), job.rec.error_code.clone(), job.rec.message.clone());
+        let (result, code, message) =
+            (job.rec.result().to_string(), job.rec.error_code.clone(), job.rec.message.clone());
         if let Some(iface) = &job.iface
             && let Err(e) = iface.completed(&result, &code, &message).await
         {
@@ -464,6 +471,11 @@ impl Station {
         let settle_step = (self.cfg.settle / 4).max(Duration::from_millis(50));
         let mut settle = tokio::time::interval(settle_step);
         let mut prune = tokio::time::interval(Duration::from_secs(30));
+        // Jobs that ended while the daemon was down are announced a moment after the name is ours, so that
+        // monitors following NameOwnerChanged (gdbus monitor, busctl monitor) have re-subscribed.
+        let announce = tokio::time::sleep(ANNOUNCE_DELAY);
+        tokio::pin!(announce);
+        let mut announced = false;
         self.scan_inbox();
         self.start_jobs().await;
         self.emit_manager().await;
@@ -476,6 +488,10 @@ impl Station {
                 _ = reconcile.tick() => self.scan_inbox(),
                 _ = settle.tick(), if !self.candidates.is_empty() => self.check_candidates().await,
                 _ = prune.tick() => self.prune().await,
+                _ = &mut announce, if !announced => {
+                    announced = true;
+                    self.announce_pending().await;
+                }
             }
             self.start_jobs().await;
             self.emit_manager().await;
@@ -511,12 +527,8 @@ impl Station {
 
     fn history(&self, since: u64, limit: u32) -> Vec<HashMap<String, OwnedValue>> {
         let limit = if limit == 0 { 100 } else { limit as usize };
-        let mut recs: Vec<JobRecord> = self
-            .journal
-            .load_all()
-            .into_iter()
-            .filter(|r| r.state.is_terminal() && r.finish_usec >= since)
-            .collect();
+        let mut recs: Vec<JobRecord> =
+            self.journal.load_all().into_iter().filter(|r| r.state.is_terminal() && r.finish_usec >= since).collect();
         recs.sort_by(|a, b| b.finish_usec.cmp(&a.finish_usec).then(b.id.cmp(&a.id)));
         recs.into_iter()
             .take(limit)

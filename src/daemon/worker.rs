@@ -73,7 +73,12 @@ impl Reporter<'_> {
         let f = fraction.clamp(0.0, BEFORE_DONE).max(s.0);
         if stage != s.1 || f >= s.0 + 0.002 {
             *s = (f, stage);
-            let _ = self.run.events.send(WorkerEvent::Progress { id: self.run.record.id.clone(), fraction: f, stage, message });
+            let _ = self.run.events.send(WorkerEvent::Progress {
+                id: self.run.record.id.clone(),
+                fraction: f,
+                stage,
+                message,
+            });
         }
     }
 }
@@ -81,7 +86,11 @@ impl Reporter<'_> {
 impl Progress for Reporter<'_> {
     fn report(&self, fraction: f64, phase: &str) {
         let stage_name = phase.split('/').next().unwrap_or("");
-        let stage = STAGES.iter().copied().find(|s| *s == stage_name).unwrap_or(self.state.lock().map(|s| s.1).unwrap_or("read"));
+        let stage = STAGES
+            .iter()
+            .copied()
+            .find(|s| *s == stage_name)
+            .unwrap_or(self.state.lock().map(|s| s.1).unwrap_or("read"));
         self.send(fraction * QUALITY_AT, stage, phase.to_string());
     }
 
@@ -286,6 +295,7 @@ pub fn quarantine_record(
             std::fs::rename(f.path(), &to).map_err(|x| io_err("cannot move", &f.path(), x))?;
         }
     }
+    let _ = std::fs::remove_dir(&work);
     let ej = part.join("error.json");
     write_durable(&ej, serde_json::to_string_pretty(&error_json(rec, digest, stage, e)).unwrap_or_default().as_bytes())
         .map_err(|x| io_err("cannot write", &ej, x))?;

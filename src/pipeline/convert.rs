@@ -9,13 +9,13 @@ use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::geometry::vec3::Aabb;
-use crate::stages::{Progress, ProgressSpan, check_cancelled};
 use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
 use crate::stages::quality::{CompareOptions, DistanceReport, compare};
 use crate::stages::remesh::{RemeshOptions, RemeshReport, remesh};
 use crate::stages::repair::{RepairOptions, RepairReport, repair};
 use crate::stages::surface::{FitOptions, FitReport, MeshTarget, control_net, fit_control_points};
+use crate::stages::{Progress, ProgressSpan, check_cancelled};
 
 /// How fine the quad control net is.
 #[derive(Copy, Clone, Debug, PartialEq)]
@@ -124,6 +124,9 @@ impl Clock {
     }
 }
 
+/// The whole chain's memory need as a multiple of the input mesh's (see `convert_file`).
+pub const CHAIN_MEMORY_FACTOR: u64 = 8;
+
 /// Remesh attempts with other seeds when the quad mesh intersects itself.
 pub const REMESH_RETRIES: usize = 3;
 
@@ -211,8 +214,20 @@ pub fn convert_file(
     // brep –0.95 (a tolerance's later attempts do not move it back), step –1.
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.0, 0.02, "read");
-    let mesh = read_mesh(input, read)?;
-    let input_geom = Geometry::Mesh(mesh.clone());
+    // The chain needs far more than the input mesh itself (repair alone ~420 bytes per face against ~30
+    // for the mesh): an input larger than 1/CHAIN_MEMORY_FACTOR of the budget is refused while reading,
+    // before it is allocated.
+    let read = ReadOptions { memory_budget: read.memory_budget.min(opts.memory_budget / CHAIN_MEMORY_FACTOR) };
+    let input_geom = Geometry::Mesh(read_mesh(input, &read).map_err(|e| {
+        if e.code == ErrorCode::ResourceMemoryBudget {
+            e.with_hint(format!(
+                "the conversion needs about {CHAIN_MEMORY_FACTOR}x the input mesh's memory; raise the memory budget or decimate the scan"
+            ))
+        } else {
+            e
+        }
+    })?);
+    let Geometry::Mesh(mesh) = &input_geom else { return Err(Error::internal("read_mesh returned a cloud")) };
     let bbox: Aabb = mesh.bbox();
     let diag = bbox.diagonal();
     stages.push(clock.stop("read", None));
@@ -220,7 +235,9 @@ pub fn convert_file(
     check_cancelled(progress)?;
     let clock = Clock::start();
     let span = ProgressSpan::new(progress, 0.02, 0.1, "repair");
-    let (repaired, repair_report) = repair(&mesh, &opts.repair, &span).map_err(|e| e.in_file(input))?;
+    // Every stage gets the chain's budget (each estimates its need before allocating).
+    let repair_opts = RepairOptions { memory_budget: opts.memory_budget, ..opts.repair.clone() };
+    let (repaired, repair_report) = repair(mesh, &repair_opts, &span).map_err(|e| e.in_file(input))?;
     let d = compare(&Geometry::Mesh(PolyMesh::from(repaired.clone())), &input_geom, &cmp_opts, &span)?;
     stages.push(clock.stop("repair", Some(d)));
     let input_volume = repaired.signed_volume();
