@@ -28,7 +28,7 @@ fn init_logging(format: LogFormat) {
         || (matches!(format, LogFormat::Auto)
             && std::path::Path::new("/run/systemd/journal/socket").exists()
             && std::env::var_os("JOURNAL_STREAM").is_some());
-    if journald && let Ok(layer) = tracing_journald::layer() {
+    if journald && let Ok(layer) = tracing_journald::layer().map(|l| l.with_field_prefix(None)) {
         tracing_subscriber::registry().with(layer.with_filter(filter)).init();
         return;
     }

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Tools tests/daemon.rs drives the daemon with: dbus-daemon, busctl and systemd-analyze, gdbus, setpriv.
+# Installs the Debian packages that are missing (needs root or sudo); does nothing when all are present.
+set -euo pipefail
+declare -A pkg=([dbus-daemon]=dbus-daemon [busctl]=systemd [systemd-analyze]=systemd [gdbus]=libglib2.0-bin [setpriv]=util-linux)
+missing=()
+for tool in "${!pkg[@]}"; do
+  command -v "$tool" >/dev/null 2>&1 || missing+=("${pkg[$tool]}")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "daemon test tools: all present"
+  exit 0
+fi
+sudo=""
+[ "$(id -u)" -eq 0 ] || sudo="sudo"
+echo "installing: ${missing[*]}"
+$sudo apt-get update -qq
+DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq $(printf '%s\n' "${missing[@]}" | sort -u)
