@@ -522,16 +522,22 @@ fn kill_9_twenty_times_loses_and_duplicates_nothing() {
     std::fs::create_dir_all(st.inbox()).unwrap();
     let mon = Monitor::start(&bus.address, dir.join("monitor.txt"));
     let n = 8;
-    for k in 0..n {
+    for k in 0..n / 2 {
         drop_renamed(&st.inbox(), &format!("scan{k}.ply"), &sphere_bytes(&dir, 1.0 + 0.1 * k as f64));
     }
     drop_renamed(&st.inbox(), "junk.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n");
-    // A seeded sequence of kill moments between 0.1 s and 1.5 s after each start.
+    // A seeded sequence of kill moments between 0.2 s and 4 s after each start (a job takes about 1.5 s, so
+    // kills land in claiming, in every stage, in publication and between jobs); the other half of the
+    // inputs arrives while the rounds go on.
     let mut seed: u64 = 0x5ca9_57a7;
     for round in 0..20 {
         st.start();
+        if round % 3 == 1 && round / 3 < n / 2 {
+            let k = n / 2 + round / 3;
+            drop_renamed(&st.inbox(), &format!("scan{k}.ply"), &sphere_bytes(&dir, 1.0 + 0.1 * k as f64));
+        }
         seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        let ms = 100 + (seed >> 33) % 1400;
+        let ms = 200 + (seed >> 33) % 3800;
         std::thread::sleep(Duration::from_millis(ms));
         st.kill9();
         eprintln!("round {round}: killed after {ms} ms");
