@@ -185,7 +185,7 @@ pub fn parse_size(s: &str) -> Result<u64, String> {
         u => return Err(format!("unknown size unit {u:?} (K, M, G, T, optionally with iB)")),
     };
     let b = v * mult;
-    if !(b.is_finite() && b >= 0.0 && b < 1.8e19) {
+    if !(b.is_finite() && (0.0..1.8e19).contains(&b)) {
         return Err(format!("{s:?} is out of range"));
     }
     Ok(b as u64)

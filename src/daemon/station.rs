@@ -135,10 +135,12 @@ impl Station {
         let mut known: std::collections::HashSet<JobId> = std::collections::HashSet::new();
         for mut rec in records {
             known.insert(rec.id.clone());
-            if !matches!(rec.state, JobState::Cancelled)
-                && !(rec.state == JobState::Failed && rec.error_code == ErrorCode::Interrupted.as_str())
-                && !rec.input_sha256.is_empty()
-            {
+            let counts = match rec.state {
+                JobState::Cancelled => false,
+                JobState::Failed => rec.error_code != ErrorCode::Interrupted.as_str(),
+                _ => true,
+            };
+            if counts && !rec.input_sha256.is_empty() {
                 st.seen.entry(rec.input_sha256.clone()).or_insert((rec.id.clone(), rec.submitted_usec));
             }
             let stem = rec.stem();
@@ -298,17 +300,17 @@ impl Station {
                 format!("{} bytes exceed limits.max_input_size ({} bytes)", rec.input_size, self.cfg.max_input_size),
             ));
         }
-        if preset.is_none() && !self.cfg.dedupe_window.is_zero() {
-            if let Some((other, at)) = self.seen.get(&rec.input_sha256)
-                && *other != rec.id
-                && rec.submitted_usec.saturating_sub(*at) <= self.cfg.dedupe_window.as_micros() as u64
-            {
-                tracing::warn!(job_id = %rec.id, duplicate_of = %other, sha256 = %rec.input_sha256, "same content processed recently; skipped");
-                preset = Some(Error::new(
-                    ErrorCode::InputDuplicate,
-                    format!("the same content (sha256 {}) was submitted as job {other}", rec.input_sha256),
-                ));
-            }
+        if preset.is_none()
+            && !self.cfg.dedupe_window.is_zero()
+            && let Some((other, at)) = self.seen.get(&rec.input_sha256)
+            && *other != rec.id
+            && rec.submitted_usec.saturating_sub(*at) <= self.cfg.dedupe_window.as_micros() as u64
+        {
+            tracing::warn!(job_id = %rec.id, duplicate_of = %other, sha256 = %rec.input_sha256, "same content processed recently; skipped");
+            preset = Some(Error::new(
+                ErrorCode::InputDuplicate,
+                format!("the same content (sha256 {}) was submitted as job {other}", rec.input_sha256),
+            ));
         }
         if preset.is_none() {
             self.seen.insert(rec.input_sha256.clone(), (rec.id.clone(), rec.submitted_usec));

@@ -236,7 +236,7 @@ pub fn convert_file(
     let clock = Clock::start();
     let span = ProgressSpan::new(progress, 0.02, 0.1, "repair");
     // Every stage gets the chain's budget (each estimates its need before allocating).
-    let repair_opts = RepairOptions { memory_budget: opts.memory_budget, ..opts.repair.clone() };
+    let repair_opts = RepairOptions { memory_budget: opts.memory_budget, ..opts.repair };
     let (repaired, repair_report) = repair(mesh, &repair_opts, &span).map_err(|e| e.in_file(input))?;
     let d = compare(&Geometry::Mesh(PolyMesh::from(repaired.clone())), &input_geom, &cmp_opts, &span)?;
     stages.push(clock.stop("repair", Some(d)));
