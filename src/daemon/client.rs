@@ -124,19 +124,24 @@ pub mod ops {
     /// # Errors
     /// `daemon.*`.
     pub async fn status(conn: &Connection) -> Result<serde_json::Value> {
+        all_properties(conn, MANAGER_PATH.to_string(), crate::daemon::dbus::MANAGER_IFACE).await
+    }
+
+    /// `GetAll` of one interface of one station object, as JSON.
+    async fn all_properties(conn: &Connection, path: String, iface: &'static str) -> Result<serde_json::Value> {
         let props = zbus::fdo::PropertiesProxy::builder(conn)
             .destination(BUS_NAME)
             .map_err(bus_err)?
-            .path(MANAGER_PATH)
+            .path(path)
             .map_err(bus_err)?
             .build()
             .await
             .map_err(bus_err)?;
-        let all = props
-            .get_all(zbus::names::InterfaceName::from_static_str_unchecked(crate::daemon::dbus::MANAGER_IFACE))
+        props
+            .get_all(zbus::names::InterfaceName::from_static_str_unchecked(iface))
             .await
-            .map_err(|e| bus_err(e.into()))?;
-        Ok(props_json(&all))
+            .map(|a| props_json(&a))
+            .map_err(|e| bus_err(e.into()))
     }
 
     /// Every job object (queued, running, and finished ones still lingering), oldest first.
@@ -205,22 +210,6 @@ pub mod ops {
         job.cancel().await.map_err(bus_err)
     }
 
-    async fn job_props(conn: &Connection, p: String) -> Result<serde_json::Value> {
-        let props = zbus::fdo::PropertiesProxy::builder(conn)
-            .destination(BUS_NAME)
-            .map_err(bus_err)?
-            .path(p)
-            .map_err(bus_err)?
-            .build()
-            .await
-            .map_err(bus_err)?;
-        props
-            .get_all(zbus::names::InterfaceName::from_static_str_unchecked(JOB_IFACE))
-            .await
-            .map(|a| props_json(&a))
-            .map_err(|e| bus_err(e.into()))
-    }
-
     /// Follow signals of the station (one job when `id` is given, until its `Completed`; all jobs
     /// otherwise, until interrupted). Each event is printed as a JSON line when `json` or stdout is not a
     /// terminal, else as a progress bar. Returns the job's final properties (one job) or null.
@@ -238,7 +227,7 @@ pub mod ops {
         let lines = json || !std::io::stdout().is_terminal();
         // Subscribed first, then read: a job that finishes in between is seen as finished here.
         let mut state = match &path {
-            Some(p) => job_props(conn, p.clone()).await?,
+            Some(p) => all_properties(conn, p.clone(), JOB_IFACE).await?,
             None => serde_json::Value::Null,
         };
         if path.is_some() && state["Result"].as_str().is_some_and(|r| !r.is_empty()) {
@@ -314,7 +303,7 @@ pub mod ops {
                 );
             }
             if path.is_some() && event["event"] == "completed" {
-                let done = job_props(conn, path.clone().unwrap_or_default()).await.unwrap_or(state);
+                let done = all_properties(conn, path.clone().unwrap_or_default(), JOB_IFACE).await.unwrap_or(state);
                 return Ok(done);
             }
         }

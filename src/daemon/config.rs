@@ -339,15 +339,8 @@ impl Config {
     /// sha256 (hex) of the effective configuration's canonical JSON; written into every report.
     pub fn digest(&self) -> String {
         let s = serde_json::to_string(self).unwrap_or_default();
-        let mut h = Sha256::new();
-        h.update(s.as_bytes());
-        hex(&h.finalize())
+        Sha256::digest(s.as_bytes()).iter().map(|x| format!("{x:02x}")).collect()
     }
-}
-
-/// Lower-case hex of bytes.
-pub fn hex(b: &[u8]) -> String {
-    b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
 /// Per-job options: from a sidecar `NAME.job.toml` or the `a{sv}` of `SubmitFile`.

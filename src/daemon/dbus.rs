@@ -183,7 +183,8 @@ pub struct ManagerIface {
     pub access: Access,
 }
 
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+/// Lock a view, also after a panic elsewhere (views hold plain values; a poisoned one is still consistent).
+pub(crate) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 

@@ -150,24 +150,14 @@ pub struct Journal {
     dir: PathBuf,
 }
 
-/// Write `bytes` to `path` atomically and durably: a temp file beside it, fsync, rename, fsync the directory.
+/// Write `bytes` to `path` atomically and durably: [`crate::geometry::io::write_atomic`] (temp file, fsync,
+/// rename), then an fsync of the directory so the rename itself survives a power loss.
 ///
 /// # Errors
 /// The I/O error.
 pub fn write_durable(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        path.file_name().map(|n| n.to_string_lossy()).unwrap_or_default(),
-        std::process::id()
-    ));
-    {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-    }
-    std::fs::rename(&tmp, path)?;
-    sync_dir(dir)
+    crate::geometry::io::write_atomic(path, |w| w.write_all(bytes)).map_err(std::io::Error::other)?;
+    sync_dir(path.parent().unwrap_or(Path::new(".")))
 }
 
 /// fsync a directory (makes renames and creations in it durable).

@@ -26,7 +26,7 @@ use zbus::zvariant::{OwnedValue, Value};
 use super::config::{Config, JobOptions};
 use super::dbus::{
     Access, Command, JobIface, JobIfaceSignals, JobView, MANAGER_PATH, ManagerIface, ManagerView, StationError,
-    job_path,
+    job_path, lock,
 };
 use super::journal::{JobId, JobRecord, JobState, Journal, SCHEMA, now_usec, sync_dir};
 use super::spool::{self, Spool};
@@ -84,10 +84,6 @@ pub struct Inputs {
     pub commands: mpsc::Receiver<Command>,
     pub watch: mpsc::UnboundedReceiver<WatchEvent>,
     pub worker: mpsc::UnboundedReceiver<WorkerEvent>,
-}
-
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 impl Station {

@@ -112,8 +112,7 @@ pub fn run(job: JobRun) {
     let peak_memory = peak_mib.map(|m| (m * 1024.0 * 1024.0) as u64).unwrap_or(0);
     let outcome = match result {
         Ok(outputs) => Outcome { error: None, stage, outputs, peak_memory },
-        Err(e) => {
-            let error = e;
+        Err(error) => {
             let outputs = match quarantine(&job, &error, &stage) {
                 Ok(o) => o,
                 Err(q) => {
