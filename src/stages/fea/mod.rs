@@ -2,8 +2,8 @@
 //! no volume mesh. A uniform background grid carries tri-quadratic C¹ B-splines ([`basis`]); cells that touch
 //! the solid are active, cut cells are integrated exactly from their inside moments ([`domain`]), their
 //! outside part keeps a small stiffness α; supports and loads are picked on the surface by location (sphere
-//! or half-space), supports imposed weakly by a penalty on surface quadrature points; the system is solved by
-//! sparse Cholesky ([`system`]). Results: displacement, von Mises and principal stresses on the surface,
+//! or half-space), supports imposed weakly on surface quadrature points by Nitsche's method (or a penalty); the
+//! system is solved by sparse Cholesky ([`system`]). Results: displacement, von Mises and principal stresses on the surface,
 //! extremes with their location, probes, and the reaction balance.
 //!
 //! Units are the solid's (mm, N, MPa, t/mm³ by default). Deterministic for the same input and spec.
@@ -201,6 +201,15 @@ fn stress(grad: &[[f64; 3]; 3], lambda: f64, mu: f64) -> [f64; 6] {
     ]
 }
 
+/// σ·n for a stress in the order of [`stress`].
+fn stress_traction(s: &[f64; 6], n: V3) -> V3 {
+    [
+        s[0] * n[0] + s[3] * n[1] + s[5] * n[2],
+        s[3] * n[0] + s[1] * n[1] + s[4] * n[2],
+        s[5] * n[0] + s[4] * n[1] + s[2] * n[2],
+    ]
+}
+
 /// Von Mises equivalent stress.
 pub fn von_mises(s: &[f64; 6]) -> f64 {
     (0.5 * ((s[0] - s[1]).powi(2) + (s[1] - s[2]).powi(2) + (s[2] - s[0]).powi(2))
@@ -324,11 +333,26 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
     extra.extend(spec.probes.iter().map(|p| grid.cell_index(grid.locate(p.point).0)));
     extra.sort_unstable();
     extra.dedup();
-    let mut sys = system::assemble(&domain, &extra, lambda, mu, spec.resolution.fictitious_stiffness, body);
-    let beta = spec.resolution.penalty_factor * m.youngs_modulus / h;
-    for (_, pts) in &supports {
-        sys.add_support(&grid, pts, beta);
-    }
+    let res = &spec.resolution;
+    let elastic = system::Elastic { lambda, mu, alpha: res.fictitious_stiffness, stability: res.nitsche_factor };
+    let mut sys = system::assemble(&domain, &extra, lambda, mu, elastic.alpha, body);
+    // β per support point (each support's points in order).
+    let betas: Vec<Vec<f64>> = match res.support_method {
+        spec::SupportMethod::Nitsche => {
+            supports.iter().map(|(_, pts)| sys.add_nitsche_support(&domain, pts, elastic)).collect()
+        }
+        spec::SupportMethod::Penalty => {
+            let beta = res.penalty_factor * m.youngs_modulus / h;
+            supports
+                .iter()
+                .map(|(_, pts)| {
+                    sys.add_support(&grid, pts, beta);
+                    vec![beta; pts.len()]
+                })
+                .collect()
+        }
+    };
+    let nitsche = res.support_method == spec::SupportMethod::Nitsche;
     let mut load_reports = Vec::new();
     let mut total_load = scale(body, domain.volume());
     for (l, (name, pts)) in spec.loads.iter().zip(&loads) {
@@ -380,11 +404,16 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
     };
     let mut reaction = [0.0; 3];
     let mut support_reports = Vec::new();
-    for (name, pts) in &supports {
+    // The force each support exerts: ∫ (σ(u)·n − β u) with Nitsche, −∫ β u with a penalty.
+    for ((name, pts), betas) in supports.iter().zip(&betas) {
         let mut area = 0.0;
-        for sp in pts {
-            let (d, _) = eval(sp.p);
+        for (sp, &beta) in pts.iter().zip(betas) {
+            let (d, g) = eval(sp.p);
             reaction = sub(reaction, scale(d, beta * sp.w));
+            if nitsche {
+                let s = stress(&g, lambda, mu);
+                reaction = add(reaction, scale(stress_traction(&s, sp.n), sp.w));
+            }
             area += sp.w;
         }
         support_reports.push(SelectionReport { name: name.clone(), area, points: pts.len(), force: [0.0; 3] });

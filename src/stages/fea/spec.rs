@@ -127,9 +127,27 @@ pub struct Resolution {
     /// Stiffness factor of the fictitious (outside) part of cut cells.
     #[serde(default = "default_alpha")]
     pub fictitious_stiffness: f64,
-    /// Support penalty β = factor · E / h.
+    /// How supports are imposed: `nitsche` (default; consistent, β chosen per cell) or `penalty`.
+    #[serde(default)]
+    pub support_method: SupportMethod,
+    /// Nitsche: β of a cell = factor · the largest eigenvalue of its trace inequality (> 2 keeps the system
+    /// positive definite).
+    #[serde(default = "default_nitsche")]
+    pub nitsche_factor: f64,
+    /// Penalty: β = factor · E / h.
     #[serde(default = "default_penalty")]
     pub penalty_factor: f64,
+}
+
+/// How supports (u = 0 on a part of the surface) are imposed weakly.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SupportMethod {
+    /// Nitsche's method: consistent, so cut cells at the edge of a support do not lock.
+    #[default]
+    Nitsche,
+    /// A penalty β ∫ u·v: simple, but too stiff near the edges of small supports (error O(h) and O(1/β)).
+    Penalty,
 }
 
 fn default_cells() -> usize {
@@ -140,6 +158,9 @@ fn default_subcells() -> usize {
 }
 fn default_alpha() -> f64 {
     1e-8
+}
+fn default_nitsche() -> f64 {
+    4.0
 }
 fn default_penalty() -> f64 {
     1e3
@@ -152,6 +173,8 @@ impl Default for Resolution {
             cells_along_longest: default_cells(),
             subcells: default_subcells(),
             fictitious_stiffness: default_alpha(),
+            support_method: SupportMethod::default(),
+            nitsche_factor: default_nitsche(),
             penalty_factor: default_penalty(),
         }
     }
@@ -330,6 +353,9 @@ impl FeaSpec {
                 "resolution.fictitious_stiffness = {} must lie in (0, 0.01)",
                 r.fictitious_stiffness
             )));
+        }
+        if !(r.nitsche_factor.is_finite() && r.nitsche_factor > 2.0 && r.nitsche_factor <= 1e6) {
+            return Err(bad(format!("resolution.nitsche_factor = {} must lie in (2, 1e6]", r.nitsche_factor)));
         }
         if !(r.penalty_factor.is_finite() && r.penalty_factor >= 1.0 && r.penalty_factor <= 1e8) {
             return Err(bad(format!("resolution.penalty_factor = {} must lie in [1, 1e8]", r.penalty_factor)));

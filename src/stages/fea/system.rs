@@ -1,5 +1,5 @@
 //! The linear system: active basis functions, stiffness blocks assembled cell by cell, weak supports
-//! (penalty on surface quadrature points), loads, and the solve (faer's sparse Cholesky; Jacobi PCG when the
+//! (Nitsche or penalty on surface quadrature points), loads, and the solve (faer's sparse Cholesky; Jacobi PCG when the
 //! factor would not fit the memory budget).
 
 use rayon::prelude::*;
@@ -326,6 +326,81 @@ impl System {
         }
     }
 
+    /// Nitsche's weak support, u = 0 at `points`: adds, cell by cell,
+    /// −∫_Γ (σ(u)·n)·v − ∫_Γ (σ(v)·n)·u + β_c ∫_Γ u·v. Unlike a large penalty it is consistent (the exact
+    /// solution satisfies the discrete equations), so a cell cut by the edge of a support does not lock as a
+    /// whole. β_c = `stability` · λ_max of the cell's trace eigenproblem ∫_Γc |σ(v)·n|² = λ a_c(v, v) (the
+    /// cell's own stiffness, fictitious part included), which keeps the form coercive however the cell is cut
+    /// (β_c > 2 λ_max suffices). Returns β for every point (for the reaction).
+    /// Cost: one 81 × 81 Cholesky and eigenvalue problem per cell holding support points.
+    pub fn add_nitsche_support(&mut self, domain: &Domain, points: &[SurfacePoint], elastic: Elastic) -> Vec<f64> {
+        let grid = &domain.grid;
+        let h = grid.h;
+        let fills: std::collections::HashMap<usize, &CellFill> = domain.cells.iter().map(|(i, f)| (*i, f)).collect();
+        let mut order: Vec<(usize, usize)> =
+            points.iter().enumerate().map(|(i, sp)| (grid.cell_index(grid.locate(sp.p).0), i)).collect();
+        order.sort_unstable();
+        let groups: Vec<&[(usize, usize)]> = order.chunk_by(|a, b| a.0 == b.0).collect();
+        let full = full_moments();
+        let local: Vec<(usize, Vec<f64>, f64)> = groups
+            .par_iter()
+            .map(|group| {
+                let cell = group[0].0;
+                let moments = match fills.get(&cell) {
+                    Some(CellFill::Full) => full,
+                    Some(CellFill::Cut(m)) => **m,
+                    None => [0.0; 125],
+                };
+                let mut eff = [0.0; 125];
+                for i in 0..125 {
+                    eff[i] = moments[i] + elastic.alpha * (full[i] - moments[i]);
+                }
+                let k_cell = basis::element_stiffness(&basis::gradient_integrals(&eff), elastic.lambda, elastic.mu, h);
+                let mut trace = vec![0.0; 81 * 81];
+                let mut consistency = vec![0.0; 81 * 81];
+                let mut mass = vec![0.0; 27 * 27];
+                for &(_, i) in group.iter() {
+                    let sp = &points[i];
+                    let (_, t) = grid.locate(sp.p);
+                    let (n, g) = basis::shape(t, h);
+                    let tr = traction_operator(&g, sp.n, elastic);
+                    for a in 0..27 {
+                        for b in 0..27 {
+                            mass[a * 27 + b] += sp.w * n[a] * n[b];
+                        }
+                    }
+                    for ap in 0..81 {
+                        let (a, p) = (ap / 3, ap % 3);
+                        for bq in 0..81 {
+                            let (b, q) = (bq / 3, bq % 3);
+                            trace[ap * 81 + bq] += sp.w * dot(tr[ap], tr[bq]);
+                            consistency[ap * 81 + bq] -= sp.w * (n[a] * tr[bq][p] + n[b] * tr[ap][q]);
+                        }
+                    }
+                }
+                let beta = elastic.stability * largest_generalised_eigenvalue(&trace, &k_cell);
+                let mut k = consistency;
+                for a in 0..27 {
+                    for b in 0..27 {
+                        for p in 0..3 {
+                            k[(3 * a + p) * 81 + 3 * b + p] += beta * mass[a * 27 + b];
+                        }
+                    }
+                }
+                (cell, k, beta)
+            })
+            .collect();
+        let mut betas = vec![0.0; points.len()];
+        for ((cell, k, beta), group) in local.iter().zip(&groups) {
+            let f = self.dofs.cell_functions(cell_coords(grid, *cell));
+            self.stiffness.add_element(&self.dofs, &f, k);
+            for &(_, i) in group.iter() {
+                betas[i] = *beta;
+            }
+        }
+        betas
+    }
+
     /// Add a traction (force per area) at surface points; `traction(point)` gives it.
     pub fn add_traction(&mut self, grid: &Grid, points: &[SurfacePoint], traction: impl Fn(&SurfacePoint) -> V3) {
         for sp in points {
@@ -489,6 +564,106 @@ impl System {
         }
         Err(Error::new(ErrorCode::FeaNotConverged, format!("PCG did not converge in {max_iter} iterations"))
             .with_hint("raise --memory-budget so the direct solver is used, or coarsen the grid"))
+    }
+}
+
+/// Material constants as the assembly uses them: Lamé λ, μ, the fictitious stiffness factor α, and the
+/// Nitsche stability factor.
+#[derive(Clone, Copy, Debug)]
+pub struct Elastic {
+    pub lambda: f64,
+    pub mu: f64,
+    pub alpha: f64,
+    pub stability: f64,
+}
+
+/// t[3a + q] = σ(N_a e_q)·n, the traction of each local function and component at a point with gradients `g`
+/// and unit normal `n`: λ n (∂_q N_a) + μ (e_q (∇N_a·n) + n_q ∇N_a).
+pub fn traction_operator(g: &[[f64; 3]; 27], n: V3, e: Elastic) -> [V3; 81] {
+    let mut t = [[0.0; 3]; 81];
+    for a in 0..27 {
+        let gn = dot(g[a], n);
+        for q in 0..3 {
+            let v = &mut t[3 * a + q];
+            for i in 0..3 {
+                v[i] = e.lambda * n[i] * g[a][q] + e.mu * n[q] * g[a][i];
+            }
+            v[q] += e.mu * gn;
+        }
+    }
+    t
+}
+
+#[inline]
+fn dot(a: V3, b: V3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// λ_max of A v = λ K v for symmetric positive semi-definite 81 × 81 matrices that vanish on the same rigid
+/// motions: K is regularised by 1e-10 of its largest diagonal entry, factored K = L Lᵀ, and the largest
+/// eigenvalue of L⁻¹ A L⁻ᵀ returned. Cost: ~1 Mflop.
+fn largest_generalised_eigenvalue(a: &[f64], k: &[f64]) -> f64 {
+    const N: usize = 81;
+    let shift = 1e-10 * (0..N).map(|i| k[i * N + i]).fold(0.0, f64::max);
+    // Cholesky, lower triangle in `l`.
+    let mut l = vec![0.0; N * N];
+    for j in 0..N {
+        let mut d = k[j * N + j] + shift;
+        for m in 0..j {
+            d -= l[j * N + m] * l[j * N + m];
+        }
+        let d = d.max(shift).sqrt();
+        l[j * N + j] = d;
+        for i in j + 1..N {
+            let mut v = k[i * N + j];
+            for m in 0..j {
+                v -= l[i * N + m] * l[j * N + m];
+            }
+            l[i * N + j] = v / d;
+        }
+    }
+    // X = L⁻¹ A (column by column), then C = L⁻¹ Xᵀ = L⁻¹ A L⁻ᵀ.
+    let forward = |b: &mut [f64]| {
+        for i in 0..N {
+            let mut v = b[i];
+            for m in 0..i {
+                v -= l[i * N + m] * b[m];
+            }
+            b[i] = v / l[i * N + i];
+        }
+    };
+    let mut x = vec![0.0; N * N]; // column-major: x[c * N + r]
+    for c in 0..N {
+        let col = &mut x[c * N..(c + 1) * N];
+        for r in 0..N {
+            col[r] = a[r * N + c];
+        }
+        forward(col);
+    }
+    // Row r of X is column r of Xᵀ.
+    let mut c_mat = faer::Mat::<f64>::zeros(N, N);
+    let mut col = [0.0; N];
+    for r in 0..N {
+        for c in 0..N {
+            col[c] = x[c * N + r];
+        }
+        forward(&mut col);
+        for i in 0..N {
+            c_mat[(i, r)] = col[i];
+        }
+    }
+    // Symmetrise against rounding.
+    for i in 0..N {
+        for j in 0..i {
+            let v = 0.5 * (c_mat[(i, j)] + c_mat[(j, i)]);
+            c_mat[(i, j)] = v;
+            c_mat[(j, i)] = v;
+        }
+    }
+    match c_mat.as_ref().self_adjoint_eigenvalues(faer::Side::Lower) {
+        Ok(e) => e.last().copied().unwrap_or(0.0),
+        // The trace bounds the largest eigenvalue of a positive semi-definite matrix from above.
+        Err(_) => (0..N).map(|i| c_mat[(i, i)].max(0.0)).sum(),
     }
 }
 
