@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use super::basis::{self, GradientIntegrals};
 use super::domain::{CellFill, Domain, Grid, full_moments};
 use crate::error::{Error, ErrorCode, Result};
-use crate::geometry::vec3::V3;
+use crate::geometry::vec3::{V3, dot};
 
 /// Neighbour slots kept per function row: offsets (dx, dy, dz) ∈ [−2, 2]³ at or after (0, 0, 0) in
 /// lexicographic (z, y, x) order, i.e. the upper half of the symmetric matrix. Slot 0 is the diagonal.
@@ -592,11 +592,6 @@ pub fn traction_operator(g: &[[f64; 3]; 27], n: V3, e: Elastic) -> [V3; 81] {
         }
     }
     t
-}
-
-#[inline]
-fn dot(a: V3, b: V3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// λ_max of A v = λ K v for symmetric positive semi-definite 81 × 81 matrices that vanish on the same rigid
