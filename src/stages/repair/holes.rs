@@ -10,7 +10,9 @@
 //!    patch edges are flipped towards Delaunay after each round.
 //! 3. **Fair**: the new vertices minimise the discrete thin-plate energy Σ|L(x)|² (uniform umbrella L over
 //!    the patch and its boundary ring, the rest fixed), solved by conjugate gradients on the normal equations,
-//!    so the fill continues the surrounding curvature instead of lying flat.
+//!    so the fill continues the surrounding curvature instead of lying flat. The boundary rows take their
+//!    fixed positions from a quadric fitted around the loop ([`rim_anchors`]), so rim noise does not ripple
+//!    into the fill.
 
 use std::collections::{HashMap, HashSet};
 
@@ -53,6 +55,10 @@ pub struct HoleReport {
     /// Per hole: the largest distance of a new patch vertex from one quadric height field fitted to the rim
     /// and the patch together: whether the fill lies on a smooth surface with its surroundings.
     pub patch_joint_quadric_deviation: Vec<f64>,
+    /// Per hole: the largest distance of a new patch vertex from one quadric height field fitted to the patch
+    /// (its boundary loop and new vertices): whether the fill itself lies on a smooth surface. A flat fan
+    /// has no new vertices (0 here) and shows in `patch_quadric_deviation` instead.
+    pub patch_smoothness: Vec<f64>,
 }
 
 /// Boundary loops as vertex sequences v0, v1, … where the mesh has the half-edges v_i → v_{i+1}.
@@ -347,10 +353,85 @@ fn refine(
     added
 }
 
+/// Rings of mesh vertices around a loop (beyond the loop itself) whose quadric gives the fairing its
+/// boundary tangents.
+const ANCHOR_RINGS: usize = 2;
+
+/// Denoised positions for the fixed vertices in the boundary rows of the fairing energy: each loop vertex and
+/// its mesh neighbours, moved onto one quadric height field fitted to the loop and [`ANCHOR_RINGS`] rings
+/// around it. The patch still interpolates the loop itself; only the tangents it continues come from the
+/// quadric, so scanner noise on the rim (the bunny's base is rough at the 1 mm level) does not ripple into
+/// the fill. A loop whose surroundings are no height field over the frame (a face turned more than 60° from
+/// its normal) or that the quadric misses by more than a quarter of the loop's radius keeps its own
+/// positions.
+fn rim_anchors(p: &[V3], tris: &[[u32; 3]], loops: &[Vec<u32>]) -> HashMap<u32, V3> {
+    let mut anchors = HashMap::new();
+    let mut near: HashSet<u32> = loops.iter().flatten().copied().collect();
+    for _ in 0..ANCHOR_RINGS {
+        let grown: Vec<u32> = tris.iter().filter(|t| t.iter().any(|v| near.contains(v))).flatten().copied().collect();
+        near.extend(grown);
+    }
+    let mut vertex_faces: HashMap<u32, Vec<u32>> = HashMap::new();
+    for (f, t) in tris.iter().enumerate() {
+        for &v in t {
+            if near.contains(&v) {
+                vertex_faces.entry(v).or_default().push(f as u32);
+            }
+        }
+    }
+    for lp in loops {
+        let mut region: HashSet<u32> = lp.iter().copied().collect();
+        let mut front = region.clone();
+        let mut faces: HashSet<u32> = HashSet::new();
+        for _ in 0..ANCHOR_RINGS {
+            let mut next = HashSet::new();
+            for v in &front {
+                for &f in vertex_faces.get(v).into_iter().flatten() {
+                    faces.insert(f);
+                    for w in tris[f as usize] {
+                        if region.insert(w) {
+                            next.insert(w);
+                        }
+                    }
+                }
+            }
+            front = next;
+        }
+        let mut faces: Vec<u32> = faces.into_iter().collect();
+        faces.sort_unstable();
+        let normals: Vec<V3> = faces.iter().filter_map(|&f| tri_unit_normal(p, tris[f as usize])).collect();
+        let normal = normals.iter().fold([0.0; 3], |a, &n| vec3::add(a, n));
+        let mut pts: Vec<u32> = region.into_iter().collect();
+        pts.sort_unstable();
+        let Some(q) = HeightQuadric::fit(p, &pts, normal) else { continue };
+        if normals.iter().any(|&n| vec3::dot(n, q.n) < 0.0) {
+            continue;
+        }
+        let centre = vec3::scale(lp.iter().fold([0.0; 3], |a, &v| vec3::add(a, p[v as usize])), 1.0 / lp.len() as f64);
+        let radius = lp.iter().map(|&v| vec3::norm(vec3::sub(p[v as usize], centre))).sum::<f64>() / lp.len() as f64;
+        let worst = pts.iter().map(|&v| q.offset(p[v as usize]).abs()).fold(0.0, f64::max);
+        if worst > 0.5 * radius {
+            continue;
+        }
+        let on_loop: HashSet<u32> = lp.iter().copied().collect();
+        for &v in lp {
+            anchors.insert(v, q.project(p[v as usize]));
+            for &f in vertex_faces.get(&v).into_iter().flatten() {
+                for w in tris[f as usize] {
+                    if !on_loop.contains(&w) {
+                        anchors.insert(w, q.project(p[w as usize]));
+                    }
+                }
+            }
+        }
+    }
+    anchors
+}
+
 /// Thin-plate fairing of the vertices `free` (indices into `p`): minimise Σ_v |L_v(x)|² over the free
 /// vertices and their neighbours v, L_v = mean of v's neighbours − x_v, all other vertices fixed. CG on
 /// the normal equations, per coordinate. Returns (iterations, relative residual).
-fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32]) -> (usize, f64) {
+fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32], anchors: &HashMap<u32, V3>) -> (usize, f64) {
     if free.is_empty() {
         return (0, 0.0);
     }
@@ -394,9 +475,14 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32]) -> (usize, f64) {
         let inv = 1.0 / nb.len().max(1) as f64;
         let mut coeffs: Vec<(usize, f64)> = Vec::new();
         let mut fx = [0.0; 3];
+        // Rows of fixed (boundary) vertices see the denoised rim; rows of free vertices the rim as it is.
+        let boundary_row = !col.contains_key(&v);
         let mut add = |u: u32, c: f64, coeffs: &mut Vec<(usize, f64)>| match col.get(&u) {
             Some(&j) => coeffs.push((j, c)),
-            None => (0..3).for_each(|k| fx[k] += c * p[u as usize][k]),
+            None => {
+                let q = if boundary_row { anchors.get(&u).copied().unwrap_or(p[u as usize]) } else { p[u as usize] };
+                (0..3).for_each(|k| fx[k] += c * q[k])
+            }
         };
         for &u in nb {
             add(u, inv, &mut coeffs);
@@ -485,6 +571,7 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> H
         if measure { tris.iter().map(|t| box_of(&t.map(|i| p[i as usize]))).collect() } else { Vec::new() };
     let mesh_tree = BoxTree::new(&boxes);
     let all_loops: Vec<u32> = loops.iter().flatten().copied().collect();
+    let anchors = rim_anchors(p, tris, &loops);
     let original_faces = tris.len();
     let mut patches: Vec<Vec<u32>> = Vec::new();
     let all_sigma = loop_sigma(p, tris, &all_loops);
@@ -524,7 +611,7 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> H
         tris.extend(patch);
     }
     let free: Vec<u32> = (first_new_vertex as u32..p.len() as u32).collect();
-    let (it, res) = fair(p, tris, &free);
+    let (it, res) = fair(p, tris, &free, &anchors);
     report.fair_iterations = it;
     report.fair_residual = res;
     if !measure {
@@ -551,26 +638,94 @@ pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> H
         }
     }
     for pv in &patches {
-        let (dev, rim, joint) = quadric_deviation(p, tris, &vertex_faces, pv, first_new_vertex as u32);
+        let (dev, rim, joint, own) = quadric_deviation(p, tris, &vertex_faces, pv, first_new_vertex as u32);
         report.patch_quadric_deviation.push(dev);
         report.rim_quadric_residual.push(rim);
         report.patch_joint_quadric_deviation.push(joint);
+        report.patch_smoothness.push(own);
     }
     report
 }
 
-/// Quadric height fields around a filled hole, in a frame whose normal is the mean normal of the faces
-/// within two rings of the loop. Returns (a) the largest distance of the patch's new vertices from the
-/// quadric fitted to those rim vertices, (b) that fit's own largest residual on the rim, (c) the largest
-/// distance of the new vertices from one quadric fitted to rim and patch together. `patch` holds the loop
-/// and new vertices; `first_new` is the first new vertex index.
+/// A quadric height field z = h(x, y) = a x² + b xy + c y² + d x + e y + f over a local frame (origin, u, v,
+/// normal n), fitted by least squares.
+#[derive(Clone, Copy, Debug)]
+struct HeightQuadric {
+    origin: V3,
+    u: V3,
+    v: V3,
+    n: V3,
+    coef: [f64; 6],
+}
+
+impl HeightQuadric {
+    /// Fit to `pts` (at least 6) in the frame whose normal is `normal` (need not be unit). `None` when the
+    /// points do not determine a quadric or the normal is zero.
+    fn fit(p: &[V3], pts: &[u32], normal: V3) -> Option<Self> {
+        let nl = vec3::norm(normal);
+        if pts.len() < 6 || nl == 0.0 {
+            return None;
+        }
+        let n = vec3::scale(normal, 1.0 / nl);
+        let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+        let u = vec3::unit_or(vec3::cross(n, helper), [0.0, 0.0, 1.0]);
+        let v = vec3::cross(n, u);
+        let origin =
+            vec3::scale(pts.iter().fold([0.0; 3], |a, &i| vec3::add(a, p[i as usize])), 1.0 / pts.len() as f64);
+        let mut q = HeightQuadric { origin, u, v, n, coef: [0.0; 6] };
+        let mut ata = [[0.0; 6]; 6];
+        let mut atb = [0.0; 6];
+        for &i in pts {
+            let (x, y, z) = q.local(p[i as usize]);
+            let b = Self::basis(x, y);
+            for r in 0..6 {
+                for c in 0..6 {
+                    ata[r][c] += b[r] * b[c];
+                }
+                atb[r] += b[r] * z;
+            }
+        }
+        q.coef = solve_dense(ata, atb)?;
+        Some(q)
+    }
+
+    fn basis(x: f64, y: f64) -> [f64; 6] {
+        [x * x, x * y, y * y, x, y, 1.0]
+    }
+
+    fn local(&self, q: V3) -> (f64, f64, f64) {
+        let d = vec3::sub(q, self.origin);
+        (vec3::dot(d, self.u), vec3::dot(d, self.v), vec3::dot(d, self.n))
+    }
+
+    fn height(&self, x: f64, y: f64) -> f64 {
+        Self::basis(x, y).iter().zip(&self.coef).map(|(b, c)| b * c).sum()
+    }
+
+    /// Signed height of `q` above the quadric, along the frame normal.
+    fn offset(&self, q: V3) -> f64 {
+        let (x, y, z) = self.local(q);
+        z - self.height(x, y)
+    }
+
+    /// `q` moved along the frame normal onto the quadric.
+    fn project(&self, q: V3) -> V3 {
+        vec3::sub(q, vec3::scale(self.n, self.offset(q)))
+    }
+}
+
+/// Quadric height fields around a filled hole, in a frame whose normal is the mean normal of the mesh faces
+/// at the loop. Returns the largest distance of the patch's new vertices from the quadric fitted to (a) the
+/// ring of mesh vertices around the loop, (c) that ring and the new vertices together, (d) the loop and the
+/// new vertices; and (b) the largest residual of fit (a) on the ring itself. `patch` holds the loop and new
+/// vertices; `first_new` is the first new vertex index.
 fn quadric_deviation(
     p: &[V3],
     tris: &[[u32; 3]],
     vertex_faces: &HashMap<u32, Vec<u32>>,
     patch: &[u32],
     first_new: u32,
-) -> (f64, f64, f64) {
+) -> (f64, f64, f64, f64) {
     let in_patch: HashSet<u32> = patch.iter().copied().collect();
     let mut rim: HashSet<u32> = HashSet::new();
     let mut front: HashSet<u32> = patch.iter().copied().filter(|v| (*v as usize) < p.len()).collect();
@@ -592,50 +747,19 @@ fn quadric_deviation(
         }
         front = next;
     }
-    let nl = vec3::norm(normal_sum);
-    if rim.len() < 6 || nl == 0.0 {
-        return (f64::NAN, f64::NAN, f64::NAN);
-    }
-    let n = vec3::scale(normal_sum, 1.0 / nl);
-    let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
-    let u = {
-        let c = vec3::cross(n, helper);
-        vec3::scale(c, 1.0 / vec3::norm(c))
-    };
-    let v = vec3::cross(n, u);
     let mut rim: Vec<u32> = rim.into_iter().collect();
     rim.sort_unstable();
-    let origin = rim.iter().fold([0.0; 3], |a, &i| vec3::add(a, p[i as usize]));
-    let origin = vec3::scale(origin, 1.0 / rim.len() as f64);
-    let local = |q: V3| {
-        let d = vec3::sub(q, origin);
-        (vec3::dot(d, u), vec3::dot(d, v), vec3::dot(d, n))
-    };
-    let basis = |x: f64, y: f64| [x * x, x * y, y * y, x, y, 1.0];
-    // Least-squares quadric height field through `fit`; the largest |z − h(x, y)| over `eval`.
+    // The largest distance over `eval` from the quadric fitted to `fit`.
     let fit_and_measure = |fit: &[u32], eval: &[u32]| -> f64 {
-        let mut ata = [[0.0; 6]; 6];
-        let mut atb = [0.0; 6];
-        for &i in fit {
-            let (x, y, z) = local(p[i as usize]);
-            let b = basis(x, y);
-            for r in 0..6 {
-                for c in 0..6 {
-                    ata[r][c] += b[r] * b[c];
-                }
-                atb[r] += b[r] * z;
-            }
-        }
-        let Some(coef) = solve_dense(ata, atb) else { return f64::NAN };
-        eval.iter()
-            .map(|&i| {
-                let (x, y, z) = local(p[i as usize]);
-                let h: f64 = basis(x, y).iter().zip(&coef).map(|(b, c)| b * c).sum();
-                (z - h).abs()
-            })
-            .fold(0.0, f64::max)
+        let Some(q) = HeightQuadric::fit(p, fit, normal_sum) else { return f64::NAN };
+        eval.iter().map(|&i| q.offset(p[i as usize]).abs()).fold(0.0, f64::max)
     };
     let new: Vec<u32> = patch.iter().copied().filter(|&i| i >= first_new).collect();
     let both: Vec<u32> = rim.iter().chain(&new).copied().collect();
-    (fit_and_measure(&rim, &new), fit_and_measure(&rim, &rim), fit_and_measure(&both, &new))
+    (
+        fit_and_measure(&rim, &new),
+        fit_and_measure(&rim, &rim),
+        fit_and_measure(&both, &new),
+        if new.is_empty() { 0.0 } else { fit_and_measure(patch, &new) },
+    )
 }
