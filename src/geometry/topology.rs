@@ -371,3 +371,40 @@ impl TopologyReport {
         }
     }
 }
+
+/// The faces around every vertex of a triangle list, as compact rows (a counting sort: O(V + F)).
+#[derive(Clone, Debug)]
+pub struct VertexFaces {
+    rows: Vec<u32>,
+    cols: Vec<u32>,
+}
+
+impl VertexFaces {
+    /// Faces around each of the `n` vertices of `tris` (every index must be below `n`).
+    pub fn new(n: usize, tris: &[[u32; 3]]) -> Self {
+        let mut rows = vec![0u32; n + 1];
+        for t in tris {
+            for &v in t {
+                rows[v as usize + 1] += 1;
+            }
+        }
+        for v in 0..n {
+            rows[v + 1] += rows[v];
+        }
+        let mut fill = rows.clone();
+        let mut cols = vec![0u32; rows[n] as usize];
+        for (f, t) in tris.iter().enumerate() {
+            for &v in t {
+                cols[fill[v as usize] as usize] = f as u32;
+                fill[v as usize] += 1;
+            }
+        }
+        VertexFaces { rows, cols }
+    }
+
+    /// Faces using vertex `v`, ascending.
+    #[inline]
+    pub fn of(&self, v: u32) -> &[u32] {
+        &self.cols[self.rows[v as usize] as usize..self.rows[v as usize + 1] as usize]
+    }
+}

@@ -19,7 +19,7 @@ use std::collections::{HashMap, HashSet};
 use crate::geometry::bvh::{BoxTree, box_of};
 use crate::geometry::intersect::mesh_triangles_intersect;
 use crate::geometry::linalg::solve_dense;
-use crate::geometry::topology::MeshTopology;
+use crate::geometry::topology::{MeshTopology, VertexFaces};
 use crate::geometry::vec3::{self, V3, tri_area, tri_unit_normal};
 
 /// Longest loop triangulated by the O(n³) dynamic programme; longer loops are ear-clipped down to it first.
@@ -548,8 +548,16 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32], anchors: &HashMap<u32, V3
 /// triangles that would cross the existing surface are excluded (the self-intersection loop, which refills
 /// the holes it makes with `measure` off, checks its refills itself).
 pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> HoleReport {
+    fill(p, tris, measure, None)
+}
+
+/// [`fill_holes`], for the loops that pass through a vertex of `only` when it is given.
+fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&HashSet<u32>>) -> HoleReport {
     let mut report = HoleReport::default();
-    let loops = boundary_loops(tris);
+    let mut loops = boundary_loops(tris);
+    if let Some(only) = only {
+        loops.retain(|lp| lp.iter().any(|v| only.contains(v)));
+    }
     if loops.is_empty() {
         return report;
     }
@@ -712,6 +720,57 @@ impl HeightQuadric {
     fn project(&self, q: V3) -> V3 {
         vec3::sub(q, vec3::scale(self.n, self.offset(q)))
     }
+}
+
+/// Rings of faces around the rim vertices that [`fill_holes_near`] hands to [`fill_holes`]: the fairing and
+/// its anchors look [`ANCHOR_RINGS`] + 1 rings out.
+const NEAR_RINGS: usize = ANCHOR_RINGS + 2;
+
+/// [`fill_holes`] (without measuring) for the holes that pass through `rim` only, working on the faces within
+/// [`NEAR_RINGS`] rings of those vertices instead of the whole mesh: after a local deletion the cost is that
+/// of the neighbourhood plus one O(V + F) pass. Loops of the neighbourhood's own border are never touched
+/// (they pass through no rim vertex). New vertices are appended to `p`, new faces to `tris`.
+pub fn fill_holes_near(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, rim: &HashSet<u32>) -> HoleReport {
+    if rim.is_empty() {
+        return HoleReport::default();
+    }
+    let around = VertexFaces::new(p.len(), tris);
+    let mut near: HashSet<u32> = rim.clone();
+    let mut front: Vec<u32> = rim.iter().copied().collect();
+    let mut faces: HashSet<u32> = HashSet::new();
+    for _ in 0..NEAR_RINGS {
+        let mut next = Vec::new();
+        for &v in &front {
+            for &f in around.of(v) {
+                if faces.insert(f) {
+                    for w in tris[f as usize] {
+                        if near.insert(w) {
+                            next.push(w);
+                        }
+                    }
+                }
+            }
+        }
+        front = next;
+    }
+    let mut faces: Vec<u32> = faces.into_iter().collect();
+    faces.sort_unstable();
+    let mut global: Vec<u32> = near.into_iter().collect();
+    global.sort_unstable();
+    let local_of: HashMap<u32, u32> = global.iter().enumerate().map(|(i, &g)| (g, i as u32)).collect();
+    let mut lp: Vec<V3> = global.iter().map(|&g| p[g as usize]).collect();
+    let mut lt: Vec<[u32; 3]> = faces.iter().map(|&f| tris[f as usize].map(|v| local_of[&v])).collect();
+    let local_rim: HashSet<u32> = rim.iter().filter_map(|v| local_of.get(v).copied()).collect();
+    let (n_local, f_local) = (lp.len(), lt.len());
+    let report = fill(&mut lp, &mut lt, false, Some(&local_rim));
+    // New local vertices become new global vertices, in order.
+    let first_global = p.len() as u32;
+    p.extend_from_slice(&lp[n_local..]);
+    // Fairing moved only new vertices; loop vertices keep their positions.
+    let to_global =
+        |v: u32| if (v as usize) < n_local { global[v as usize] } else { first_global + v - n_local as u32 };
+    tris.extend(lt[f_local..].iter().map(|t| t.map(to_global)));
+    report
 }
 
 /// Quadric height fields around a filled hole, in a frame whose normal is the mean normal of the mesh faces

@@ -8,6 +8,7 @@ use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::bvh::{BoxTree, box_of};
 use crate::geometry::intersect::{mesh_triangles_intersect, self_intersections_involving};
 use crate::geometry::mesh::TriMesh;
+use crate::geometry::topology::VertexFaces;
 use crate::geometry::vec3::{self, V3};
 use crate::stages::repair::{holes, manifold};
 use rayon::prelude::*;
@@ -63,25 +64,8 @@ pub fn remove_self_intersections(pos: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, ke
         r.rounds += 1;
         let mut faces: HashSet<u32> = pairs.iter().flat_map(|&(a, b)| [a, b]).collect();
         if GROW_FIRST + round > 0 {
-            // Faces around each vertex as compact rows (counting sort).
-            let mut rows = vec![0u32; pos.len() + 1];
-            for t in tris.iter() {
-                for &v in t {
-                    rows[v as usize + 1] += 1;
-                }
-            }
-            for v in 0..pos.len() {
-                rows[v + 1] += rows[v];
-            }
-            let mut fill = rows.clone();
-            let mut cols = vec![0u32; rows[pos.len()] as usize];
-            for (f, t) in tris.iter().enumerate() {
-                for &v in t {
-                    cols[fill[v as usize] as usize] = f as u32;
-                    fill[v as usize] += 1;
-                }
-            }
-            let faces_of = |v: u32| &cols[rows[v as usize] as usize..rows[v as usize + 1] as usize];
+            let around = VertexFaces::new(pos.len(), tris);
+            let faces_of = |v: u32| around.of(v);
             let area = |f: u32| vec3::tri_area(pos, tris[f as usize]);
             let total: f64 = (0..tris.len() as u32).map(area).sum();
             for _ in 0..GROW_FIRST + round {
@@ -102,17 +86,21 @@ pub fn remove_self_intersections(pos: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, ke
                 .filter(|t| t.iter().all(|&v| v < first_new_vertex))
                 .map(|t| t.map(|v| pos[v as usize].map(|c| c as f32))),
         );
+        let mut rim: HashSet<u32> = faces.iter().flat_map(|&f| tris[f as usize]).collect();
         let kept: Vec<[u32; 3]> =
             tris.iter().enumerate().filter(|(f, _)| !faces.contains(&(*f as u32))).map(|(_, t)| *t).collect();
+        let vertices_before_split = pos.len() as u32;
         let t = std::time::Instant::now();
         // Deleting faces cannot create non-manifold edges or orientation conflicts, only pinched vertices and
         // loose pieces.
-        let (cleaned, _) = manifold::split_and_keep(pos, kept, keep_share * DEBRIS_SHARE_FACTOR);
+        let (cleaned, _) = manifold::split_and_keep(pos, kept, &rim, keep_share * DEBRIS_SHARE_FACTOR);
         *tris = cleaned;
         // Kept faces stay in order at the front (they were checked); refills are appended after them.
         let t2 = std::time::Instant::now();
         first_unchecked = tris.len();
-        r.holes_refilled += holes::fill_holes(pos, tris, false).holes_filled;
+        // Every hole lies at the deleted faces' corners, or at copies the split made of them.
+        rim.extend(vertices_before_split..pos.len() as u32);
+        r.holes_refilled += holes::fill_holes_near(pos, tris, &rim).holes_filled;
         tracing::debug!(
             round,
             manifold_s = (t2 - t).as_secs_f64(),

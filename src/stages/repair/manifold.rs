@@ -164,11 +164,16 @@ fn keep_components(pos: &[V3], tris: &mut Vec<[u32; 3]>, keep_share: f64, r: &mu
             uf.union(h1 / 3, h2 / 3);
         }
     }
-    let mut comp_area = std::collections::BTreeMap::<u32, f64>::new();
-    let areas: Vec<f64> = tris.iter().map(|&t| tri_area(pos, t)).collect();
     let roots: Vec<u32> = (0..tris.len() as u32).map(|f| uf.find(f)).collect();
+    keep_largest(pos, tris, &roots, keep_share, r);
+}
+
+/// Given each face's component (`roots`), keep the largest component by area (ties to the lower root) and
+/// every other one of at least `keep_share` of the total area.
+fn keep_largest(pos: &[V3], tris: &mut Vec<[u32; 3]>, roots: &[u32], keep_share: f64, r: &mut ManifoldReport) {
+    let mut comp_area = std::collections::BTreeMap::<u32, f64>::new();
     for (f, &root) in roots.iter().enumerate() {
-        *comp_area.entry(root).or_insert(0.0) += areas[f];
+        *comp_area.entry(root).or_insert(0.0) += tri_area(pos, tris[f]);
     }
     let total: f64 = comp_area.values().sum();
     let largest = comp_area.iter().max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(a.0))).map(|(&k, _)| k);
@@ -198,11 +203,74 @@ pub fn make_manifold(pos: &mut Vec<V3>, tris: Vec<[u32; 3]>, keep_share: f64) ->
     (tris, r)
 }
 
-/// The part of [`make_manifold`] needed after deleting faces from an oriented manifold: split pinched
-/// vertices and keep the components that matter. Face order is preserved.
-pub fn split_and_keep(pos: &mut Vec<V3>, mut tris: Vec<[u32; 3]>, keep_share: f64) -> (Vec<[u32; 3]>, ManifoldReport) {
+/// The part of [`make_manifold`] needed after deleting faces from a closed oriented manifold: split pinched
+/// vertices and keep the components that matter. Only the deleted faces' corners (`rim`) can have become
+/// pinched, so only they are examined; components are found by a union-find over vertices, which after the
+/// split is the same as over shared edges. O(V + F) without sorting. Face order is preserved, and the
+/// result equals that of [`split_nonmanifold_vertices`] and [`keep_components`] on the whole mesh.
+pub fn split_and_keep(
+    pos: &mut Vec<V3>,
+    mut tris: Vec<[u32; 3]>,
+    rim: &std::collections::HashSet<u32>,
+    keep_share: f64,
+) -> (Vec<[u32; 3]>, ManifoldReport) {
     let mut r = ManifoldReport::default();
-    split_nonmanifold_vertices(pos, &mut tris, &mut r);
-    keep_components(pos, &mut tris, keep_share, &mut r);
+    let around = crate::geometry::topology::VertexFaces::new(pos.len(), &tris);
+    let corner =
+        |f: u32, v: u32, tris: &[[u32; 3]]| 3 * f + tris[f as usize].iter().position(|&w| w == v).unwrap_or(0) as u32;
+    // (first corner of the fan, vertex, faces of the fan) for every fan but the one that keeps the vertex.
+    let mut extra: Vec<(u32, u32, Vec<u32>)> = Vec::new();
+    let mut rim: Vec<u32> = rim.iter().copied().filter(|&v| (v as usize) < pos.len()).collect();
+    rim.sort_unstable();
+    for v in rim {
+        let faces = around.of(v);
+        if faces.len() < 2 {
+            continue;
+        }
+        // Faces around v that share a second vertex lie in one fan.
+        let mut uf = UnionFind::new(faces.len());
+        let mut by_other: std::collections::HashMap<u32, u32> = std::collections::HashMap::new();
+        for (i, &f) in faces.iter().enumerate() {
+            for w in tris[f as usize] {
+                if w != v {
+                    match by_other.entry(w) {
+                        std::collections::hash_map::Entry::Occupied(e) => uf.union(*e.get(), i as u32),
+                        std::collections::hash_map::Entry::Vacant(e) => {
+                            e.insert(i as u32);
+                        }
+                    }
+                }
+            }
+        }
+        let mut fans: std::collections::BTreeMap<u32, (u32, Vec<u32>)> = std::collections::BTreeMap::new();
+        for (i, &f) in faces.iter().enumerate() {
+            let e = fans.entry(uf.find(i as u32)).or_insert((u32::MAX, Vec::new()));
+            e.0 = e.0.min(corner(f, v, &tris));
+            e.1.push(f);
+        }
+        if fans.len() < 2 {
+            continue;
+        }
+        let mut fans: Vec<(u32, Vec<u32>)> = fans.into_values().collect();
+        fans.sort_unstable_by_key(|f| f.0);
+        extra.extend(fans.into_iter().skip(1).map(|(c, fs)| (c, v, fs)));
+    }
+    extra.sort_unstable_by_key(|e| e.0);
+    for (_, v, faces) in extra {
+        pos.push(pos[v as usize]);
+        let copy = (pos.len() - 1) as u32;
+        r.vertices_split += 1;
+        for f in faces {
+            tris[f as usize].iter_mut().filter(|w| **w == v).for_each(|w| *w = copy);
+        }
+    }
+    // Components over vertices.
+    let mut uf = UnionFind::new(pos.len());
+    for t in &tris {
+        uf.union(t[0], t[1]);
+        uf.union(t[1], t[2]);
+    }
+    let roots: Vec<u32> = tris.iter().map(|t| uf.find(t[0])).collect();
+    keep_largest(pos, &mut tris, &roots, keep_share, &mut r);
     (tris, r)
 }
