@@ -353,6 +353,30 @@ fn refine(
     added
 }
 
+/// The vertices (the seeds included) and faces reached from `seeds` in `rings` rings of faces, both sorted.
+/// Cost: O(size of what is reached).
+fn grow_rings(tris: &[[u32; 3]], around: &VertexFaces, seeds: &[u32], rings: usize) -> (Vec<u32>, Vec<u32>) {
+    let mut vertices: HashSet<u32> = seeds.iter().copied().collect();
+    let mut faces: HashSet<u32> = HashSet::new();
+    let mut front: Vec<u32> = seeds.to_vec();
+    for _ in 0..rings {
+        let mut next = Vec::new();
+        for &v in &front {
+            for &f in around.of(v) {
+                if faces.insert(f) {
+                    next.extend(tris[f as usize].into_iter().filter(|&w| vertices.insert(w)));
+                }
+            }
+        }
+        front = next;
+    }
+    let mut vertices: Vec<u32> = vertices.into_iter().collect();
+    vertices.sort_unstable();
+    let mut faces: Vec<u32> = faces.into_iter().collect();
+    faces.sort_unstable();
+    (vertices, faces)
+}
+
 /// Rings of mesh vertices around a loop (beyond the loop itself) whose quadric gives the fairing its
 /// boundary tangents.
 const ANCHOR_RINGS: usize = 2;
@@ -366,43 +390,11 @@ const ANCHOR_RINGS: usize = 2;
 /// positions.
 fn rim_anchors(p: &[V3], tris: &[[u32; 3]], loops: &[Vec<u32>]) -> HashMap<u32, V3> {
     let mut anchors = HashMap::new();
-    let mut near: HashSet<u32> = loops.iter().flatten().copied().collect();
-    for _ in 0..ANCHOR_RINGS {
-        let grown: Vec<u32> = tris.iter().filter(|t| t.iter().any(|v| near.contains(v))).flatten().copied().collect();
-        near.extend(grown);
-    }
-    let mut vertex_faces: HashMap<u32, Vec<u32>> = HashMap::new();
-    for (f, t) in tris.iter().enumerate() {
-        for &v in t {
-            if near.contains(&v) {
-                vertex_faces.entry(v).or_default().push(f as u32);
-            }
-        }
-    }
+    let around = VertexFaces::new(p.len(), tris);
     for lp in loops {
-        let mut region: HashSet<u32> = lp.iter().copied().collect();
-        let mut front = region.clone();
-        let mut faces: HashSet<u32> = HashSet::new();
-        for _ in 0..ANCHOR_RINGS {
-            let mut next = HashSet::new();
-            for v in &front {
-                for &f in vertex_faces.get(v).into_iter().flatten() {
-                    faces.insert(f);
-                    for w in tris[f as usize] {
-                        if region.insert(w) {
-                            next.insert(w);
-                        }
-                    }
-                }
-            }
-            front = next;
-        }
-        let mut faces: Vec<u32> = faces.into_iter().collect();
-        faces.sort_unstable();
+        let (pts, faces) = grow_rings(tris, &around, lp, ANCHOR_RINGS);
         let normals: Vec<V3> = faces.iter().filter_map(|&f| tri_unit_normal(p, tris[f as usize])).collect();
         let normal = normals.iter().fold([0.0; 3], |a, &n| vec3::add(a, n));
-        let mut pts: Vec<u32> = region.into_iter().collect();
-        pts.sort_unstable();
         let Some(q) = HeightQuadric::fit(p, &pts, normal) else { continue };
         if normals.iter().any(|&n| vec3::dot(n, q.n) < 0.0) {
             continue;
@@ -416,7 +408,7 @@ fn rim_anchors(p: &[V3], tris: &[[u32; 3]], loops: &[Vec<u32>]) -> HashMap<u32, 
         let on_loop: HashSet<u32> = lp.iter().copied().collect();
         for &v in lp {
             anchors.insert(v, q.project(p[v as usize]));
-            for &f in vertex_faces.get(&v).into_iter().flatten() {
+            for &f in around.of(v) {
                 for w in tris[f as usize] {
                     if !on_loop.contains(&w) {
                         anchors.insert(w, q.project(p[w as usize]));
@@ -625,26 +617,8 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
     if !measure {
         return report;
     }
-    // Faces of the original mesh around the vertices near the patches (fill patches excluded).
-    let mut vertex_faces: HashMap<u32, Vec<u32>> = HashMap::new();
-    let near: HashSet<u32> = patches.iter().flatten().copied().collect();
-    let mut ring: HashSet<u32> = near.clone();
-    for _ in 0..RIM_RINGS + 1 {
-        let mut grown = ring.clone();
-        for t in &tris[..original_faces] {
-            if t.iter().any(|v| ring.contains(v)) {
-                grown.extend(t.iter().copied());
-            }
-        }
-        ring = grown;
-    }
-    for (f, t) in tris[..original_faces].iter().enumerate() {
-        for &v in t {
-            if ring.contains(&v) {
-                vertex_faces.entry(v).or_default().push(f as u32);
-            }
-        }
-    }
+    // Faces of the original mesh around each vertex (fill patches excluded).
+    let vertex_faces = VertexFaces::new(p.len(), &tris[..original_faces]);
     for pv in &patches {
         let (dev, rim, joint, own) = quadric_deviation(p, tris, &vertex_faces, pv, first_new_vertex as u32);
         report.patch_quadric_deviation.push(dev);
@@ -735,28 +709,9 @@ pub fn fill_holes_near(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, rim: &HashSet<
         return HoleReport::default();
     }
     let around = VertexFaces::new(p.len(), tris);
-    let mut near: HashSet<u32> = rim.clone();
-    let mut front: Vec<u32> = rim.iter().copied().collect();
-    let mut faces: HashSet<u32> = HashSet::new();
-    for _ in 0..NEAR_RINGS {
-        let mut next = Vec::new();
-        for &v in &front {
-            for &f in around.of(v) {
-                if faces.insert(f) {
-                    for w in tris[f as usize] {
-                        if near.insert(w) {
-                            next.push(w);
-                        }
-                    }
-                }
-            }
-        }
-        front = next;
-    }
-    let mut faces: Vec<u32> = faces.into_iter().collect();
-    faces.sort_unstable();
-    let mut global: Vec<u32> = near.into_iter().collect();
-    global.sort_unstable();
+    let mut seeds: Vec<u32> = rim.iter().copied().collect();
+    seeds.sort_unstable();
+    let (global, faces) = grow_rings(tris, &around, &seeds, NEAR_RINGS);
     let local_of: HashMap<u32, u32> = global.iter().enumerate().map(|(i, &g)| (g, i as u32)).collect();
     let mut lp: Vec<V3> = global.iter().map(|&g| p[g as usize]).collect();
     let mut lt: Vec<[u32; 3]> = faces.iter().map(|&f| tris[f as usize].map(|v| local_of[&v])).collect();
@@ -781,7 +736,7 @@ pub fn fill_holes_near(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, rim: &HashSet<
 fn quadric_deviation(
     p: &[V3],
     tris: &[[u32; 3]],
-    vertex_faces: &HashMap<u32, Vec<u32>>,
+    vertex_faces: &VertexFaces,
     patch: &[u32],
     first_new: u32,
 ) -> (f64, f64, f64, f64) {
@@ -791,8 +746,7 @@ fn quadric_deviation(
     let mut normal_sum = [0.0; 3];
     for _ in 0..RIM_RINGS {
         let mut next = HashSet::new();
-        let mut faces: Vec<u32> =
-            front.iter().flat_map(|v| vertex_faces.get(v).into_iter().flatten().copied()).collect();
+        let mut faces: Vec<u32> = front.iter().flat_map(|&v| vertex_faces.of(v).iter().copied()).collect();
         faces.sort_unstable();
         faces.dedup();
         for f in faces {

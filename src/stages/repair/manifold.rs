@@ -129,28 +129,52 @@ fn orient(tris: &mut Vec<[u32; 3]>, r: &mut ManifoldReport) {
     *tris = out;
 }
 
-/// Give every extra fan around a vertex its own vertex copy.
-fn split_nonmanifold_vertices(pos: &mut Vec<V3>, tris: &mut [[u32; 3]], r: &mut ManifoldReport) {
-    let topo = MeshTopology::from_triangles(tris);
-    let idx: Vec<u32> = tris.as_flattened().to_vec();
-    let mut uf = UnionFind::new(idx.len());
-    topo.join_fan_corners(&idx, &mut uf);
-    // First fan (by lowest corner root) keeps the vertex; others get copies.
-    let mut owner: Vec<u32> = vec![u32::MAX; pos.len()];
-    let mut copy_of_root: std::collections::HashMap<u32, u32> = std::collections::HashMap::new();
-    let flat = tris.as_flattened_mut();
-    for h in 0..flat.len() {
-        let v = flat[h] as usize;
-        let root = uf.find(h as u32);
-        if owner[v] == u32::MAX {
-            owner[v] = root;
-        } else if owner[v] != root {
-            let id = *copy_of_root.entry(root).or_insert_with(|| {
-                pos.push(pos[v]);
-                r.vertices_split += 1;
-                (pos.len() - 1) as u32
-            });
-            flat[h] = id;
+/// Give every extra fan around a vertex its own vertex copy, looking at the vertices `candidates` only
+/// (ascending). Every edge must have at most two faces; faces around a vertex that share a second vertex then
+/// lie in one fan. The fan holding the vertex's lowest corner keeps it, and copies are numbered in the order
+/// of their fans' lowest corners, so the result does not depend on which candidates are given as long as
+/// they include every pinched vertex. Cost: O(V + F) plus the candidates' fans.
+fn split_pinched(pos: &mut Vec<V3>, tris: &mut [[u32; 3]], candidates: &[u32], r: &mut ManifoldReport) {
+    let around = crate::geometry::topology::VertexFaces::new(pos.len(), tris);
+    let corner = |f: u32, v: u32| 3 * f + tris[f as usize].iter().position(|&w| w == v).unwrap_or(0) as u32;
+    // (first corner of the fan, vertex, faces of the fan) for every fan but the one that keeps the vertex.
+    let mut extra: Vec<(u32, u32, Vec<u32>)> = Vec::new();
+    let mut by_other: Vec<(u32, u32)> = Vec::new();
+    for &v in candidates {
+        let faces = around.of(v);
+        if faces.len() < 2 {
+            continue;
+        }
+        let mut uf = UnionFind::new(faces.len());
+        by_other.clear();
+        for (i, &f) in faces.iter().enumerate() {
+            for w in tris[f as usize].into_iter().filter(|&w| w != v) {
+                match by_other.iter().find(|(o, _)| *o == w) {
+                    Some(&(_, j)) => uf.union(j, i as u32),
+                    None => by_other.push((w, i as u32)),
+                }
+            }
+        }
+        let mut fans: std::collections::BTreeMap<u32, (u32, Vec<u32>)> = std::collections::BTreeMap::new();
+        for (i, &f) in faces.iter().enumerate() {
+            let e = fans.entry(uf.find(i as u32)).or_insert((u32::MAX, Vec::new()));
+            e.0 = e.0.min(corner(f, v));
+            e.1.push(f);
+        }
+        if fans.len() < 2 {
+            continue;
+        }
+        let mut fans: Vec<(u32, Vec<u32>)> = fans.into_values().collect();
+        fans.sort_unstable_by_key(|f| f.0);
+        extra.extend(fans.into_iter().skip(1).map(|(c, fs)| (c, v, fs)));
+    }
+    extra.sort_unstable_by_key(|e| e.0);
+    for (_, v, faces) in extra {
+        pos.push(pos[v as usize]);
+        let copy = (pos.len() - 1) as u32;
+        r.vertices_split += 1;
+        for f in faces {
+            tris[f as usize].iter_mut().filter(|w| **w == v).for_each(|w| *w = copy);
         }
     }
 }
@@ -198,7 +222,8 @@ pub fn make_manifold(pos: &mut Vec<V3>, tris: Vec<[u32; 3]>, keep_share: f64) ->
     let mut r = ManifoldReport::default();
     let mut tris = fix_nonmanifold_edges(pos, &tris, &mut r);
     orient(&mut tris, &mut r);
-    split_nonmanifold_vertices(pos, &mut tris, &mut r);
+    let all: Vec<u32> = (0..pos.len() as u32).collect();
+    split_pinched(pos, &mut tris, &all, &mut r);
     keep_components(pos, &mut tris, keep_share, &mut r);
     (tris, r)
 }
@@ -207,7 +232,7 @@ pub fn make_manifold(pos: &mut Vec<V3>, tris: Vec<[u32; 3]>, keep_share: f64) ->
 /// vertices and keep the components that matter. Only the deleted faces' corners (`rim`) can have become
 /// pinched, so only they are examined; components are found by a union-find over vertices, which after the
 /// split is the same as over shared edges. O(V + F) without sorting. Face order is preserved, and the
-/// result equals that of [`split_nonmanifold_vertices`] and [`keep_components`] on the whole mesh.
+/// result equals that of [`split_pinched`] over every vertex and [`keep_components`].
 pub fn split_and_keep(
     pos: &mut Vec<V3>,
     mut tris: Vec<[u32; 3]>,
@@ -215,55 +240,9 @@ pub fn split_and_keep(
     keep_share: f64,
 ) -> (Vec<[u32; 3]>, ManifoldReport) {
     let mut r = ManifoldReport::default();
-    let around = crate::geometry::topology::VertexFaces::new(pos.len(), &tris);
-    let corner =
-        |f: u32, v: u32, tris: &[[u32; 3]]| 3 * f + tris[f as usize].iter().position(|&w| w == v).unwrap_or(0) as u32;
-    // (first corner of the fan, vertex, faces of the fan) for every fan but the one that keeps the vertex.
-    let mut extra: Vec<(u32, u32, Vec<u32>)> = Vec::new();
     let mut rim: Vec<u32> = rim.iter().copied().filter(|&v| (v as usize) < pos.len()).collect();
     rim.sort_unstable();
-    for v in rim {
-        let faces = around.of(v);
-        if faces.len() < 2 {
-            continue;
-        }
-        // Faces around v that share a second vertex lie in one fan.
-        let mut uf = UnionFind::new(faces.len());
-        let mut by_other: std::collections::HashMap<u32, u32> = std::collections::HashMap::new();
-        for (i, &f) in faces.iter().enumerate() {
-            for w in tris[f as usize] {
-                if w != v {
-                    match by_other.entry(w) {
-                        std::collections::hash_map::Entry::Occupied(e) => uf.union(*e.get(), i as u32),
-                        std::collections::hash_map::Entry::Vacant(e) => {
-                            e.insert(i as u32);
-                        }
-                    }
-                }
-            }
-        }
-        let mut fans: std::collections::BTreeMap<u32, (u32, Vec<u32>)> = std::collections::BTreeMap::new();
-        for (i, &f) in faces.iter().enumerate() {
-            let e = fans.entry(uf.find(i as u32)).or_insert((u32::MAX, Vec::new()));
-            e.0 = e.0.min(corner(f, v, &tris));
-            e.1.push(f);
-        }
-        if fans.len() < 2 {
-            continue;
-        }
-        let mut fans: Vec<(u32, Vec<u32>)> = fans.into_values().collect();
-        fans.sort_unstable_by_key(|f| f.0);
-        extra.extend(fans.into_iter().skip(1).map(|(c, fs)| (c, v, fs)));
-    }
-    extra.sort_unstable_by_key(|e| e.0);
-    for (_, v, faces) in extra {
-        pos.push(pos[v as usize]);
-        let copy = (pos.len() - 1) as u32;
-        r.vertices_split += 1;
-        for f in faces {
-            tris[f as usize].iter_mut().filter(|w| **w == v).for_each(|w| *w = copy);
-        }
-    }
+    split_pinched(pos, &mut tris, &rim, &mut r);
     // Components over vertices.
     let mut uf = UnionFind::new(pos.len());
     for t in &tris {
