@@ -180,6 +180,36 @@ fn validity_check_catches_open_shells_and_loose_curves() {
     assert!(e.message.contains("leaves the face boundary"), "{e}");
 }
 
+/// Regression (CI, dragon at 20k): the quad net held a 12-quad piece pinched off a thin part, and the solid
+/// was written as one shell of two pieces, which OCCT reads as two shells. Our check must refuse a shell that
+/// is not one connected piece: here two unit spheres side by side, each closed on its own.
+#[test]
+fn validity_check_refuses_a_shell_in_two_pieces() {
+    use scanstation::ErrorCode;
+    let (a, _) = sphere_solid(2);
+    let mut two = a.clone();
+    let (nv, ne) = (a.vertices.len() as u32, a.edges.len() as u32);
+    let shift = |p: V3| [p[0] + 3.0, p[1], p[2]];
+    two.vertices.extend(a.vertices.iter().map(|&p| shift(p)));
+    two.edges.extend(a.edges.iter().map(|e| {
+        let mut e = e.clone();
+        e.start += nv;
+        e.end += nv;
+        e.curve.iter_mut().for_each(|p| *p = shift(*p));
+        e
+    }));
+    two.faces.extend(a.faces.iter().map(|f| {
+        let mut f = f.clone();
+        f.surface.poles.iter_mut().for_each(|p| *p = shift(*p));
+        f.bound.iter_mut().for_each(|c| c.edge += ne);
+        f
+    }));
+    let e = check(&two, 5.0).unwrap_err();
+    assert_eq!(e.code, ErrorCode::BrepInvalid);
+    assert!(e.message.contains("falls into 2 pieces"), "{e}");
+    assert!(e.message.contains(&format!("face {}", a.faces.len())), "{e}");
+}
+
 /// A fit whose target gives non-finite points is refused with `surface.fit-diverged`, not a panic.
 #[test]
 fn a_diverging_fit_is_refused() {

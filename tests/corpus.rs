@@ -273,6 +273,7 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         assert!(o.closed, "{f}: {} boundary edges", o.boundary_edges);
         assert_eq!((o.nonmanifold_edges, o.nonmanifold_vertices), (0, 0), "{f}: non-manifold");
         assert!(o.min_valence >= 3, "{f}: valences {:?}", o.valence_histogram);
+        assert_eq!(o.components, r.input_components, "{f}: pieces (dropped {:?})", r.cleanup.components_dropped);
         assert!(r.vertex_count_error.abs() <= 0.10, "{f}: {} vertices", o.vertices);
         if f.contains("dragon") {
             assert!(r.euler_characteristic_changed, "{f}: a χ change must be flagged");

@@ -147,6 +147,35 @@ fn valence_pass_leaves_a_cube_alone() {
     assert_eq!(p.len(), 8);
 }
 
+/// Regression (CI, dragon at 20k): extraction pinched a 12-quad closed piece off a thin part, and the solid
+/// built on it had two shells. Pieces beyond the input's count are dropped, the smallest first, and
+/// counted: here a cube (6 quads) beside a cube split 2 × 2 per side (24 quads).
+#[test]
+fn pieces_pinched_off_are_dropped_and_counted() {
+    use scanstation::stages::remesh::quadify::{CleanupCounts, keep_largest_components};
+    let small: Vec<Vec<u32>> = vec![
+        vec![0, 2, 3, 1],
+        vec![4, 5, 7, 6],
+        vec![0, 1, 5, 4],
+        vec![2, 6, 7, 3],
+        vec![0, 4, 6, 2],
+        vec![1, 3, 7, 5],
+    ];
+    let big = scanstation::geometry::shapes::quad_ball(1.0, 2);
+    let off = 8u32;
+    let mut faces: Vec<Vec<u32>> = small.clone();
+    faces.extend(big.faces().map(|f| f.iter().map(|&v| v + off).collect::<Vec<u32>>()));
+    let mut counts = CleanupCounts::default();
+    let mut kept = faces.clone();
+    keep_largest_components(&mut kept, 2, &mut counts);
+    assert_eq!(kept, faces, "two pieces wanted, two kept");
+    assert_eq!(counts.components_dropped, 0);
+    keep_largest_components(&mut kept, 1, &mut counts);
+    assert_eq!(kept.len(), 24, "the 24-quad ball stays");
+    assert!(kept.iter().flatten().all(|&v| v >= off), "the cube's faces are gone");
+    assert_eq!((counts.components_dropped, counts.component_faces_dropped), (1, 6));
+}
+
 /// The valence pass is deterministic (it must not depend on hash-map order, which differs between runs and
 /// between map instances) and lowers Σ|valence − 4|: a torus quad grid made irregular by random edge
 /// rotations is optimised twice with identical results, and ends more regular than it started.

@@ -519,7 +519,8 @@ fn merge_edge_chains(solid: Solid) -> Solid {
 /// # Errors
 /// `brep.invalid` naming the first offending face, edge or loop: an edge not used exactly once in each
 /// direction, a loop whose coedges do not chain, an edge curve whose ends are not its vertices or that
-/// leaves a face boundary by more than [`BREP_EDGE_REL`] × `diagonal`.
+/// leaves a face boundary by more than [`BREP_EDGE_REL`] × `diagonal`, or faces that fall into more than
+/// one connected piece.
 pub fn check(solid: &Solid, diagonal: f64) -> Result<f64> {
     let bad = |m: String| Error::new(ErrorCode::BrepInvalid, m);
     let mut uses = vec![[0u32; 2]; solid.edges.len()];
@@ -574,6 +575,24 @@ pub fn check(solid: &Solid, diagonal: f64) -> Result<f64> {
                 u[0], u[1]
             )));
         }
+    }
+    // One shell must be one connected piece (ISO 10303-42 connected_face_set).
+    let mut uf = crate::geometry::topology::UnionFind::new(solid.faces.len());
+    let mut edge_face = vec![u32::MAX; solid.edges.len()];
+    for (fi, face) in solid.faces.iter().enumerate() {
+        for c in &face.bound {
+            match edge_face[c.edge as usize] {
+                u32::MAX => edge_face[c.edge as usize] = fi as u32,
+                other => uf.union(other, fi as u32),
+            }
+        }
+    }
+    if let Some(fi) = (0..solid.faces.len() as u32).find(|&f| uf.find(f) != 0) {
+        let pieces = (0..solid.faces.len() as u32).filter(|&f| uf.find(f) == f).count();
+        return Err(bad(format!(
+            "the shell falls into {pieces} pieces: face {fi} is not connected to face 0; a closed shell must be \
+             one connected piece"
+        )));
     }
     Ok(worst)
 }

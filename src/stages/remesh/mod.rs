@@ -206,7 +206,7 @@ struct Candidate {
     topology_ok: bool,
 }
 
-fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode) -> Candidate {
+fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode, components: usize) -> Candidate {
     let ex = extract::extract(level, q, o, s);
     let mut by_degree = BTreeMap::new();
     for f in &ex.faces {
@@ -224,6 +224,7 @@ fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode) -
             faces.extend(extra);
             quadify::pair_triangles(&mut faces, 12, 8, &mut counts);
             counts.doublets_removed += quadify::remove_doublets(&mut faces);
+            quadify::keep_largest_components(&mut faces, components, &mut counts);
             quadify::split_vertex_count(ex.positions.len(), &faces)
         }
         Mode::Direct => {
@@ -236,6 +237,7 @@ fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode) -
                 quadify::pair_triangles_along_paths(&ex.positions, &mut faces, 60, &mut counts);
             }
             counts.doublets_removed += quadify::remove_doublets(&mut faces);
+            quadify::keep_largest_components(&mut faces, components, &mut counts);
             counts.triangles_unpaired = faces.iter().filter(|f| f.len() == 3).count();
             if faces.iter().any(|f| f.len() != 4) {
                 counts.triangles_unpaired = counts.triangles_unpaired.max(1);
@@ -260,6 +262,9 @@ pub struct RemeshReport {
     pub input_faces: usize,
     pub input_area: f64,
     pub input_euler_characteristic: i64,
+    /// Face-connected pieces of the input; the output has as many (extra pieces the extraction pinches off
+    /// are dropped and counted in `cleanup.components_dropped`).
+    pub input_components: usize,
     /// Vertices of the working copy the fields were solved on.
     pub working_vertices: usize,
     /// "as-is", "decimated" or "subdivided ×k".
@@ -341,6 +346,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.input_faces = topo.faces;
     report.input_area = topo.area;
     report.input_euler_characteristic = topo.euler_characteristic;
+    report.input_components = topo.components;
     let area = topo.area;
 
     // 1. Working mesh.
@@ -413,7 +419,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             let o = field::solve_position(&levels, &qs, s, opts.iterations, opts.seed);
             t_pos += t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let mut c = candidate(&levels[0], &qs[0], &o, s, mode);
+            let mut c = candidate(&levels[0], &qs[0], &o, s, mode, report.input_components);
             let (chi, manifold) = quadify::polygon_check(&c.faces);
             c.topology_ok = manifold && chi == report.input_euler_characteristic;
             let usable = manifold && c.counts.triangles_unpaired == 0;
@@ -530,13 +536,23 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     }
     lap(&mut clock, "measure", &mut report);
     let o = &report.output;
-    if !o.closed || o.nonmanifold_edges > 0 || o.nonmanifold_vertices > 0 || o.quad_fraction < 1.0 {
+    if !o.closed
+        || o.nonmanifold_edges > 0
+        || o.nonmanifold_vertices > 0
+        || o.quad_fraction < 1.0
+        || o.components > report.input_components
+    {
         return Err(Error::new(
             ErrorCode::RemeshFailed,
             format!(
                 "clean-up: the quad mesh has {} boundary edges, {} non-manifold edges, {} non-manifold vertices, \
-                 faces by degree {:?}",
-                o.boundary_edges, o.nonmanifold_edges, o.nonmanifold_vertices, o.faces_by_degree
+                 {} components (input {}), faces by degree {:?}",
+                o.boundary_edges,
+                o.nonmanifold_edges,
+                o.nonmanifold_vertices,
+                o.components,
+                report.input_components,
+                o.faces_by_degree
             ),
         ));
     }

@@ -36,6 +36,46 @@ pub struct CleanupCounts {
     /// Triangle pairs joined along bent paths, and the steps walked.
     pub path_pairs: usize,
     pub path_steps: usize,
+    /// Extra pieces the extraction pinched off (a thin part cut through), dropped so the result has as many
+    /// components as the input, and the faces they held.
+    pub components_dropped: usize,
+    pub component_faces_dropped: usize,
+}
+
+/// Keep the `keep` largest connected pieces (by face count; ties to the piece with the lowest face index)
+/// and drop the others, counting them in `counts`. Pieces are joined through shared vertices, which on a
+/// manifold mesh is the same as through shared edges. A closed piece of a few quads that the extraction
+/// pinched off a thin part is not part of the shape's boundary: written as a second shell inside one solid it
+/// makes the STEP file invalid. Cost O(corners · α).
+pub fn keep_largest_components(faces: &mut Vec<Vec<u32>>, keep: usize, counts: &mut CleanupCounts) {
+    let nv = faces.iter().flatten().map(|&v| v as usize + 1).max().unwrap_or(0);
+    let mut uf = crate::geometry::topology::UnionFind::new(nv);
+    for f in faces.iter() {
+        for w in f.windows(2) {
+            uf.union(w[0], w[1]);
+        }
+    }
+    let root: Vec<u32> = faces.iter().map(|f| uf.find(f[0])).collect();
+    // (faces, first face) per piece, keyed by root.
+    let mut pieces: HashMap<u32, (usize, usize)> = HashMap::new();
+    for (fi, &r) in root.iter().enumerate() {
+        pieces.entry(r).or_insert((0, fi)).0 += 1;
+    }
+    if pieces.len() <= keep.max(1) {
+        return;
+    }
+    let mut order: Vec<(u32, (usize, usize))> = pieces.into_iter().collect();
+    order.sort_by_key(|&(_, (n, first))| (std::cmp::Reverse(n), first));
+    let kept: std::collections::HashSet<u32> = order.iter().take(keep.max(1)).map(|&(r, _)| r).collect();
+    for &(_, (n, _)) in &order[keep.max(1)..] {
+        counts.components_dropped += 1;
+        counts.component_faces_dropped += n;
+    }
+    let mut k = 0;
+    faces.retain(|_| {
+        k += 1;
+        kept.contains(&root[k - 1])
+    });
 }
 
 /// Split faces that visit a vertex twice into simple cycles.
