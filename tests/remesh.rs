@@ -176,6 +176,45 @@ fn pieces_pinched_off_are_dropped_and_counted() {
     assert_eq!((counts.components_dropped, counts.component_faces_dropped), (1, 6));
 }
 
+/// Regression (dragon at 20k, seeds 1 and 2): the bounded path search (60 steps) left the last two triangles
+/// unpaired in 3 of 4 direct extractions, so the direct route was unusable. Two triangles 100 quads apart on
+/// a 200 × 4 torus grid: the bounded search leaves both, an unbounded one pairs them and keeps a closed
+/// pure-quad torus (χ 0).
+#[test]
+fn far_apart_triangles_pair_with_an_unbounded_search() {
+    use scanstation::stages::remesh::quadify::{CleanupCounts, pair_triangles_along_paths, polygon_check};
+    let (n, m) = (200u32, 4u32);
+    let id = |i: u32, j: u32| (i % n) * m + (j % m);
+    let mut p: Vec<[f64; 3]> = Vec::new();
+    for i in 0..n {
+        for j in 0..m {
+            let (u, v) = (std::f64::consts::TAU * i as f64 / n as f64, std::f64::consts::TAU * j as f64 / m as f64);
+            let r = 10.0 + 0.5 * v.cos();
+            p.push([r * u.cos(), r * u.sin(), 0.5 * v.sin()]);
+        }
+    }
+    // Row 0, columns 0..=k: re-cut the strip of k quads into a triangle, k − 1 slanted quads and a triangle.
+    let k = 100u32;
+    let (b, t) = (|i: u32| id(i, 0), |i: u32| id(i, 1));
+    let mut faces: Vec<Vec<u32>> = (0..n)
+        .flat_map(|i| (0..m).map(move |j| (i, j)))
+        .filter(|&(i, j)| !(j == 0 && i < k))
+        .map(|(i, j)| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)])
+        .collect();
+    faces.push(vec![b(0), b(1), t(0)]);
+    faces.extend((0..k - 1).map(|i| vec![b(i + 1), b(i + 2), t(i + 1), t(i)]));
+    faces.push(vec![b(k), t(k), t(k - 1)]);
+    assert_eq!(polygon_check(&faces), (0, true), "the re-cut torus is a closed manifold");
+    let mut counts = CleanupCounts::default();
+    let mut bounded = faces.clone();
+    assert_eq!(pair_triangles_along_paths(&p, &mut bounded, 60, &mut counts), 2, "60 steps do not reach");
+    let unbounded = faces.len();
+    assert_eq!(pair_triangles_along_paths(&p, &mut faces, unbounded, &mut counts), 0);
+    assert!(faces.iter().all(|f| f.len() == 4));
+    assert_eq!(polygon_check(&faces), (0, true), "still a closed manifold torus");
+    assert_eq!(faces.len(), (n * m) as usize, "V = F on a closed quad torus");
+}
+
 /// The valence pass is deterministic (it must not depend on hash-map order, which differs between runs and
 /// between map instances) and lowers Σ|valence − 4|: a torus quad grid made irregular by random edge
 /// rotations is optimised twice with identical results, and ends more regular than it started.

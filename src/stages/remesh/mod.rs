@@ -180,6 +180,9 @@ pub const VALENCE_PASSES: usize = 10;
 /// Rounds of unfolding flipped faces after relaxation.
 pub const UNTANGLE_ROUNDS: usize = 10;
 
+/// Triangles left after the bounded path pairing that are paired by an unbounded search (O(F) each).
+pub const PATH_UNBOUNDED_MAX: usize = 16;
+
 /// Most direct-mode extractions tried.
 pub const MAX_DIRECT_ATTEMPTS: usize = 4;
 
@@ -235,6 +238,12 @@ fn candidate(level: &hierarchy::Level, q: &[V3], o: &[V3], s: f64, mode: Mode, c
             quadify::pair_triangles(&mut faces, 12, 8, &mut counts);
             for _ in 0..2 {
                 quadify::pair_triangles_along_paths(&ex.positions, &mut faces, 60, &mut counts);
+            }
+            // The last few triangles may lie farther apart than 60 steps: search without a bound (each
+            // search is O(F), and at most a handful are left).
+            if (1..=PATH_UNBOUNDED_MAX).contains(&faces.iter().filter(|f| f.len() == 3).count()) {
+                let unbounded = faces.len();
+                quadify::pair_triangles_along_paths(&ex.positions, &mut faces, unbounded, &mut counts);
             }
             counts.doublets_removed += quadify::remove_doublets(&mut faces);
             quadify::keep_largest_components(&mut faces, components, &mut counts);
