@@ -215,6 +215,45 @@ fn far_apart_triangles_pair_with_an_unbounded_search() {
     assert_eq!(faces.len(), (n * m) as usize, "V = F on a closed quad torus");
 }
 
+/// A quad still flipped after unfolding is collapsed along a diagonal: on an 8 × 6 torus grid the two
+/// corners merge (valence 6), the other two drop to valence 3, and the mesh stays a closed pure-quad torus
+/// with one vertex and one face fewer.
+#[test]
+fn collapsing_a_quad_keeps_a_closed_quad_torus() {
+    use scanstation::stages::remesh::quadify::{collapse_quads, polygon_check};
+    let (n, m) = (8u32, 6u32);
+    let id = |i: u32, j: u32| (i % n) * m + (j % m);
+    let mut p: Vec<[f64; 3]> = Vec::new();
+    for i in 0..n {
+        for j in 0..m {
+            let (u, v) = (std::f64::consts::TAU * i as f64 / n as f64, std::f64::consts::TAU * j as f64 / m as f64);
+            let r = 2.0 + 0.5 * v.cos();
+            p.push([r * u.cos(), r * u.sin(), 0.5 * v.sin()]);
+        }
+    }
+    let mut faces: Vec<Vec<u32>> = (0..n)
+        .flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]))
+        .collect();
+    assert_eq!(collapse_quads(&mut p, &mut faces, &[7]), 1);
+    assert_eq!((p.len(), faces.len()), ((n * m - 1) as usize, (n * m - 1) as usize));
+    assert!(faces.iter().all(|f| f.len() == 4));
+    assert_eq!(polygon_check(&faces), (0, true));
+    let mut valence = std::collections::BTreeMap::new();
+    for (a, b) in scanstation::stages::remesh::quadify::unique_edges(faces.iter().map(Vec::as_slice)) {
+        *valence.entry(a).or_insert(0) += 1;
+        *valence.entry(b).or_insert(0) += 1;
+    }
+    let mut hist = std::collections::BTreeMap::new();
+    for v in valence.values() {
+        *hist.entry(*v).or_insert(0) += 1;
+    }
+    assert_eq!(hist, [(3, 2), (4, (n * m - 4) as usize), (6, 1)].into_iter().collect());
+    // A second collapse touching the first one's ring is refused in the same call.
+    let (mut p2, mut f2) = (p.clone(), faces.clone());
+    let near: Vec<usize> = (0..f2.len()).filter(|&f| f2[f].iter().any(|&v| valence[&v] == 6)).collect();
+    assert_eq!(collapse_quads(&mut p2, &mut f2, &near[..2]), 1);
+}
+
 /// The valence pass is deterministic (it must not depend on hash-map order, which differs between runs and
 /// between map instances) and lowers Σ|valence − 4|: a torus quad grid made irregular by random edge
 /// rotations is optimised twice with identical results, and ends more regular than it started.

@@ -37,6 +37,7 @@ pub mod quadify;
 use std::collections::{BTreeMap, HashMap};
 use std::time::Instant;
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{Error, ErrorCode, Result};
@@ -182,6 +183,9 @@ pub const UNTANGLE_ROUNDS: usize = 10;
 
 /// Triangles left after the bounded path pairing that are paired by an unbounded search (O(F) each).
 pub const PATH_UNBOUNDED_MAX: usize = 16;
+
+/// Rounds of collapsing quads still flipped after unfolding (then unfolding again).
+pub const COLLAPSE_ROUNDS: usize = 3;
 
 /// Most direct-mode extractions tried.
 pub const MAX_DIRECT_ATTEMPTS: usize = 4;
@@ -405,9 +409,10 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     let input_geometry = Geometry::Mesh(poly);
     let diagonal = mesh.bbox().diagonal();
     // Per mode: the best attempt with the input's χ (else the best closed manifold one), finished and
-    // measured: (attempt index, candidate, χ changed, quad mesh, doublets removed, two-sided RMS).
+    // measured: (attempt index, candidate, χ changed, quad mesh, finishing counts, two-sided RMS).
     #[allow(clippy::type_complexity)]
-    let mut finished: Vec<(usize, Candidate, bool, PolyMesh, usize, f64, quadify::ValenceCounts)> = Vec::new();
+    let mut finished: Vec<(usize, Candidate, bool, PolyMesh, quadify::CleanupCounts, f64, quadify::ValenceCounts)> =
+        Vec::new();
     let mut t_finish = 0.0;
     for &mode in modes {
         if mode == Mode::Direct {
@@ -469,7 +474,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         };
         progress.report(0.8, "projection");
         let t0 = Instant::now();
-        let (out, doublets, valence) = finish(&c, mesh, &input_p, &bvh, opts.relax_iterations)?;
+        let (out, extra, valence) = finish(&c, mesh, &input_p, &bvh, opts.relax_iterations)?;
         let rms = if opts.try_direct {
             let copts = CompareOptions { samples: 50_000, seed: opts.seed, ..Default::default() };
             let d = compare(&Geometry::Mesh(out.clone()), &input_geometry, &copts, &crate::stages::NoProgress)?;
@@ -478,7 +483,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             0.0
         };
         t_finish += t0.elapsed().as_secs_f64();
-        finished.push((index, c, changed, out, doublets, rms, valence));
+        finished.push((index, c, changed, out, extra, rms, valence));
     }
     report.seconds.insert("position".into(), t_pos);
     report.seconds.insert("extraction".into(), t_ext);
@@ -516,7 +521,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             euler_characteristic: st.euler_characteristic,
         });
     }
-    let (chosen_index, chosen, changed, out, doublets, _, valence) = finished.swap_remove(pick);
+    let (chosen_index, chosen, changed, out, extra, _, valence) = finished.swap_remove(pick);
     report.valence_optimization = valence;
     if changed {
         tracing::warn!(
@@ -533,7 +538,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.dangling_edges_removed = ex.dangling_edges_removed;
     report.pinch_vertices_removed = ex.pinch_vertices_removed;
     report.cleanup = counts;
-    report.cleanup.doublets_removed += doublets;
+    report.cleanup.doublets_removed += extra.doublets_removed;
+    report.cleanup.flipped_quads_collapsed = extra.flipped_quads_collapsed;
 
     progress.report(0.9, "measure");
     report.output = quad_stats(&out, Some((mesh, &bvh)));
@@ -570,14 +576,15 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
 }
 
 /// Relax the candidate's polygon mesh on the input, split it to quads (split mode), remove doublets and
-/// relax again. Returns the quad mesh and the doublets removed.
+/// relax again, unfold flipped faces (collapsing those that stay flipped). Returns the quad mesh and the
+/// doublets removed and flipped quads collapsed.
 fn finish(
     c: &Candidate,
     input: &TriMesh,
     input_p: &[V3],
     bvh: &TriangleBvh,
     relax: usize,
-) -> Result<(PolyMesh, usize, quadify::ValenceCounts)> {
+) -> Result<(PolyMesh, quadify::CleanupCounts, quadify::ValenceCounts)> {
     if c.faces.is_empty() {
         return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no face was extracted")
             .with_hint("the target may be too small for this shape; try more vertices"));
@@ -588,14 +595,33 @@ fn finish(
         Mode::Split => quadify::split_to_quads(&coarse, &c.faces),
         Mode::Direct => (coarse, c.faces.clone()),
     };
-    let doublets = quadify::remove_doublets(&mut quads);
+    let mut extra =
+        quadify::CleanupCounts { doublets_removed: quadify::remove_doublets(&mut quads), ..Default::default() };
     let mut qp = quadify::compact(&qp, &mut quads);
     let valence = quadify::optimize_valence(&mut qp, &mut quads, VALENCE_PASSES);
     quadify::relax_and_project(&mut qp, &quads, bvh, relax, 0.5);
     let normal = |t: u32| vec3::tri_cross(input_p, input.triangles[t as usize]);
-    quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
+    let mut left = quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
+    // Folds relaxation cannot undo (a sliver quad turned over on a sharp bend): collapse those quads and
+    // unfold again.
+    for _ in 0..COLLAPSE_ROUNDS {
+        if left == 0 {
+            break;
+        }
+        let bad = quadify::flipped_faces(&qp, &quads, bvh, &normal);
+        let made = quadify::collapse_quads(&mut qp, &mut quads, &bad);
+        if made == 0 {
+            break;
+        }
+        extra.flipped_quads_collapsed += made;
+        extra.doublets_removed += quadify::remove_doublets(&mut quads);
+        qp = quadify::compact(&qp, &mut quads);
+        // The merged corners sit at diagonal midpoints: back onto the surface (the others are on it).
+        qp.par_iter_mut().for_each(|x| *x = bvh.closest(*x).map_or(*x, |c| c.point));
+        left = quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
+    }
     let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
-    Ok((PolyMesh::new(positions, &quads)?, doublets, valence))
+    Ok((PolyMesh::new(positions, &quads)?, extra, valence))
 }
 
 fn lap(clock: &mut Instant, name: &str, report: &mut RemeshReport) {

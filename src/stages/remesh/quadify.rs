@@ -40,6 +40,8 @@ pub struct CleanupCounts {
     /// components as the input, and the faces they held.
     pub components_dropped: usize,
     pub component_faces_dropped: usize,
+    /// Quads still flipped after unfolding, collapsed along a diagonal ([`collapse_quads`]).
+    pub flipped_quads_collapsed: usize,
 }
 
 /// Keep the `keep` largest connected pieces (by face count; ties to the piece with the lowest face index)
@@ -865,6 +867,98 @@ pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usiz
     counts
 }
 
+/// Faces whose (Newell) normal points against `surface_normal` of the nearest input triangle to their centre,
+/// ascending.
+pub fn flipped_faces(
+    p: &[V3],
+    faces: &[Vec<u32>],
+    bvh: &TriangleBvh,
+    surface_normal: &(impl Fn(u32) -> V3 + Sync),
+) -> Vec<usize> {
+    (0..faces.len())
+        .into_par_iter()
+        .filter(|&fi| {
+            let f = &faces[fi];
+            let mut c = [0.0; 3];
+            for &v in f {
+                c = add(c, p[v as usize]);
+            }
+            c = scale(c, 1.0 / f.len() as f64);
+            bvh.closest(c).is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
+        })
+        .collect()
+}
+
+/// Collapse each of the quads `which` (of a closed pure-quad mesh) along a diagonal: its two opposite
+/// corners merge at their midpoint and the quad disappears. The shorter diagonal is tried first; a collapse
+/// is made only when it keeps the mesh 2-manifold (the two corners have no common neighbour but the other
+/// two corners), the merged vertex has valence ≥ 3, and it does not touch the ring of another collapse in
+/// the same call. The other two corners lose an edge each and may be left with valence 2: run
+/// [`remove_doublets`] afterwards. For folds that relaxation cannot undo (a sliver quad turned over on a
+/// sharp bend). Merged-away vertices are removed and `faces` renumbered. Returns the collapses made.
+pub fn collapse_quads(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, which: &[usize]) -> usize {
+    let nv = p.len();
+    let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); nv];
+    for f in faces.iter() {
+        for k in 0..f.len() {
+            let (a, b) = (f[k], f[(k + 1) % f.len()]);
+            nbrs[a as usize].push(b);
+            nbrs[b as usize].push(a);
+        }
+    }
+    for n in &mut nbrs {
+        n.sort_unstable();
+        n.dedup();
+    }
+    let val = |v: u32| nbrs[v as usize].len();
+    let mut touched = vec![false; nv];
+    let mut merge: Vec<u32> = (0..nv as u32).collect();
+    let mut removed = vec![false; faces.len()];
+    let mut made = 0;
+    for &fi in which {
+        let f = &faces[fi];
+        if f.len() != 4 || removed[fi] {
+            continue;
+        }
+        let mut diagonals = [(f[0], f[1], f[2], f[3]), (f[1], f[2], f[3], f[0])];
+        let len2 = |(a, _, c, _): (u32, u32, u32, u32)| vec3::norm2(sub(p[a as usize], p[c as usize]));
+        if len2(diagonals[1]) < len2(diagonals[0]) {
+            diagonals.swap(0, 1);
+        }
+        for (a, b, c, d) in diagonals {
+            if val(a) + val(c) < 5 {
+                continue;
+            }
+            let ring_free = [a, b, c, d]
+                .iter()
+                .all(|&v| !touched[v as usize] && nbrs[v as usize].iter().all(|&w| !touched[w as usize]));
+            let common = nbrs[a as usize].iter().filter(|x| nbrs[c as usize].binary_search(x).is_ok()).count();
+            if !ring_free || common != 2 {
+                continue;
+            }
+            for v in [a, b, c, d] {
+                touched[v as usize] = true;
+            }
+            p[a as usize] = scale(add(p[a as usize], p[c as usize]), 0.5);
+            merge[c as usize] = a;
+            removed[fi] = true;
+            made += 1;
+            break;
+        }
+    }
+    if made > 0 {
+        let mut out: Vec<Vec<u32>> = Vec::with_capacity(faces.len() - made);
+        for (fi, f) in faces.iter().enumerate() {
+            if !removed[fi] {
+                out.push(f.iter().map(|&v| merge[v as usize]).collect());
+            }
+        }
+        *faces = out;
+        *p = compact(p, faces);
+    }
+    made
+}
+
 /// Unfold flipped faces: a face is flipped when its normal points against `surface_normal` at its centre.
 /// The vertices of flipped faces and their neighbours move to the average of their neighbours (not only
 /// tangentially) and back onto the surface, for at most `rounds` rounds; the positions with the fewest
@@ -878,20 +972,7 @@ pub fn untangle(
     rounds: usize,
 ) -> usize {
     let (off, adj) = adjacency(p.len(), faces);
-    let flipped = |p: &[V3]| -> Vec<usize> {
-        (0..faces.len())
-            .into_par_iter()
-            .filter(|&fi| {
-                let f = &faces[fi];
-                let mut c = [0.0; 3];
-                for &v in f {
-                    c = add(c, p[v as usize]);
-                }
-                c = scale(c, 1.0 / f.len() as f64);
-                bvh.closest(c).is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
-            })
-            .collect()
-    };
+    let flipped = |p: &[V3]| flipped_faces(p, faces, bvh, &surface_normal);
     let mut bad = flipped(p);
     // Keep the positions with the fewest flipped faces seen (the start included): never worse.
     let mut best = (bad.len(), p.to_vec());
