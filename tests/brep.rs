@@ -210,6 +210,29 @@ fn validity_check_refuses_a_shell_in_two_pieces() {
     assert!(e.message.contains(&format!("face {}", a.faces.len())), "{e}");
 }
 
+/// The fold check: the sphere's faces never turn their normal back (0 folds); pushing one inner control
+/// point of a face far through the sphere pleats that face, and exactly that face is reported.
+#[test]
+fn fold_check_finds_a_pleated_face_and_only_it() {
+    let (solid, report) = sphere_solid(2);
+    assert_eq!((solid.folds().0, report.folded_faces), (0, 0));
+    let mut pleated = solid.clone();
+    let s = &mut pleated.faces[3].surface;
+    let k = s.nu + 1; // an inner pole next to the corner
+    s.poles[k] = vec3::scale(s.poles[k], -3.0);
+    let (n, at) = pleated.folds();
+    assert_eq!(n, 1);
+    let at = at.expect("a point of the folded face");
+    let s = &pleated.faces[3].surface;
+    let ([u0, u1], [v0, v1]) = s.range();
+    let near = (0..=20)
+        .flat_map(|i| (0..=20).map(move |j| (i, j)))
+        .map(|(i, j)| s.eval(u0 + (u1 - u0) * i as f64 / 20.0, v0 + (v1 - v0) * j as f64 / 20.0).0)
+        .map(|p| vec3::norm(vec3::sub(p, at)))
+        .fold(f64::INFINITY, f64::min);
+    assert!(near < 0.5, "the reported point lies on the pleated face ({near})");
+}
+
 /// A fit whose target gives non-finite points is refused with `surface.fit-diverged`, not a panic.
 #[test]
 fn a_diverging_fit_is_refused() {

@@ -385,7 +385,7 @@ fn print_convert(r: &pipeline::ConvertReport) {
     }
     let b = &r.brep;
     println!(
-        "  solid: {} faces ({} packed) from {} patches, {} edges, {} vertices; volume {:.6e} ({:+.3}% vs input), max normal jump {:.3}° (p99 {:.3}°)",
+        "  solid: {} faces ({} packed) from {} patches, {} edges, {} vertices; volume {:.6e} ({:+.3}% vs input), max normal jump {:.3}° (p99 {:.3}°); folded faces {}, crossing pairs {}",
         b.faces,
         b.packed_faces,
         b.patches,
@@ -394,7 +394,9 @@ fn print_convert(r: &pipeline::ConvertReport) {
         b.volume,
         r.volume_error_pct,
         b.max_normal_jump_deg,
-        b.p99_normal_jump_deg
+        b.p99_normal_jump_deg,
+        b.folded_faces,
+        b.self_intersections
     );
     println!(
         "  control net: {} vertices, {:.2}% irregular; fit RMS {:.3e}; total {:.1} s",
