@@ -176,6 +176,23 @@ fn pieces_pinched_off_are_dropped_and_counted() {
     assert_eq!((counts.components_dropped, counts.component_faces_dropped), (1, 6));
 }
 
+/// An n × m quad grid on a torus (radii `big`, `small`): positions and quads; vertex (i, j) is `(i % n)·m + j % m`.
+fn torus_grid(n: u32, m: u32, big: f64, small: f64) -> (Vec<[f64; 3]>, Vec<Vec<u32>>) {
+    let id = move |i: u32, j: u32| (i % n) * m + (j % m);
+    let mut p: Vec<[f64; 3]> = Vec::new();
+    for i in 0..n {
+        for j in 0..m {
+            let (u, v) = (std::f64::consts::TAU * i as f64 / n as f64, std::f64::consts::TAU * j as f64 / m as f64);
+            let r = big + small * v.cos();
+            p.push([r * u.cos(), r * u.sin(), small * v.sin()]);
+        }
+    }
+    let faces = (0..n)
+        .flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]))
+        .collect();
+    (p, faces)
+}
+
 /// Regression (dragon at 20k, seeds 1 and 2): the bounded path search (60 steps) left the last two triangles
 /// unpaired in 3 of 4 direct extractions, so the direct route was unusable. Two triangles 100 quads apart on
 /// a 200 × 4 torus grid: the bounded search leaves both, an unbounded one pairs them and keeps a closed
@@ -185,21 +202,16 @@ fn far_apart_triangles_pair_with_an_unbounded_search() {
     use scanstation::stages::remesh::quadify::{CleanupCounts, pair_triangles_along_paths, polygon_check};
     let (n, m) = (200u32, 4u32);
     let id = |i: u32, j: u32| (i % n) * m + (j % m);
-    let mut p: Vec<[f64; 3]> = Vec::new();
-    for i in 0..n {
-        for j in 0..m {
-            let (u, v) = (std::f64::consts::TAU * i as f64 / n as f64, std::f64::consts::TAU * j as f64 / m as f64);
-            let r = 10.0 + 0.5 * v.cos();
-            p.push([r * u.cos(), r * u.sin(), 0.5 * v.sin()]);
-        }
-    }
+    let (p, grid) = torus_grid(n, m, 10.0, 0.5);
     // Row 0, columns 0..=k: re-cut the strip of k quads into a triangle, k − 1 slanted quads and a triangle.
     let k = 100u32;
     let (b, t) = (|i: u32| id(i, 0), |i: u32| id(i, 1));
-    let mut faces: Vec<Vec<u32>> = (0..n)
-        .flat_map(|i| (0..m).map(move |j| (i, j)))
-        .filter(|&(i, j)| !(j == 0 && i < k))
-        .map(|(i, j)| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)])
+    // Grid face (i, j) is number i·m + j.
+    let mut faces: Vec<Vec<u32>> = grid
+        .into_iter()
+        .enumerate()
+        .filter(|&(f, _)| !(f as u32 % m == 0 && f as u32 / m < k))
+        .map(|(_, q)| q)
         .collect();
     faces.push(vec![b(0), b(1), t(0)]);
     faces.extend((0..k - 1).map(|i| vec![b(i + 1), b(i + 2), t(i + 1), t(i)]));
@@ -222,18 +234,7 @@ fn far_apart_triangles_pair_with_an_unbounded_search() {
 fn collapsing_a_quad_keeps_a_closed_quad_torus() {
     use scanstation::stages::remesh::quadify::{collapse_quads, polygon_check};
     let (n, m) = (8u32, 6u32);
-    let id = |i: u32, j: u32| (i % n) * m + (j % m);
-    let mut p: Vec<[f64; 3]> = Vec::new();
-    for i in 0..n {
-        for j in 0..m {
-            let (u, v) = (std::f64::consts::TAU * i as f64 / n as f64, std::f64::consts::TAU * j as f64 / m as f64);
-            let r = 2.0 + 0.5 * v.cos();
-            p.push([r * u.cos(), r * u.sin(), 0.5 * v.sin()]);
-        }
-    }
-    let mut faces: Vec<Vec<u32>> = (0..n)
-        .flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]))
-        .collect();
+    let (mut p, mut faces) = torus_grid(n, m, 2.0, 0.5);
     assert_eq!(collapse_quads(&mut p, &mut faces, &[7]), 1);
     assert_eq!((p.len(), faces.len()), ((n * m - 1) as usize, (n * m - 1) as usize));
     assert!(faces.iter().all(|f| f.len() == 4));
@@ -262,18 +263,7 @@ fn valence_pass_is_deterministic_and_improves() {
     use scanstation::geometry::sampling::Rng;
     use scanstation::stages::remesh::quadify::optimize_valence;
     let (n, m) = (24u32, 12u32);
-    let id = |i: u32, j: u32| (i % n) * m + (j % m);
-    let mut p: Vec<[f64; 3]> = Vec::new();
-    for i in 0..n {
-        for j in 0..m {
-            let (u, v) = (std::f64::consts::TAU * i as f64 / n as f64, std::f64::consts::TAU * j as f64 / m as f64);
-            let r = 1.0 + 0.4 * v.cos();
-            p.push([r * u.cos(), r * u.sin(), 0.4 * v.sin()]);
-        }
-    }
-    let mut faces: Vec<Vec<u32>> = (0..n)
-        .flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]))
-        .collect();
+    let (p, mut faces) = torus_grid(n, m, 1.0, 0.4);
     // Disturb: rotate the edge between quads (i, j) and (i + 1, j) at random, densely (pairs of columns do
     // not overlap, rows are adjacent), so that many equally good repairs compete and order decides.
     let mut rng = Rng::new(7);

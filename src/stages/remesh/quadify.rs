@@ -50,6 +50,7 @@ pub struct CleanupCounts {
 /// pinched off a thin part is not part of the shape's boundary: written as a second shell inside one solid it
 /// makes the STEP file invalid. Cost O(corners · α).
 pub fn keep_largest_components(faces: &mut Vec<Vec<u32>>, keep: usize, counts: &mut CleanupCounts) {
+    let keep = keep.max(1);
     let nv = faces.iter().flatten().map(|&v| v as usize + 1).max().unwrap_or(0);
     let mut uf = crate::geometry::topology::UnionFind::new(nv);
     for f in faces.iter() {
@@ -63,13 +64,13 @@ pub fn keep_largest_components(faces: &mut Vec<Vec<u32>>, keep: usize, counts: &
     for (fi, &r) in root.iter().enumerate() {
         pieces.entry(r).or_insert((0, fi)).0 += 1;
     }
-    if pieces.len() <= keep.max(1) {
+    if pieces.len() <= keep {
         return;
     }
     let mut order: Vec<(u32, (usize, usize))> = pieces.into_iter().collect();
     order.sort_by_key(|&(_, (n, first))| (std::cmp::Reverse(n), first));
-    let kept: std::collections::HashSet<u32> = order.iter().take(keep.max(1)).map(|&(r, _)| r).collect();
-    for &(_, (n, _)) in &order[keep.max(1)..] {
+    let kept: std::collections::HashSet<u32> = order.iter().take(keep).map(|&(r, _)| r).collect();
+    for &(_, (n, _)) in &order[keep..] {
         counts.components_dropped += 1;
         counts.component_faces_dropped += n;
     }
