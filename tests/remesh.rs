@@ -121,20 +121,18 @@ proptest! {
     }
 }
 
+/// The six quads of the unit cube whose vertex i is at (i & 1, i >> 1 & 1, i >> 2 & 1), outward.
+fn cube_quads() -> Vec<Vec<u32>> {
+    vec![vec![0, 2, 3, 1], vec![4, 5, 7, 6], vec![0, 1, 5, 4], vec![2, 6, 7, 3], vec![0, 4, 6, 2], vec![1, 3, 7, 5]]
+}
+
 /// The valence pass never applies an operation that would take a vertex below valence 3: on a cube
 /// (eight valence-3 corners, the minimum for a closed genus-0 quad mesh) it changes nothing.
 #[test]
 fn valence_pass_leaves_a_cube_alone() {
     use scanstation::stages::remesh::quadify::optimize_valence;
     let mut p: Vec<[f64; 3]> = (0..8).map(|i| [(i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64]).collect();
-    let mut faces: Vec<Vec<u32>> = vec![
-        vec![0, 2, 3, 1],
-        vec![4, 5, 7, 6],
-        vec![0, 1, 5, 4],
-        vec![2, 6, 7, 3],
-        vec![0, 4, 6, 2],
-        vec![1, 3, 7, 5],
-    ];
+    let mut faces = cube_quads();
     // Faces as corner positions (the pass renumbers vertices in first-use order).
     let corners = |p: &[[f64; 3]], faces: &[Vec<u32>]| -> Vec<Vec<[f64; 3]>> {
         faces.iter().map(|f| f.iter().map(|&v| p[v as usize]).collect()).collect()
@@ -153,14 +151,7 @@ fn valence_pass_leaves_a_cube_alone() {
 #[test]
 fn pieces_pinched_off_are_dropped_and_counted() {
     use scanstation::stages::remesh::quadify::{CleanupCounts, keep_largest_components};
-    let small: Vec<Vec<u32>> = vec![
-        vec![0, 2, 3, 1],
-        vec![4, 5, 7, 6],
-        vec![0, 1, 5, 4],
-        vec![2, 6, 7, 3],
-        vec![0, 4, 6, 2],
-        vec![1, 3, 7, 5],
-    ];
+    let small = cube_quads();
     let big = scanstation::geometry::shapes::quad_ball(1.0, 2);
     let off = 8u32;
     let mut faces: Vec<Vec<u32>> = small.clone();

@@ -696,6 +696,73 @@ pub fn pair_triangles_along_paths(
     faces.iter().filter(|f| f.len() == 3).count()
 }
 
+/// Sorted, distinct neighbours of every vertex of a polygon mesh.
+fn neighbour_lists(nv: usize, faces: &[Vec<u32>]) -> Vec<Vec<u32>> {
+    let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); nv];
+    for f in faces {
+        for k in 0..f.len() {
+            let (a, b) = (f[k], f[(k + 1) % f.len()]);
+            nbrs[a as usize].push(b);
+            nbrs[b as usize].push(a);
+        }
+    }
+    for n in &mut nbrs {
+        n.sort_unstable();
+        n.dedup();
+    }
+    nbrs
+}
+
+/// Link condition of the diagonal collapse of quad (a, b, c, d): a and c share no neighbour but b and d
+/// (which they always share), so merging them keeps the mesh 2-manifold.
+fn collapse_keeps_manifold(nbrs: &[Vec<u32>], a: u32, c: u32) -> bool {
+    nbrs[a as usize].iter().filter(|x| nbrs[c as usize].binary_search(x).is_ok()).count() == 2
+}
+
+/// Local operations of one pass over a quad mesh, applied so that no two touch each other's rings:
+/// diagonal collapses merge a corner into its opposite one and remove the quad; [`Self::rebuild`] then
+/// drops the removed quads and renumbers the merged corners.
+struct Batch {
+    touched: Vec<bool>,
+    merge: Vec<u32>,
+    removed: Vec<bool>,
+}
+
+impl Batch {
+    fn new(nv: usize, nf: usize) -> Self {
+        Batch { touched: vec![false; nv], merge: (0..nv as u32).collect(), removed: vec![false; nf] }
+    }
+
+    /// No vertex of `vs` nor any of their neighbours is touched yet.
+    fn ring_free(&self, nbrs: &[Vec<u32>], vs: &[u32]) -> bool {
+        vs.iter().all(|&v| !self.touched[v as usize] && nbrs[v as usize].iter().all(|&w| !self.touched[w as usize]))
+    }
+
+    fn touch(&mut self, vs: &[u32]) {
+        for &v in vs {
+            self.touched[v as usize] = true;
+        }
+    }
+
+    /// Collapse quad `f` = (a, b, c, d): c merges into a at their midpoint.
+    fn collapse(&mut self, p: &mut [V3], f: usize, [a, b, c, d]: [u32; 4]) {
+        self.touch(&[a, b, c, d]);
+        p[a as usize] = scale(add(p[a as usize], p[c as usize]), 0.5);
+        self.merge[c as usize] = a;
+        self.removed[f] = true;
+    }
+
+    /// The faces without the removed quads, merged corners renumbered.
+    fn rebuild(&self, faces: &[Vec<u32>]) -> Vec<Vec<u32>> {
+        faces
+            .iter()
+            .zip(&self.removed)
+            .filter(|(_, r)| !**r)
+            .map(|(f, _)| f.iter().map(|&v| self.merge[v as usize]).collect())
+            .collect()
+    }
+}
+
 /// What [`optimize_valence`] did.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct ValenceCounts {
@@ -720,19 +787,12 @@ pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usiz
     let cost = |v: i64| (v - 4).unsigned_abs() as usize;
     for pass in 0..passes {
         let nv = p.len();
-        let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); nv];
+        let nbrs = neighbour_lists(nv, faces);
         let mut half: HashMap<(u32, u32), usize> = HashMap::with_capacity(faces.len() * 4);
         for (fi, f) in faces.iter().enumerate() {
             for k in 0..4 {
-                let (a, b) = (f[k], f[(k + 1) % 4]);
-                half.insert((a, b), fi);
-                nbrs[a as usize].push(b);
-                nbrs[b as usize].push(a);
+                half.insert((f[k], f[(k + 1) % 4]), fi);
             }
-        }
-        for n in &mut nbrs {
-            n.sort_unstable();
-            n.dedup();
         }
         let val = |v: u32| nbrs[v as usize].len() as i64;
         if pass == 0 {
@@ -748,12 +808,7 @@ pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usiz
             for k in 0..2 {
                 let (a, b, c, d) = (f[k], f[k + 1], f[(k + 2) % 4], f[(k + 3) % 4]);
                 let m = val(a) + val(c) - 2;
-                if val(b) < 4 || val(d) < 4 || m < 3 {
-                    continue;
-                }
-                let common: Vec<u32> =
-                    nbrs[a as usize].iter().filter(|x| nbrs[c as usize].binary_search(x).is_ok()).copied().collect();
-                if common.len() != 2 || !common.contains(&b) || !common.contains(&d) {
+                if val(b) < 4 || val(d) < 4 || m < 3 || !collapse_keeps_manifold(&nbrs, a, c) {
                     continue;
                 }
                 let before = cost(val(a)) + cost(val(b)) + cost(val(c)) + cost(val(d));
@@ -798,18 +853,13 @@ pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usiz
             break;
         }
         cands.sort_by(|l, r| r.0.cmp(&l.0).then(l.1.cmp(&r.1)));
-        let mut touched = vec![false; nv];
-        let mut merge: Vec<u32> = (0..nv as u32).collect();
-        let mut removed = vec![false; faces.len()];
+        let mut batch = Batch::new(nv, faces.len());
         let mut changed = vec![false; faces.len()];
         let mut applied = 0;
-        let ring_free = |touched: &[bool], vs: &[u32]| {
-            vs.iter().all(|&v| !touched[v as usize] && nbrs[v as usize].iter().all(|&w| !touched[w as usize]))
-        };
         for (_, _, op) in cands {
             match op {
                 Op::Collapse { f, a, c } => {
-                    if removed[f] || changed[f] {
+                    if batch.removed[f] || changed[f] {
                         continue;
                     }
                     let (b, d) = {
@@ -817,25 +867,23 @@ pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usiz
                         let i = g.iter().position(|&x| x == a).expect("has a");
                         (g[(i + 1) % 4], g[(i + 3) % 4])
                     };
-                    if removed[f] || !ring_free(&touched, &[a, b, c, d]) {
+                    if !batch.ring_free(&nbrs, &[a, b, c, d]) {
                         continue;
                     }
-                    for v in [a, b, c, d] {
-                        touched[v as usize] = true;
-                    }
-                    p[a as usize] = scale(add(p[a as usize], p[c as usize]), 0.5);
-                    merge[c as usize] = a;
-                    removed[f] = true;
+                    batch.collapse(p, f, [a, b, c, d]);
                     counts.diagonal_collapses += 1;
                     applied += 1;
                 }
                 Op::Rotate { f1, f2, quads, u, v, x, y } => {
-                    if removed[f1] || removed[f2] || changed[f1] || changed[f2] || !ring_free(&touched, &[u, v, x, y]) {
+                    if batch.removed[f1]
+                        || batch.removed[f2]
+                        || changed[f1]
+                        || changed[f2]
+                        || !batch.ring_free(&nbrs, &[u, v, x, y])
+                    {
                         continue;
                     }
-                    for w in [u, v, x, y] {
-                        touched[w as usize] = true;
-                    }
+                    batch.touch(&[u, v, x, y]);
                     let [q1, q2] = quads;
                     faces[f1] = q1;
                     faces[f2] = q2;
@@ -849,13 +897,7 @@ pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usiz
         if applied == 0 {
             break;
         }
-        let mut out: Vec<Vec<u32>> = Vec::with_capacity(faces.len());
-        for (fi, f) in faces.iter().enumerate() {
-            if !removed[fi] {
-                out.push(f.iter().map(|&v| merge[v as usize]).collect());
-            }
-        }
-        *faces = out;
+        *faces = batch.rebuild(faces);
     }
     // Drop merged-away vertices.
     *p = compact(p, faces);
@@ -898,63 +940,30 @@ pub fn flipped_faces(
 /// [`remove_doublets`] afterwards. For folds that relaxation cannot undo (a sliver quad turned over on a
 /// sharp bend). Merged-away vertices are removed and `faces` renumbered. Returns the collapses made.
 pub fn collapse_quads(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, which: &[usize]) -> usize {
-    let nv = p.len();
-    let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); nv];
-    for f in faces.iter() {
-        for k in 0..f.len() {
-            let (a, b) = (f[k], f[(k + 1) % f.len()]);
-            nbrs[a as usize].push(b);
-            nbrs[b as usize].push(a);
-        }
-    }
-    for n in &mut nbrs {
-        n.sort_unstable();
-        n.dedup();
-    }
+    let nbrs = neighbour_lists(p.len(), faces);
     let val = |v: u32| nbrs[v as usize].len();
-    let mut touched = vec![false; nv];
-    let mut merge: Vec<u32> = (0..nv as u32).collect();
-    let mut removed = vec![false; faces.len()];
+    let mut batch = Batch::new(p.len(), faces.len());
     let mut made = 0;
     for &fi in which {
         let f = &faces[fi];
-        if f.len() != 4 || removed[fi] {
+        if f.len() != 4 || batch.removed[fi] {
             continue;
         }
-        let mut diagonals = [(f[0], f[1], f[2], f[3]), (f[1], f[2], f[3], f[0])];
-        let len2 = |(a, _, c, _): (u32, u32, u32, u32)| vec3::norm2(sub(p[a as usize], p[c as usize]));
+        let mut diagonals = [[f[0], f[1], f[2], f[3]], [f[1], f[2], f[3], f[0]]];
+        let len2 = |[a, _, c, _]: [u32; 4]| vec3::norm2(sub(p[a as usize], p[c as usize]));
         if len2(diagonals[1]) < len2(diagonals[0]) {
             diagonals.swap(0, 1);
         }
-        for (a, b, c, d) in diagonals {
-            if val(a) + val(c) < 5 {
-                continue;
-            }
-            let ring_free = [a, b, c, d]
-                .iter()
-                .all(|&v| !touched[v as usize] && nbrs[v as usize].iter().all(|&w| !touched[w as usize]));
-            let common = nbrs[a as usize].iter().filter(|x| nbrs[c as usize].binary_search(x).is_ok()).count();
-            if !ring_free || common != 2 {
-                continue;
-            }
-            for v in [a, b, c, d] {
-                touched[v as usize] = true;
-            }
-            p[a as usize] = scale(add(p[a as usize], p[c as usize]), 0.5);
-            merge[c as usize] = a;
-            removed[fi] = true;
+        let allowed = |[a, b, c, d]: [u32; 4]| {
+            val(a) + val(c) >= 5 && batch.ring_free(&nbrs, &[a, b, c, d]) && collapse_keeps_manifold(&nbrs, a, c)
+        };
+        if let Some(q) = diagonals.into_iter().find(|&q| allowed(q)) {
+            batch.collapse(p, fi, q);
             made += 1;
-            break;
         }
     }
     if made > 0 {
-        let mut out: Vec<Vec<u32>> = Vec::with_capacity(faces.len() - made);
-        for (fi, f) in faces.iter().enumerate() {
-            if !removed[fi] {
-                out.push(f.iter().map(|&v| merge[v as usize]).collect());
-            }
-        }
-        *faces = out;
+        *faces = batch.rebuild(faces);
         *p = compact(p, faces);
     }
     made
