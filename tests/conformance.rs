@@ -153,12 +153,14 @@ fn run_json(script: &Path, args: &[&std::ffi::OsStr]) -> Value {
 /// input's, and that gmsh can tetrahedralise. On armadillo and igea the solid is within 0.05 % of the bbox
 /// diagonal (RMS, two-sided) of the input, measured by the validator on the exact B-rep surfaces.
 ///
+/// gmsh must tetrahedralise every one of them.
+///
 /// Known defects (issue 5, open): on the dragon (20k control vertices) the fitted surface crosses itself
-/// (our own check counts the crossing triangle pairs), and on armadillo, fandisk, the bunny and the dragon
-/// some faces fold over inside (the normal turns back between neighbouring samples; `Solid::folds`). gmsh's
-/// 2-D step fails on two of armadillo's folded faces. For every file our checks must report no crossings
-/// except the files in `KNOWN_CROSSINGS`, and no folds except the files in `KNOWN_FOLDS`; whenever they
-/// report neither, gmsh must tetrahedralise the solid.
+/// (our own check counts the crossing triangle pairs), and on armadillo and the dragon one face of the
+/// fitted limit surface folds over (the normal turns back between neighbouring samples; `Solid::folds`).
+/// Our checks must report no crossings except the files in `KNOWN_CROSSINGS` and no folds except the files
+/// in `KNOWN_FOLDS`; a solid without folds must keep its largest normal jump across patch edges within
+/// `MAX_JUMP_DEG`.
 #[test]
 fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
     use scanstation::pipeline::{ConvertOptions, Resolution, convert_file};
@@ -175,15 +177,13 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
         ("bunny/reconstruction/bun_zipper.ply", 10_000, None),
         ("large/dragon_vrip_draco.ply.gz", 20_000, None),
     ];
-    const KNOWN_CROSSINGS: [&str; 2] = ["meshes/armadillo_50k.ply", "large/dragon_vrip_draco.ply.gz"];
-    // Faces whose surface folds over (measured 20 on armadillo, 5 on fandisk); gmsh's 2-D step fails on
-    // two of armadillo's ("impossible to recover edge") and copes with fandisk's.
-    const KNOWN_FOLDS: [&str; 4] = [
-        "meshes/armadillo_50k.ply",
-        "meshes/fandisk.ply",
-        "bunny/reconstruction/bun_zipper.ply",
-        "large/dragon_vrip_draco.ply.gz",
-    ];
+    // Surfaces that cross themselves (the dragon at 20k: 44 triangle pairs of the tessellation, measured).
+    const KNOWN_CROSSINGS: [&str; 1] = ["large/dragon_vrip_draco.ply.gz"];
+    // Faces whose fitted limit surface itself folds over (measured 1 on armadillo and 1 on the dragon). gmsh
+    // meshes both all the same; elsewhere the largest normal jump must stay below `MAX_JUMP_DEG`.
+    const KNOWN_FOLDS: [&str; 2] = ["meshes/armadillo_50k.ply", "large/dragon_vrip_draco.ply.gz"];
+    // Measured 3.1° (igea) to 16.9° (fandisk) on the unfolded solids; the issue's target is 1°.
+    const MAX_JUMP_DEG: f64 = 20.0;
     for (file, vertices, accuracy) in cases {
         let input = data.join(file);
         let step = out_dir.join(format!("{}.step", file.replace('/', "_").replace(".ply.gz", "").replace(".ply", "")));
@@ -262,29 +262,25 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
         let g = run_json(&root().join("tests/tools/gmsh_tetrahedralise.py"), &[step.as_os_str()]);
         println!("{file}: gmsh {g}");
         assert_eq!(g["volumes"], 1, "{file}: gmsh sees {} volumes", g["volumes"]);
+        assert!(g["tetrahedra"].as_u64().unwrap() > 0, "{file}: gmsh made no tetrahedra: {g}");
         if folds > 0 {
             assert!(KNOWN_FOLDS.contains(&file), "{file}: {folds} folded faces near {:?}", report.brep.fold_at);
-        }
-        if crossings == 0 && folds > 0 {
-            println!(
-                "{file}: KNOWN DEFECT: {folds} folded faces; gmsh {} with {} tetrahedra",
-                g["ok"], g["tetrahedra"]
-            );
-        } else if crossings == 0 {
-            assert!(
-                g["tetrahedra"].as_u64().unwrap() > 0,
-                "{file}: no crossings found, yet gmsh made no tetrahedra: {g}"
-            );
+            println!("{file}: KNOWN DEFECT: {folds} folded faces near {:?}", report.brep.fold_at);
         } else {
+            assert!(
+                report.brep.max_normal_jump_deg <= MAX_JUMP_DEG,
+                "{file}: largest normal jump {:.2}° > {MAX_JUMP_DEG}° at {:?}",
+                report.brep.max_normal_jump_deg,
+                report.brep.max_normal_jump_at
+            );
+        }
+        if crossings > 0 {
             assert!(
                 KNOWN_CROSSINGS.contains(&file),
                 "{file}: the solid intersects itself ({crossings} pairs near {:?})",
                 report.brep.self_intersection_at
             );
-            println!(
-                "{file}: KNOWN DEFECT: {crossings} crossing pairs near {:?}; gmsh {}",
-                report.brep.self_intersection_at, g["ok"]
-            );
+            println!("{file}: KNOWN DEFECT: {crossings} crossing pairs near {:?}", report.brep.self_intersection_at);
         }
     }
 }

@@ -162,56 +162,69 @@ fn pack(surface: &LimitSurface) -> Vec<Block> {
         let first = (f as u32, surface.frame_start(f) as u8);
         let mut rows: Vec<Vec<(u32, u8)>> = vec![vec![first]];
         let mut members: std::collections::HashSet<u32> = [f as u32].into_iter().collect();
+        let mut corners: std::collections::HashSet<u32> = net.faces[f].into_iter().collect();
         taken[f] = true;
         // Try to add a line of cells beyond side `k` (1: a column at u = w, 2: a row at v = h).
-        let try_grow =
-            |rows: &mut Vec<Vec<(u32, u8)>>, members: &mut std::collections::HashSet<u32>, k: usize| -> bool {
-                let (w, h) = (rows[0].len(), rows.len());
-                let edge: Vec<(u32, u8)> =
-                    if k == 1 { (0..h).map(|j| rows[j][w - 1]).collect() } else { rows[h - 1].clone() };
-                let along = if k == 1 { 2 } else { 1 };
-                let mut new = Vec::with_capacity(edge.len());
-                for &c in &edge {
-                    match across(net, c, k) {
-                        Some(g) if !taken[g.0 as usize] && !members.contains(&g.0) && !new.contains(&g) => new.push(g),
-                        _ => return false,
-                    }
+        let try_grow = |rows: &mut Vec<Vec<(u32, u8)>>,
+                        members: &mut std::collections::HashSet<u32>,
+                        corners: &mut std::collections::HashSet<u32>,
+                        k: usize|
+         -> bool {
+            let (w, h) = (rows[0].len(), rows.len());
+            let edge: Vec<(u32, u8)> =
+                if k == 1 { (0..h).map(|j| rows[j][w - 1]).collect() } else { rows[h - 1].clone() };
+            let along = if k == 1 { 2 } else { 1 };
+            let mut new = Vec::with_capacity(edge.len());
+            for &c in &edge {
+                match across(net, c, k) {
+                    Some(g) if !taken[g.0 as usize] && !members.contains(&g.0) && !new.contains(&g) => new.push(g),
+                    _ => return false,
                 }
-                // Consecutive new cells are neighbours along the line (closing the fans of the new interior
-                // vertices), and no new cell touches the block anywhere else.
-                for (i, &g) in new.iter().enumerate() {
-                    if i + 1 < new.len() && across(net, g, along) != Some(new[i + 1]) {
+            }
+            // Consecutive new cells are neighbours along the line (closing the fans of the new interior
+            // vertices), and no new cell touches the block anywhere else.
+            for (i, &g) in new.iter().enumerate() {
+                if i + 1 < new.len() && across(net, g, along) != Some(new[i + 1]) {
+                    return false;
+                }
+                for side in 0..4 {
+                    let Some(nb) = across(net, g, side) else { return false };
+                    let expected = (side + 2) % 4 == k
+                        || (side == along && i + 1 < new.len())
+                        || ((side + 2) % 4 == along && i > 0);
+                    if !expected && (members.contains(&nb.0) || new.iter().any(|x| x.0 == nb.0)) {
                         return false;
                     }
-                    for side in 0..4 {
-                        let Some(nb) = across(net, g, side) else { return false };
-                        let expected = (side + 2) % 4 == k
-                            || (side == along && i + 1 < new.len())
-                            || ((side + 2) % 4 == along && i > 0);
-                        if !expected && (members.contains(&nb.0) || new.iter().any(|x| x.0 == nb.0)) {
-                            return false;
-                        }
-                    }
                 }
-                if k == 1 {
-                    for (j, g) in new.iter().enumerate() {
-                        rows[j].push(*g);
-                    }
-                } else {
-                    rows.push(new.clone());
+            }
+            // A line of n cells adds exactly n + 1 new corners: a cell whose far corner is already a
+            // corner of the block would pinch the face's boundary into a loop through one vertex
+            // (valid to OpenCASCADE, but gmsh cannot mesh such a face).
+            let added: std::collections::HashSet<u32> =
+                new.iter().flat_map(|g| net.faces[g.0 as usize]).filter(|v| !corners.contains(v)).collect();
+            if added.len() != new.len() + 1 {
+                return false;
+            }
+            corners.extend(added);
+            if k == 1 {
+                for (j, g) in new.iter().enumerate() {
+                    rows[j].push(*g);
                 }
-                for g in new {
-                    members.insert(g.0);
-                }
-                true
-            };
+            } else {
+                rows.push(new.clone());
+            }
+            for g in new {
+                members.insert(g.0);
+            }
+            true
+        };
         let (mut grow_u, mut grow_v) = (true, true);
         while grow_u || grow_v {
             if grow_u {
-                grow_u = rows[0].len() < MAX_PACK_SIDE && try_grow(&mut rows, &mut members, 1);
+                grow_u = rows[0].len() < MAX_PACK_SIDE && try_grow(&mut rows, &mut members, &mut corners, 1);
             }
             if grow_v {
-                grow_v = rows.len() < MAX_PACK_SIDE && try_grow(&mut rows, &mut members, 2);
+                grow_v = rows.len() < MAX_PACK_SIDE && try_grow(&mut rows, &mut members, &mut corners, 2);
             }
         }
         let (w, h) = (rows[0].len(), rows.len());
@@ -533,7 +546,8 @@ fn merge_edge_chains(solid: Solid) -> Solid {
 ///
 /// # Errors
 /// `brep.invalid` naming the first offending face, edge or loop: an edge not used exactly once in each
-/// direction, a loop whose coedges do not chain, an edge curve whose ends are not its vertices or that
+/// direction, a loop whose coedges do not chain or that passes through a vertex twice (a pinched face), an
+/// edge curve whose ends are not its vertices or that
 /// leaves a face boundary by more than [`BREP_EDGE_REL`] × `diagonal`, or faces that fall into more than
 /// one connected piece.
 pub fn check(solid: &Solid, diagonal: f64) -> Result<f64> {
@@ -544,6 +558,17 @@ pub fn check(solid: &Solid, diagonal: f64) -> Result<f64> {
     for (fi, face) in solid.faces.iter().enumerate() {
         if face.bound.is_empty() {
             return Err(bad(format!("face {fi} has an empty loop")));
+        }
+        // A loop through one vertex twice pinches the face (OCCT accepts it; gmsh's 2-D mesher cannot
+        // recover the boundary there).
+        let mut starts: Vec<u32> = face
+            .bound
+            .iter()
+            .filter_map(|c| solid.edges.get(c.edge as usize).map(|e| if c.forward { e.start } else { e.end }))
+            .collect();
+        starts.sort_unstable();
+        if let Some(w) = starts.windows(2).find(|w| w[0] == w[1]) {
+            return Err(bad(format!("face {fi}: its loop passes through vertex {} twice (a pinched face)", w[0])));
         }
         for (k, c) in face.bound.iter().enumerate() {
             let Some(edge) = solid.edges.get(c.edge as usize).filter(|e| e.curve.len() >= 4 && e.curve.len() % 3 == 1)

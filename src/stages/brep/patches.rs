@@ -96,13 +96,21 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
     let (edge_of, edge_half) = net.edges();
     let vertex: Vec<V3> =
         (0..net.vertex_count as u32).into_par_iter().map(|v| combine(&limit_stencil(net, v), p1)).collect();
-    let normal: Vec<V3> = (0..net.vertex_count as u32)
+    let tangents: Vec<[V3; 2]> = (0..net.vertex_count as u32)
         .into_par_iter()
-        .map(|v| {
-            let [a, b] = tangent_stencils(net, v);
-            vec3::unit_or(vec3::cross(combine(&a, p1), combine(&b, p1)), [0.0; 3])
-        })
+        .map(|v| tangent_stencils(net, v).map(|t| combine(&t, p1)))
         .collect();
+    let normal: Vec<V3> = tangents.iter().map(|[a, b]| vec3::unit_or(vec3::cross(*a, *b), [0.0; 3])).collect();
+    // The exact limit tangent direction of the edge of outgoing half-edge `h` at an extraordinary vertex.
+    let ev_direction = |h: u32| -> Option<V3> {
+        let v = net.from(h);
+        let outs = net.outgoing(v);
+        let i = outs.iter().position(|&o| o == h)?;
+        let angle = std::f64::consts::TAU * i as f64 / outs.len() as f64;
+        let [a, b] = tangents[v as usize];
+        let d = vec3::unit_or(vec3::add(vec3::scale(a, angle.cos()), vec3::scale(b, angle.sin())), [0.0; 3]);
+        (d != [0.0; 3]).then_some(d)
+    };
     let ev_tables: Vec<Option<EvPatch>> = (0..net.faces.len())
         .into_par_iter()
         .map(|f| match surface.kinds[f] {
@@ -145,7 +153,7 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
             let k = ((h % 4) as usize + 4 - surface.frame_start(f)) % 4;
             let ev = ev_tables[f].as_ref().expect("extraordinary face has a table");
             let ends = [(vertex[a as usize], normal[a as usize]), (vertex[b as usize], normal[b as usize])];
-            fit_edge_curve(surface, f, k, ev, p1, ends)
+            fit_edge_curve(surface, f, k, ev, p1, ends, [ev_direction(h), ev_direction(t)])
         })
         .collect();
 
@@ -181,7 +189,21 @@ const G1_WEIGHT: f64 = 100.0;
 /// tangents in the vertices' tangent planes (heavily weighted, then projected exactly). That fit is kept
 /// only when its end tangents point the way a positions-only fit's do, with a comparable length;
 /// otherwise (a fold near two close extraordinary vertices) the positions-only fit is used.
-fn fit_edge_curve(surface: &LimitSurface, f: usize, k: usize, ev: &EvPatch, p1: &[V3], ends: [(V3, V3); 2]) -> [V3; 4] {
+///
+/// At an extraordinary end (`directions[e]` given: the exact limit tangent of this edge there), the end
+/// tangent takes that direction, with the fitted length along it (a third of the chord when the fit points
+/// backwards or is shorter than a tenth of it): the edges around the vertex then leave it in their cyclic
+/// order, so no patch corner there turns over.
+#[allow(clippy::too_many_arguments)]
+fn fit_edge_curve(
+    surface: &LimitSurface,
+    f: usize,
+    k: usize,
+    ev: &EvPatch,
+    p1: &[V3],
+    ends: [(V3, V3); 2],
+    directions: [Option<V3>; 2],
+) -> [V3; 4] {
     let [(p0, n0), (p3, n3)] = ends;
     let mut plain = NormalEquations::<6>::default();
     let mut ne = NormalEquations::<6>::default();
@@ -220,9 +242,18 @@ fn fit_edge_curve(surface: &LimitSurface, f: usize, k: usize, ev: &EvPatch, p1: 
     if !(agrees(c1, reference.0, p0) && agrees(c2, reference.1, p3)) {
         (c1, c2) = reference;
     }
-    let project =
-        |q: V3, origin: V3, nrm: V3| -> V3 { vec3::sub(q, vec3::scale(nrm, vec3::dot(vec3::sub(q, origin), nrm))) };
-    [p0, project(c1, p0, n0), project(c2, p3, n3), p3]
+    let chord = vec3::norm(vec3::sub(p3, p0));
+    let place = |q: V3, origin: V3, nrm: V3, direction: Option<V3>| -> V3 {
+        match direction {
+            Some(d) => {
+                let along = vec3::dot(vec3::sub(q, origin), d);
+                let len = if along > 0.1 * chord { along } else { chord / 3.0 };
+                vec3::add(origin, vec3::scale(d, len))
+            }
+            None => vec3::sub(q, vec3::scale(nrm, vec3::dot(vec3::sub(q, origin), nrm))),
+        }
+    };
+    [p0, place(c1, p0, n0, directions[0]), place(c2, p3, n3, directions[1]), p3]
 }
 
 /// Least-squares fit of the 4 interior points of an extraordinary face's Bézier net `b` (boundary fixed):
@@ -298,8 +329,8 @@ fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &m
     for weight in [G1_WEIGHT, G1_WEIGHT / 10.0, 1.0, 0.0] {
         *b = boundary;
         fit_interior_weighted(surface, f, ev, p1, b, weight);
-        let unfolded = (1..8).all(|j| {
-            (1..8).all(|i| {
+        let unfolded = (0..=8).all(|j| {
+            (0..=8).all(|i| {
                 let (u, v) = (i as f64 / 8.0, j as f64 / 8.0);
                 if u + v < 0.2 {
                     return true; // the corner's normal comes from the (shared) edge curves alone
@@ -314,6 +345,12 @@ fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &m
             return;
         }
     }
+    // No weight leaves the fit unfolded: the interior that gives the patch zero twist at its corners.
+    *b = boundary;
+    b[5] = vec3::sub(vec3::add(b[1], b[4]), b[0]);
+    b[6] = vec3::sub(vec3::add(b[2], b[7]), b[3]);
+    b[9] = vec3::sub(vec3::add(b[8], b[13]), b[12]);
+    b[10] = vec3::sub(vec3::add(b[11], b[14]), b[15]);
 }
 
 /// Point, and unnormalised normal `∂u × ∂v`, of a Bézier net at `(u, v)`.
