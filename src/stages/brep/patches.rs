@@ -2,9 +2,10 @@
 //!
 //! - Regular faces: the exact B-spline patch converted to Bézier form.
 //! - Edge curves: from a regular neighbour when there is one (exact); otherwise (both faces extraordinary)
-//!   a cubic fitted to the exact limit along the edge with its derivative in the limit's tangent planes,
-//!   and its end tangents exactly in the tangent planes of the end vertices (so all patches at a vertex
-//!   share its tangent plane).
+//!   a cubic whose end tangents point exactly along the limit's tangent directions of the edge at its two
+//!   vertices (so all patches at a vertex share its tangent plane, with their corners in cyclic order),
+//!   their lengths fitted to the exact limit along the edge with its derivative in the limit's tangent
+//!   planes.
 //! - Extraordinary faces: the 12 boundary points come from the edge curves; the 4 interior points are a
 //!   least-squares fit to the exact limit (positions inside; along the edges, the cross-boundary
 //!   derivative in the limit's tangent plane, so neighbours agree in their normals).
@@ -101,8 +102,9 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
         .map(|v| tangent_stencils(net, v).map(|t| combine(&t, p1)))
         .collect();
     let normal: Vec<V3> = tangents.iter().map(|[a, b]| vec3::unit_or(vec3::cross(*a, *b), [0.0; 3])).collect();
-    // The exact limit tangent direction of the edge of outgoing half-edge `h` at an extraordinary vertex.
-    let ev_direction = |h: u32| -> Option<V3> {
+    // The exact limit tangent direction of the edge of outgoing half-edge `h` at its start vertex (the
+    // eigen-tangents T0, T1 combined by the edge's angle 2πi/n around the vertex).
+    let edge_direction = |h: u32| -> Option<V3> {
         let v = net.from(h);
         let outs = net.outgoing(v);
         let i = outs.iter().position(|&o| o == h)?;
@@ -153,7 +155,7 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
             let k = ((h % 4) as usize + 4 - surface.frame_start(f)) % 4;
             let ev = ev_tables[f].as_ref().expect("extraordinary face has a table");
             let ends = [(vertex[a as usize], normal[a as usize]), (vertex[b as usize], normal[b as usize])];
-            fit_edge_curve(surface, f, k, ev, p1, ends, [ev_direction(h), ev_direction(t)])
+            fit_edge_curve(surface, f, k, ev, p1, ends, [edge_direction(h), edge_direction(t)])
         })
         .collect();
 
@@ -190,10 +192,10 @@ const G1_WEIGHT: f64 = 100.0;
 /// only when its end tangents point the way a positions-only fit's do, with a comparable length;
 /// otherwise (a fold near two close extraordinary vertices) the positions-only fit is used.
 ///
-/// At an extraordinary end (`directions[e]` given: the exact limit tangent of this edge there), the end
-/// tangent takes that direction, with the fitted length along it (a third of the chord when the fit points
-/// backwards or is shorter than a tenth of it): the edges around the vertex then leave it in their cyclic
-/// order, so no patch corner there turns over.
+/// With `directions` given (the exact limit tangent of this edge at each end), the end tangents take those
+/// directions and only their lengths are fitted, to the same position and tangent-plane rows (a third of
+/// the chord when a fitted length is below a tenth of the chord or above the chord): the edges around a
+/// vertex then leave it in their cyclic order, so no patch corner there turns over.
 #[allow(clippy::too_many_arguments)]
 fn fit_edge_curve(
     surface: &LimitSurface,
@@ -208,12 +210,24 @@ fn fit_edge_curve(
     let mut plain = NormalEquations::<6>::default();
     let mut ne = NormalEquations::<6>::default();
     let n = 16;
+    // With both end directions given, only the two tangent lengths are free: c1 = p0 + α d0,
+    // c2 = p3 + β d3, fitted to the same rows.
+    let mut lengths = NormalEquations::<2>::default();
     for m in 1..n {
         let t = m as f64 / n as f64;
         let ((u, v), _) = edge_param(k, t);
         let w = point_weights(surface, f, u, v, Some(ev));
         let x = combine(&w.pos, p1);
         let (bb, db) = bernstein(t);
+        if let [Some(d0), Some(d3)] = directions {
+            for c in 0..3 {
+                let rhs = x[c] - (bb[0] + bb[1]) * p0[c] - (bb[2] + bb[3]) * p3[c];
+                lengths.add_row(&[(0, bb[1] * d0[c]), (1, bb[2] * d3[c])], rhs, 1.0);
+            }
+            let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
+            let rhs = -((db[0] + db[1]) * vec3::dot(nrm, p0) + (db[2] + db[3]) * vec3::dot(nrm, p3));
+            lengths.add_row(&[(0, db[1] * vec3::dot(nrm, d0)), (1, db[2] * vec3::dot(nrm, d3))], rhs, G1_WEIGHT);
+        }
         for c in 0..3 {
             let rhs = x[c] - bb[0] * p0[c] - bb[3] * p3[c];
             plain.add_row(&[(c, bb[1]), (3 + c, bb[2])], rhs, 1.0);
@@ -243,6 +257,10 @@ fn fit_edge_curve(
         (c1, c2) = reference;
     }
     let chord = vec3::norm(vec3::sub(p3, p0));
+    if let ([Some(d0), Some(d3)], Some([a, b])) = (directions, lengths.solve()) {
+        let len = |x: f64| if (0.1 * chord..=chord).contains(&x) { x } else { chord / 3.0 };
+        return [p0, vec3::add(p0, vec3::scale(d0, len(a))), vec3::add(p3, vec3::scale(d3, len(b))), p3];
+    }
     let place = |q: V3, origin: V3, nrm: V3, direction: Option<V3>| -> V3 {
         match direction {
             Some(d) => {
