@@ -547,9 +547,8 @@ fn merge_edge_chains(solid: Solid) -> Solid {
 /// # Errors
 /// `brep.invalid` naming the first offending face, edge or loop: an edge not used exactly once in each
 /// direction, a loop whose coedges do not chain or that passes through a vertex twice (a pinched face), an
-/// edge curve whose ends are not its vertices or that
-/// leaves a face boundary by more than [`BREP_EDGE_REL`] × `diagonal`, or faces that fall into more than
-/// one connected piece.
+/// edge curve whose ends are not its vertices or that leaves a face boundary by more than
+/// [`BREP_EDGE_REL`] × `diagonal`, or faces that fall into more than one connected piece.
 pub fn check(solid: &Solid, diagonal: f64) -> Result<f64> {
     let bad = |m: String| Error::new(ErrorCode::BrepInvalid, m);
     let mut uses = vec![[0u32; 2]; solid.edges.len()];

@@ -155,7 +155,7 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
             let k = ((h % 4) as usize + 4 - surface.frame_start(f)) % 4;
             let ev = ev_tables[f].as_ref().expect("extraordinary face has a table");
             let ends = [(vertex[a as usize], normal[a as usize]), (vertex[b as usize], normal[b as usize])];
-            fit_edge_curve(surface, f, k, ev, p1, ends, [edge_direction(h), edge_direction(t)])
+            fit_edge_curve(surface, f, k, ev, p1, ends, edge_direction(h).zip(edge_direction(t)).map(|(a, b)| [a, b]))
         })
         .collect();
 
@@ -186,17 +186,18 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
 const G1_WEIGHT: f64 = 100.0;
 
 /// The cubic of an edge between two extraordinary faces, from `ends[0]` to `ends[1]` (position, limit
-/// normal), along frame side `k` of face `f`. Unknowns c1, c2: positions of the exact limit at 15 points
-/// along the edge, the curve's derivative in the limit's tangent plane there (`n · c'(t) = 0`), and the end
-/// tangents in the vertices' tangent planes (heavily weighted, then projected exactly). That fit is kept
-/// only when its end tangents point the way a positions-only fit's do, with a comparable length;
-/// otherwise (a fold near two close extraordinary vertices) the positions-only fit is used.
+/// normal), along frame side `k` of face `f`, fitted to the exact limit at 15 points along the edge:
+/// positions, and the curve's derivative in the limit's tangent plane there (`n · c'(t) = 0`).
 ///
-/// With `directions` given (the exact limit tangent of this edge at each end), the end tangents take those
-/// directions and only their lengths are fitted, to the same position and tangent-plane rows (a third of
-/// the chord when a fitted length is below a tenth of the chord or above the chord): the edges around a
-/// vertex then leave it in their cyclic order, so no patch corner there turns over.
-#[allow(clippy::too_many_arguments)]
+/// With `directions` (the exact limit tangent of this edge at each end; always, on a valid net) the end
+/// tangents take those directions and only their two lengths are fitted (a third of the chord when a
+/// fitted length is below a tenth of the chord or above the chord): the edges around a vertex then leave
+/// it in their cyclic order, so no patch corner there turns over.
+///
+/// Without (a vanishing limit tangent), c1 and c2 are fitted freely with the end tangents heavily weighted
+/// into the vertices' tangent planes, then projected exactly. That fit is kept only when its end tangents
+/// point the way a positions-only fit's do, with a comparable length; otherwise the positions-only fit is
+/// used.
 fn fit_edge_curve(
     surface: &LimitSurface,
     f: usize,
@@ -204,41 +205,46 @@ fn fit_edge_curve(
     ev: &EvPatch,
     p1: &[V3],
     ends: [(V3, V3); 2],
-    directions: [Option<V3>; 2],
+    directions: Option<[V3; 2]>,
 ) -> [V3; 4] {
     let [(p0, n0), (p3, n3)] = ends;
+    // Unknowns: the two lengths α, β of c1 = p0 + α d0, c2 = p3 + β d3 (with directions), or c1 and c2.
+    let mut lengths = NormalEquations::<2>::default();
     let mut plain = NormalEquations::<6>::default();
     let mut ne = NormalEquations::<6>::default();
     let n = 16;
-    // With both end directions given, only the two tangent lengths are free: c1 = p0 + α d0,
-    // c2 = p3 + β d3, fitted to the same rows.
-    let mut lengths = NormalEquations::<2>::default();
     for m in 1..n {
         let t = m as f64 / n as f64;
         let ((u, v), _) = edge_param(k, t);
         let w = point_weights(surface, f, u, v, Some(ev));
         let x = combine(&w.pos, p1);
+        let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
         let (bb, db) = bernstein(t);
-        if let [Some(d0), Some(d3)] = directions {
+        if let Some([d0, d3]) = directions {
             for c in 0..3 {
                 let rhs = x[c] - (bb[0] + bb[1]) * p0[c] - (bb[2] + bb[3]) * p3[c];
                 lengths.add_row(&[(0, bb[1] * d0[c]), (1, bb[2] * d3[c])], rhs, 1.0);
             }
-            let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
             let rhs = -((db[0] + db[1]) * vec3::dot(nrm, p0) + (db[2] + db[3]) * vec3::dot(nrm, p3));
             lengths.add_row(&[(0, db[1] * vec3::dot(nrm, d0)), (1, db[2] * vec3::dot(nrm, d3))], rhs, G1_WEIGHT);
+            continue;
         }
         for c in 0..3 {
             let rhs = x[c] - bb[0] * p0[c] - bb[3] * p3[c];
             plain.add_row(&[(c, bb[1]), (3 + c, bb[2])], rhs, 1.0);
             ne.add_row(&[(c, bb[1]), (3 + c, bb[2])], rhs, 1.0);
         }
-        let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
         if nrm != [0.0; 3] {
             let rhs = -(db[0] * vec3::dot(nrm, p0) + db[3] * vec3::dot(nrm, p3));
             let row: Vec<(usize, f64)> = (0..3).flat_map(|c| [(c, db[1] * nrm[c]), (3 + c, db[2] * nrm[c])]).collect();
             ne.add_row(&row, rhs, G1_WEIGHT);
         }
+    }
+    if let Some([d0, d3]) = directions {
+        let chord = vec3::norm(vec3::sub(p3, p0));
+        let len = |x: f64| if (0.1 * chord..=chord).contains(&x) { x } else { chord / 3.0 };
+        let [a, b] = lengths.solve().unwrap_or([chord / 3.0; 2]);
+        return [p0, vec3::add(p0, vec3::scale(d0, len(a))), vec3::add(p3, vec3::scale(d3, len(b))), p3];
     }
     for (off, origin, nrm) in [(0, p0, n0), (3, p3, n3)] {
         let row: Vec<(usize, f64)> = (0..3).map(|c| (off + c, nrm[c])).collect();
@@ -256,22 +262,9 @@ fn fit_edge_curve(
     if !(agrees(c1, reference.0, p0) && agrees(c2, reference.1, p3)) {
         (c1, c2) = reference;
     }
-    let chord = vec3::norm(vec3::sub(p3, p0));
-    if let ([Some(d0), Some(d3)], Some([a, b])) = (directions, lengths.solve()) {
-        let len = |x: f64| if (0.1 * chord..=chord).contains(&x) { x } else { chord / 3.0 };
-        return [p0, vec3::add(p0, vec3::scale(d0, len(a))), vec3::add(p3, vec3::scale(d3, len(b))), p3];
-    }
-    let place = |q: V3, origin: V3, nrm: V3, direction: Option<V3>| -> V3 {
-        match direction {
-            Some(d) => {
-                let along = vec3::dot(vec3::sub(q, origin), d);
-                let len = if along > 0.1 * chord { along } else { chord / 3.0 };
-                vec3::add(origin, vec3::scale(d, len))
-            }
-            None => vec3::sub(q, vec3::scale(nrm, vec3::dot(vec3::sub(q, origin), nrm))),
-        }
-    };
-    [p0, place(c1, p0, n0, directions[0]), place(c2, p3, n3, directions[1]), p3]
+    let project =
+        |q: V3, origin: V3, nrm: V3| -> V3 { vec3::sub(q, vec3::scale(nrm, vec3::dot(vec3::sub(q, origin), nrm))) };
+    [p0, project(c1, p0, n0), project(c2, p3, n3), p3]
 }
 
 /// Least-squares fit of the 4 interior points of an extraordinary face's Bézier net `b` (boundary fixed):
