@@ -65,7 +65,7 @@ fn main() {
         let mut p: Vec<[f64; 3]> = out.positions.iter().map(|q| q.map(|c| c as f64)).collect();
         let mut tris = out.triangles.clone();
         let t = Instant::now();
-        let d = decimate::decimate(&mut p, &mut tris, 100_000, 0);
+        let d = decimate::decimate(&mut p, &mut tris, 100_000, 0, decimate::Crossings::Refuse);
         dec_s.push(t.elapsed().as_secs_f64());
         let check = intersections::remove_self_intersections(&mut p, &mut tris, 0.1);
         all_s.push(t.elapsed().as_secs_f64());

@@ -47,7 +47,7 @@ use crate::geometry::topology::TopologyReport;
 use crate::geometry::vec3::{self, V3, cross, dot, sub, wide};
 use crate::stages::Progress;
 use crate::stages::quality::{CompareOptions, DistanceReport, compare, percentile};
-use crate::stages::repair::decimate::decimate;
+use crate::stages::repair::decimate::{Crossings, decimate};
 
 /// Working vertices per output vertex the working mesh is decimated to (Instant Meshes needs input edges
 /// shorter than half the spacing, i.e. at least 4).
@@ -370,7 +370,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     let want = (opts.work_per_vertex * opts.target_vertices as f64) as usize;
     report.working_mesh = "as-is".into();
     if p.len() > want * 3 / 2 {
-        decimate(&mut p, &mut tris, want, opts.seed);
+        decimate(&mut p, &mut tris, want, opts.seed, Crossings::Ignore);
         report.working_mesh = "decimated".into();
     } else {
         let mut k = 0;

@@ -200,7 +200,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         let (p2, t2, _) = weld::compact(&pos, &tris);
         (pos, tris) = (p2, t2);
         let t = Instant::now();
-        decimated = Some(decimate::decimate(&mut pos, &mut tris, target, 0));
+        decimated = Some(decimate::decimate(&mut pos, &mut tris, target, 0, decimate::Crossings::Refuse));
         tracing::debug!(seconds = t.elapsed().as_secs_f64(), "decimated");
         let check = intersections::remove_self_intersections(&mut pos, &mut tris, opts.keep_share);
         if check.pairs_remaining > 0 {
