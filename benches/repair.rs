@@ -75,14 +75,15 @@ fn main() {
     let (t_dec, dec_lo, dec_hi) = median(&mut dec_s);
     let (t_all, all_lo, all_hi) = median(&mut all_s);
     println!(
-        "| decimate repaired dragon to 100k vertices (multiple-choice QEM) | {t_dec:.3} ({dec_lo:.2}–{dec_hi:.2}) | {:.0} | {} collapses, {} refused (link), {} refused (fold) |",
+        "| decimate repaired dragon to 100k vertices (multiple-choice QEM, crossings refused) | {t_dec:.3} ({dec_lo:.2}–{dec_hi:.2}) | {:.0} | {} collapses, {} refused (link), {} refused (fold), {} refused (crossing) |",
         peak_mib(),
         d.collapses,
         d.refused_link,
-        d.refused_fold
+        d.refused_fold,
+        d.refused_intersection
     );
     println!(
-        "| + self-intersection check and removal | {t_all:.3} ({all_lo:.2}–{all_hi:.2}) | {:.0} | {} pairs found, {} rounds, {} remaining |",
+        "| + self-intersection search from scratch (and removal, if any) | {t_all:.3} ({all_lo:.2}–{all_hi:.2}) | {:.0} | {} pairs found, {} rounds, {} remaining |",
         peak_mib(),
         check.pairs_found,
         check.rounds,
