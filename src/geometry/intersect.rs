@@ -8,14 +8,10 @@
 use rayon::prelude::*;
 
 use crate::geometry::bvh::{BoxTree, box_of};
-use crate::geometry::vec3::{V3, cross, dot, sub};
+use crate::geometry::vec3::{V3, cross, dot, norm2, sub};
 
 /// Relative tolerance for "on the plane" (fraction of |n|·edge length).
 const PLANE_EPS: f64 = 1e-12;
-
-fn dot2(a: V3) -> f64 {
-    dot(a, a)
-}
 
 fn interval(p: [f64; 3], d: [f64; 3]) -> Option<(f64, f64)> {
     let alone = if d[0] * d[1] > 0.0 {
@@ -77,13 +73,13 @@ fn coplanar(n: V3, v: &[V3; 3], u: &[V3; 3]) -> bool {
 pub fn triangles_intersect(v: &[V3; 3], u: &[V3; 3]) -> bool {
     let n1 = cross(sub(v[1], v[0]), sub(v[2], v[0]));
     let n2 = cross(sub(u[1], u[0]), sub(u[2], u[0]));
-    let len2 = |t: &[V3; 3]| dot2(sub(t[1], t[0])).max(dot2(sub(t[2], t[0]))).max(dot2(sub(t[2], t[1])));
+    let len2 = |t: &[V3; 3]| norm2(sub(t[1], t[0])).max(norm2(sub(t[2], t[0]))).max(norm2(sub(t[2], t[1])));
     let scale2 = len2(v).max(len2(u));
-    let du = signed_dists(n1, v[0], u, (dot2(n1) * scale2).sqrt());
+    let du = signed_dists(n1, v[0], u, (norm2(n1) * scale2).sqrt());
     if du.iter().all(|&d| d > 0.0) || du.iter().all(|&d| d < 0.0) {
         return false;
     }
-    let dv = signed_dists(n2, u[0], v, (dot2(n2) * scale2).sqrt());
+    let dv = signed_dists(n2, u[0], v, (norm2(n2) * scale2).sqrt());
     if dv.iter().all(|&d| d > 0.0) || dv.iter().all(|&d| d < 0.0) {
         return false;
     }
@@ -105,7 +101,7 @@ fn segment_hits(p: V3, q: V3, t: &[V3; 3]) -> bool {
     let (e1, e2) = (sub(t[1], t[0]), sub(t[2], t[0]));
     let h = cross(d, e2);
     let a = dot(e1, h);
-    if a * a <= 1e-28 * dot2(d) * dot2(e1) * dot2(e2) {
+    if a * a <= 1e-28 * norm2(d) * norm2(e1) * norm2(e2) {
         return false;
     }
     let f = 1.0 / a;
@@ -125,18 +121,11 @@ pub fn mesh_triangles_intersect(p: &[V3], a: [u32; 3], b: [u32; 3]) -> bool {
     let ta = a.map(|i| p[i as usize]);
     let tb = b.map(|i| p[i as usize]);
     let same = |i: usize, j: usize| a[i] == b[j] || ta[i] == tb[j];
-    let (mut shared, mut first) = (0, 0);
-    for i in (0..3).rev() {
-        if (0..3).any(|j| same(i, j)) {
-            shared += 1;
-            first = i;
-        }
-    }
-    match shared {
-        0 => triangles_intersect(&ta, &tb),
-        1 => {
+    let mut shared = (0..3).filter(|&i| (0..3).any(|j| same(i, j)));
+    match (shared.next(), shared.count()) {
+        (None, _) => triangles_intersect(&ta, &tb),
+        (Some(ka), 0) => {
             // The edge opposite the shared corner of each must not pierce the other.
-            let ka = first;
             let kb = (0..3).find(|&j| same(ka, j)).unwrap();
             let (a1, a2) = (ta[(ka + 1) % 3], ta[(ka + 2) % 3]);
             let (b1, b2) = (tb[(kb + 1) % 3], tb[(kb + 2) % 3]);

@@ -16,9 +16,10 @@
 //! Decimating a mesh without self-intersections therefore yields one without self-intersections; the repair
 //! stage still searches the result from scratch (a BVH) and would remove any crossing it found.
 
+use crate::geometry::bvh::box_of;
 use crate::geometry::intersect::mesh_triangles_intersect;
 use crate::geometry::sampling::Rng;
-use crate::geometry::vec3::{self, V3};
+use crate::geometry::vec3::{self, Aabb, V3};
 
 /// Largest turn of a face normal a collapse may cause, in degrees.
 pub const MAX_NORMAL_TURN_DEG: f64 = 60.0;
@@ -98,32 +99,43 @@ fn q_optimum(q: &Quadric) -> Option<V3> {
     Some([solve(0), solve(1), solve(2)])
 }
 
-/// Axis-aligned box of a triangle.
-type Aabb = (V3, V3);
-
+/// Bounding box of triangle `t`.
 fn tri_box(p: &[V3], t: [u32; 3]) -> Aabb {
-    let [a, b, c] = t.map(|i| p[i as usize]);
-    (std::array::from_fn(|k| a[k].min(b[k]).min(c[k])), std::array::from_fn(|k| a[k].max(b[k]).max(c[k])))
+    let mut b = Aabb::EMPTY;
+    t.iter().for_each(|&i| b.add(p[i as usize]));
+    b
+}
+
+/// Does `t` repeat a corner? (The two faces on a collapsed edge do: they die.)
+fn degenerate(t: &[u32; 3]) -> bool {
+    t[0] == t[1] || t[1] == t[2] || t[0] == t[2]
 }
 
 fn boxes_meet(a: &Aabb, b: &Aabb) -> bool {
+    (0..3).all(|k| a.min[k] <= b.max[k] && b.min[k] <= a.max[k])
+}
+
+/// An f32 box rounded outward (a conservative prefilter), and the overlap test of two such boxes.
+type Box32 = ([f32; 3], [f32; 3]);
+
+fn box32(b: &Aabb) -> Box32 {
+    box_of(&[b.min, b.max])
+}
+
+fn boxes32_meet(a: &Box32, b: &Box32) -> bool {
     (0..3).all(|k| a.0[k] <= b.1[k] && b.0[k] <= a.1[k])
 }
 
-/// A face a collapse changes: its corners afterwards, its box before and after, its normal afterwards.
+/// A face a collapse changes: its corners before and after, its box before and after (f64, and f32 for
+/// the grid prefilter), its normal (unnormalised) after.
 struct Changed {
     face: u32,
     old_tri: [u32; 3],
     tri: [u32; 3],
     old_box: Aabb,
     new_box: Aabb,
-    new_box32: ([f32; 3], [f32; 3]),
+    new_box32: Box32,
     normal: V3,
-}
-
-fn tri_normal(p: &[V3], t: [u32; 3]) -> V3 {
-    let [a, b, c] = t.map(|i| p[i as usize]);
-    vec3::cross(vec3::sub(b, a), vec3::sub(c, a))
 }
 
 /// Does triangle `b` keep strictly to one side of the plane of `a` (normal `na`), apart from the corners it
@@ -195,32 +207,18 @@ fn may_cross(p: &[V3], a: [u32; 3], na: V3, b: [u32; 3], nb: V3) -> bool {
     mesh_triangles_intersect(p, a, b)
 }
 
-/// A face in a grid cell: its corners, its box in f32 rounded outward (a conservative prefilter), and the
-/// first cell its box meets (to report a face spanning several cells once). 48 bytes, so a query reads
-/// contiguous memory and never the mesh arrays.
+/// A face in a grid cell: its corners, its [`Box32`], and the first cell its box meets (to report a face
+/// spanning several cells once). 44 bytes, so a query reads contiguous memory and never the mesh arrays.
 #[derive(Copy, Clone, Debug)]
 struct CellEntry {
     tri: [u32; 3],
-    lo: [f32; 3],
-    hi: [f32; 3],
+    bounds: Box32,
     first: [u16; 3],
-}
-
-/// A box in f32, widened so that it contains the f64 box (f32 rounding moves a value by at most 2⁻²⁴ of
-/// it; the box grows by 2⁻²⁰ of the magnitude).
-fn box32(b: &Aabb) -> ([f32; 3], [f32; 3]) {
-    let down = |x: f64| (x - x.abs() * 1e-6 - f64::MIN_POSITIVE) as f32;
-    let up = |x: f64| (x + x.abs() * 1e-6 + f64::MIN_POSITIVE) as f32;
-    (b.0.map(down), b.1.map(up))
-}
-
-fn boxes32_meet(a: &([f32; 3], [f32; 3]), lo: &[f32; 3], hi: &[f32; 3]) -> bool {
-    (0..3).all(|k| a.0[k] <= hi[k] && lo[k] <= a.1[k])
 }
 
 /// Live faces bucketed by a uniform grid: each face sits in every cell its bounding box meets (boxes
 /// outside the grid are clamped onto its border cells, the same way for insertion, removal and queries).
-/// Memory: 48 bytes per face and cell it meets (at most 2¹⁶ cells along an axis).
+/// Memory: 44 bytes per face and cell it meets (at most 2¹⁶ cells along an axis).
 struct FaceGrid {
     origin: V3,
     inv_cell: f64,
@@ -232,14 +230,9 @@ impl FaceGrid {
     /// A grid over `p`'s bounding box with cells of edge `cell` (grown until at most [`MAX_CELLS`]
     /// cells), holding every face of `tris` with its box from `boxes`.
     fn new(p: &[V3], tris: &[[u32; 3]], boxes: &[Aabb], cell: f64) -> Self {
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        for q in p {
-            for k in 0..3 {
-                lo[k] = lo[k].min(q[k]);
-                hi[k] = hi[k].max(q[k]);
-            }
-        }
-        let extent: V3 = std::array::from_fn(|k| (hi[k] - lo[k]).max(0.0));
+        let mut bounds = Aabb::EMPTY;
+        p.iter().for_each(|&q| bounds.add(q));
+        let extent = bounds.extent();
         let mut cell = if cell.is_finite() && cell > 0.0 { cell } else { extent.iter().copied().fold(1.0, f64::max) };
         let dims = loop {
             let d: [usize; 3] = std::array::from_fn(|k| ((extent[k] / cell).floor() as usize + 1).max(1));
@@ -248,7 +241,8 @@ impl FaceGrid {
             }
             cell *= 1.5;
         };
-        let mut g = FaceGrid { origin: lo, inv_cell: 1.0 / cell, dims, cells: vec![Vec::new(); dims.iter().product()] };
+        let mut g =
+            FaceGrid { origin: bounds.min, inv_cell: 1.0 / cell, dims, cells: vec![Vec::new(); dims.iter().product()] };
         for (t, b) in tris.iter().zip(boxes) {
             g.insert(*t, b);
         }
@@ -259,7 +253,7 @@ impl FaceGrid {
         std::array::from_fn(|k| {
             // Truncation is the floor here: the value is clamped to ≥ 0 first.
             let cell = |x: f64| (((x - self.origin[k]) * self.inv_cell).max(0.0) as usize).min(self.dims[k] - 1);
-            cell(b.0[k])..=cell(b.1[k])
+            cell(b.min[k])..=cell(b.max[k])
         })
     }
 
@@ -275,9 +269,8 @@ impl FaceGrid {
     }
 
     fn insert(&mut self, tri: [u32; 3], b: &Aabb) {
-        let (lo, hi) = box32(b);
-        let first = self.span(b).map(|r| *r.start() as u16);
-        self.for_cells(b, |c| c.push(CellEntry { tri, lo, hi, first }));
+        let (bounds, first) = (box32(b), self.span(b).map(|r| *r.start() as u16));
+        self.for_cells(b, |c| c.push(CellEntry { tri, bounds, first }));
     }
 
     /// Remove the face `tri`, which was inserted with the box `b`.
@@ -292,7 +285,7 @@ impl FaceGrid {
     /// The faces whose boxes meet `b`, each once, into `out`.
     fn near(&self, b: &Aabb, out: &mut Vec<CellEntry>) {
         out.clear();
-        let (lo, hi) = box32(b);
+        let query = box32(b);
         let [sx, sy, sz] = self.span(b);
         let start = [*sx.start(), *sy.start(), *sz.start()];
         for z in sz {
@@ -302,11 +295,120 @@ impl FaceGrid {
                     for e in &self.cells[(z * self.dims[1] + y) * self.dims[0] + x] {
                         // Reported from the first cell that both its box and the query meet.
                         let first = (0..3).all(|k| at[k] == start[k].max(e.first[k] as usize));
-                        if first && boxes32_meet(&(e.lo, e.hi), &lo, &hi) {
+                        if first && boxes32_meet(&e.bounds, &query) {
                             out.push(*e);
                         }
                     }
                 }
+            }
+        }
+    }
+}
+
+/// The crossing test of [`decimate`]: a [`FaceGrid`] of the live faces, their boxes, and scratch space.
+struct CrossingGuard {
+    grid: FaceGrid,
+    face_box: Vec<Aabb>,
+    changed: Vec<Changed>,
+    near: Vec<CellEntry>,
+    star: Vec<[u32; 3]>,
+    ring: Vec<u32>,
+}
+
+impl CrossingGuard {
+    fn new(p: &[V3], tris: &[[u32; 3]], cell: f64) -> Self {
+        let face_box: Vec<Aabb> = tris.iter().map(|&t| tri_box(p, t)).collect();
+        let grid = FaceGrid::new(p, tris, &face_box, cell);
+        CrossingGuard { grid, face_box, changed: Vec::new(), near: Vec::new(), star: Vec::new(), ring: Vec::new() }
+    }
+
+    /// Would collapsing `u` into `v` (already moved to its new place in `s.p`) make a face cross another?
+    /// The faces around u and v, as they will be, are tested against each other and against every other
+    /// live face nearby. Local pairs (sharing one corner) cannot cross when the stars of v and of its
+    /// neighbours stay embedded in projection; only where one does not are they tested one by one.
+    fn crosses(&mut self, s: &State, u: u32, v: u32) -> bool {
+        let merged = |t: [u32; 3]| t.map(|x| if x == u { v } else { x });
+        self.changed.clear();
+        for &w in &[u, v] {
+            for &f in &s.vertex_faces[w as usize] {
+                let old_tri = s.tris[f as usize];
+                // A face with both ends was listed from u's side already.
+                if s.face_alive[f as usize] && !(w == v && old_tri.contains(&u)) {
+                    let (tri, old_box) = (merged(old_tri), self.face_box[f as usize]);
+                    let new_box = tri_box(s.p, tri);
+                    let (new_box32, normal) = (box32(&new_box), vec3::tri_cross(s.p, tri));
+                    self.changed.push(Changed { face: f, old_tri, tri, old_box, new_box, new_box32, normal });
+                }
+            }
+        }
+        let mut reach = Aabb::EMPTY;
+        for ch in &self.changed {
+            reach.add(ch.new_box.min);
+            reach.add(ch.new_box.max);
+        }
+        self.star.clear();
+        self.star.extend(self.changed.iter().filter(|c| !degenerate(&c.tri)).map(|c| c.tri));
+        let mut local_ok = star_embedded(s.p, v, &self.star);
+        self.ring.clear();
+        self.ring.extend(self.star.iter().flatten().copied().filter(|&x| x != v));
+        self.ring.sort_unstable();
+        self.ring.dedup();
+        for &w in &self.ring {
+            if !local_ok {
+                break;
+            }
+            self.star.clear();
+            for &f in &s.vertex_faces[w as usize] {
+                let t = merged(s.tris[f as usize]);
+                if s.face_alive[f as usize] && !degenerate(&t) {
+                    self.star.push(t);
+                }
+            }
+            local_ok = star_embedded(s.p, w, &self.star);
+        }
+        let changed = &self.changed;
+        let live = || changed.iter().filter(|c| !degenerate(&c.tri));
+        if !local_ok {
+            for (i, a) in live().enumerate() {
+                for b in live().skip(i + 1) {
+                    if boxes_meet(&a.new_box, &b.new_box) && may_cross(s.p, a.tri, a.normal, b.tri, b.normal) {
+                        return true;
+                    }
+                }
+            }
+        }
+        if reach.is_empty() {
+            return false;
+        }
+        self.grid.near(&reach, &mut self.near);
+        for e in &self.near {
+            // Every face around u or v is one of the changed faces, tested above.
+            let t = e.tri;
+            if t.contains(&u) || t.contains(&v) {
+                continue;
+            }
+            let mut nt = None;
+            for a in live().filter(|a| boxes32_meet(&a.new_box32, &e.bounds)) {
+                let shared = a.tri.iter().filter(|i| t.contains(i)).count();
+                if shared >= 2 || (shared == 1 && local_ok) {
+                    continue;
+                }
+                let nt = *nt.get_or_insert_with(|| vec3::tri_cross(s.p, t));
+                if may_cross(s.p, a.tri, a.normal, t, nt) {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
+    /// Move the faces the last tested collapse changed to their new places in the grid.
+    fn commit(&mut self) {
+        for ch in &self.changed {
+            self.grid.remove(ch.old_tri, &ch.old_box);
+            if !degenerate(&ch.tri) {
+                self.grid.insert(ch.tri, &ch.new_box);
+                self.face_box[ch.face as usize] = ch.new_box;
             }
         }
     }
@@ -406,16 +508,9 @@ pub fn decimate(
     // triangle's edge.
     let area: f64 = tris.iter().map(|&t| vec3::tri_area(p, t)).sum();
     let target_face_area = area / (2.0 * target.max(4) as f64);
-    let refuse = crossings == Crossings::Refuse;
-    let mut face_box: Vec<Aabb> = if refuse { tris.iter().map(|&t| tri_box(p, t)).collect() } else { Vec::new() };
     let cell = CELL_EDGES * (4.0 * target_face_area / 3f64.sqrt()).sqrt();
-    let mut grid = refuse.then(|| FaceGrid::new(p, tris, &face_box, cell));
+    let mut guard = (crossings == Crossings::Refuse).then(|| CrossingGuard::new(p, tris, cell));
     let mut s = State { p, tris, face_alive: vec![true; face_count], vertex_faces, q, alive: vec![true; n] };
-    // Per face: the id of the last collapse test that changes it.
-    let mut in_ring = vec![0u32; if refuse { face_count } else { 0 }];
-    let mut test_id = 0u32;
-    let (mut changed, mut near): (Vec<Changed>, Vec<CellEntry>) = (Vec::new(), Vec::new());
-    let mut star: Vec<[u32; 3]> = Vec::new();
     let t0 = std::time::Instant::now();
     let mut rng = Rng::new(seed);
     let mut alive_count = n;
@@ -497,120 +592,18 @@ pub fn decimate(
             stalled += 1;
             continue;
         }
-        // Self-intersection test: the faces the collapse changes, as they will be, against each other and
-        // against every other live face nearby. The two faces on the edge die; they keep their old boxes.
-        test_id = test_id.wrapping_add(1);
-        if test_id == 0 {
-            in_ring.iter_mut().for_each(|x| *x = 0);
-            test_id = 1;
-        }
-        changed.clear();
+        // Crossing test, with v moved to where the collapse puts it.
         let old_v = s.p[v as usize];
-        let ends = [u, v];
-        for &w in &ends[..if refuse { 2 } else { 0 }] {
-            for &f in &s.vertex_faces[w as usize] {
-                if s.face_alive[f as usize] && in_ring[f as usize] != test_id {
-                    in_ring[f as usize] = test_id;
-                    let t = s.tris[f as usize].map(|x| if x == u { v } else { x });
-                    let b = face_box[f as usize];
-                    changed.push(Changed {
-                        face: f,
-                        old_tri: s.tris[f as usize],
-                        tri: t,
-                        old_box: b,
-                        new_box: b,
-                        new_box32: box32(&b),
-                        normal: [0.0; 3],
-                    });
-                }
-            }
-        }
         s.p[v as usize] = c.at;
-        let mut reach: Option<Aabb> = None;
-        for ch in changed.iter_mut() {
-            ch.new_box = tri_box(s.p, ch.tri);
-            ch.new_box32 = box32(&ch.new_box);
-            ch.normal = tri_normal(s.p, ch.tri);
-            let b = ch.new_box;
-            reach = Some(reach.map_or(b, |r| {
-                (std::array::from_fn(|k| r.0[k].min(b.0[k])), std::array::from_fn(|k| r.1[k].max(b.1[k])))
-            }));
-        }
-        let dies = |t: &[u32; 3]| t.iter().filter(|&&x| x == v).count() > 1;
-        // Local pairs (sharing one corner) cannot cross when the stars of v and of its neighbours stay
-        // embedded in projection; only where one does not are they tested one by one.
-        star.clear();
-        star.extend(changed.iter().filter(|c| !dies(&c.tri)).map(|c| c.tri));
-        let mut local_ok = star_embedded(s.p, v, &star);
-        ring_w.clear();
-        ring_w.extend(star.iter().flatten().copied().filter(|&x| x != v));
-        ring_w.sort_unstable();
-        ring_w.dedup();
-        for &w in &ring_w {
-            if !local_ok {
-                break;
-            }
-            star.clear();
-            for &f in &s.vertex_faces[w as usize] {
-                if s.face_alive[f as usize] {
-                    let t = s.tris[f as usize].map(|x| if x == u { v } else { x });
-                    if !dies(&t) {
-                        star.push(t);
-                    }
-                }
-            }
-            local_ok = star_embedded(s.p, w, &star);
-        }
-        let mut crosses = false;
-        if let (Some(grid), Some(reach)) = (grid.as_mut(), reach) {
-            if !local_ok {
-                'pairs: for (i, a) in changed.iter().enumerate().filter(|(_, a)| !dies(&a.tri)) {
-                    for b in changed[i + 1..].iter().filter(|b| !dies(&b.tri)) {
-                        if boxes_meet(&a.new_box, &b.new_box) && may_cross(s.p, a.tri, a.normal, b.tri, b.normal) {
-                            crosses = true;
-                            break 'pairs;
-                        }
-                    }
-                }
-            }
-            if !crosses {
-                grid.near(&reach, &mut near);
-            }
-            'near: for e in near.iter().filter(|_| !crosses) {
-                // Every face around u or v is one of the changed faces, tested above.
-                let t = e.tri;
-                if t.contains(&u) || t.contains(&v) {
-                    continue;
-                }
-                let mut nt = None;
-                for a in changed.iter().filter(|a| !dies(&a.tri) && boxes32_meet(&a.new_box32, &e.lo, &e.hi)) {
-                    let shared = a.tri.iter().filter(|i| t.contains(i)).count();
-                    if shared >= 2 || (shared == 1 && local_ok) {
-                        continue;
-                    }
-                    let nt = *nt.get_or_insert_with(|| tri_normal(s.p, t));
-                    if may_cross(s.p, a.tri, a.normal, t, nt) {
-                        crosses = true;
-                        break 'near;
-                    }
-                }
-            }
-        }
-        if crosses {
+        if guard.as_mut().is_some_and(|g| g.crosses(&s, u, v)) {
             s.p[v as usize] = old_v;
             report.refused_intersection += 1;
             stalled += 1;
             continue;
         }
         stalled = 0;
-        if let Some(grid) = grid.as_mut() {
-            for ch in &changed {
-                grid.remove(ch.old_tri, &ch.old_box);
-                if !dies(&ch.tri) {
-                    grid.insert(ch.tri, &ch.new_box);
-                    face_box[ch.face as usize] = ch.new_box;
-                }
-            }
+        if let Some(g) = guard.as_mut() {
+            g.commit();
         }
         // Collapse u into v at c.at (already moved there).
         report.collapses += 1;
