@@ -16,7 +16,6 @@
 //! Decimating a mesh without self-intersections therefore yields one without self-intersections; the repair
 //! stage still searches the result from scratch (a BVH) and would remove any crossing it found.
 
-use crate::geometry::bvh::box_of;
 use crate::geometry::intersect::mesh_triangles_intersect;
 use crate::geometry::sampling::Rng;
 use crate::geometry::vec3::{self, Aabb, V3};
@@ -115,26 +114,29 @@ fn boxes_meet(a: &Aabb, b: &Aabb) -> bool {
     (0..3).all(|k| a.min[k] <= b.max[k] && b.min[k] <= a.max[k])
 }
 
-/// An f32 box rounded outward (a conservative prefilter), and the overlap test of two such boxes.
-type Box32 = ([f32; 3], [f32; 3]);
-
-fn box32(b: &Aabb) -> Box32 {
-    box_of(&[b.min, b.max])
+/// A box in grid quanta (a quantum is a grid cell / 2^shift): the corners rounded outward to whole quanta
+/// with one quantum to spare, clamped to 0..=65535. It holds the exact box, so a test of two such boxes is
+/// a conservative prefilter; 12 bytes.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+struct QBox {
+    lo: [u16; 3],
+    hi: [u16; 3],
 }
 
-fn boxes32_meet(a: &Box32, b: &Box32) -> bool {
-    (0..3).all(|k| a.0[k] <= b.1[k] && b.0[k] <= a.1[k])
+impl QBox {
+    fn meets(&self, o: &QBox) -> bool {
+        (0..3).all(|k| self.lo[k] <= o.hi[k] && o.lo[k] <= self.hi[k])
+    }
 }
 
 /// A face a collapse changes: its corners before and after, its box before and after (f64, and f32 for
 /// the grid prefilter), its normal (unnormalised) after.
 struct Changed {
-    face: u32,
     old_tri: [u32; 3],
     tri: [u32; 3],
-    old_box: Aabb,
+    old_q: QBox,
     new_box: Aabb,
-    new_box32: Box32,
+    new_q: QBox,
     normal: V3,
 }
 
@@ -161,30 +163,32 @@ fn off_plane(p: &[V3], a: [u32; 3], na: V3, b: [u32; 3]) -> bool {
 /// along the star's summed normal? That holds when every triangle projects with positive orientation and
 /// the star winds around `w` exactly once (the direction +x of the projection plane lies in exactly one
 /// triangle's corner sector). Then no two of its triangles meet other than along what they share.
-/// Cost: O(faces), no square roots or trigonometry.
-fn star_embedded(p: &[V3], w: u32, faces: &[[u32; 3]]) -> bool {
+/// `corners` is scratch space. Cost: O(faces), two square roots, no trigonometry.
+#[inline(never)]
+fn star_embedded(p: &[V3], w: u32, faces: &[[u32; 3]], corners: &mut Vec<(V3, V3)>) -> bool {
     let pw = p[w as usize];
-    let corner = |t: &[u32; 3]| {
-        let k = t.iter().position(|&x| x == w).unwrap_or(0);
-        (vec3::sub(p[t[(k + 1) % 3] as usize], pw), vec3::sub(p[t[(k + 2) % 3] as usize], pw))
-    };
+    corners.clear();
     let mut n = [0.0; 3];
     for t in faces {
-        let (a, b) = corner(t);
+        let k = t.iter().position(|&x| x == w).unwrap_or(0);
+        let (a, b) = (vec3::sub(p[t[(k + 1) % 3] as usize], pw), vec3::sub(p[t[(k + 2) % 3] as usize], pw));
         n = vec3::add(n, vec3::cross(a, b));
+        corners.push((a, b));
     }
-    // A basis (e1, e2) of the plane normal to n, both of length |n|.
+    // An orthonormal basis (e1, e2) of the plane normal to n. (Unit length matters: the orientation
+    // tolerance below is a sine, the same for a mesh in metres and one in millimetres.)
     let k = (0..3).min_by(|&i, &j| n[i].abs().total_cmp(&n[j].abs())).unwrap_or(0);
     let mut axis = [0.0; 3];
     axis[k] = 1.0;
     let e1 = vec3::cross(n, axis);
     let e2 = vec3::cross(n, e1);
-    if !(vec3::dot(e1, e1) > 0.0) {
+    let (l1, l2) = (vec3::norm(e1), vec3::norm(e2));
+    if !(l1 > 0.0 && l2 > 0.0) {
         return false;
     }
+    let (e1, e2) = (vec3::scale(e1, 1.0 / l1), vec3::scale(e2, 1.0 / l2));
     let mut winding = 0;
-    for t in faces {
-        let (a, b) = corner(t);
+    for &(a, b) in corners.iter() {
         let (da, db) = ([vec3::dot(a, e1), vec3::dot(a, e2)], [vec3::dot(b, e1), vec3::dot(b, e2)]);
         let cross = da[0] * db[1] - da[1] * db[0];
         let (la, lb) = (da[0] * da[0] + da[1] * da[1], db[0] * db[0] + db[1] * db[1]);
@@ -199,6 +203,7 @@ fn star_embedded(p: &[V3], w: u32, faces: &[[u32; 3]]) -> bool {
 
 /// Could faces `a` and `b` (normals `na`, `nb`) of the mesh cross? A cheap plane-side test first, then the
 /// exact one ([`mesh_triangles_intersect`]).
+#[inline(never)]
 fn may_cross(p: &[V3], a: [u32; 3], na: V3, b: [u32; 3], nb: V3) -> bool {
     let shared = a.iter().filter(|i| b.contains(i)).count();
     if shared >= 2 || off_plane(p, a, na, b) || off_plane(p, b, nb, a) {
@@ -207,33 +212,35 @@ fn may_cross(p: &[V3], a: [u32; 3], na: V3, b: [u32; 3], nb: V3) -> bool {
     mesh_triangles_intersect(p, a, b)
 }
 
-/// A face in a grid cell: its corners, its [`Box32`], and the first cell its box meets (to report a face
-/// spanning several cells once). 44 bytes, so a query reads contiguous memory and never the mesh arrays.
+/// A face in a grid cell: its corners and its [`QBox`]. 24 bytes, so a query reads contiguous memory and
+/// never the mesh arrays.
 #[derive(Copy, Clone, Debug)]
 struct CellEntry {
     tri: [u32; 3],
-    bounds: Box32,
-    first: [u16; 3],
+    bounds: QBox,
 }
 
-/// Live faces bucketed by a uniform grid: each face sits in every cell its bounding box meets (boxes
-/// outside the grid are clamped onto its border cells, the same way for insertion, removal and queries).
-/// Memory: 44 bytes per face and cell it meets (at most 2¹⁶ cells along an axis).
+/// Live faces bucketed by a uniform grid: each face sits in every cell its [`QBox`] meets (boxes outside
+/// the grid are clamped onto its border cells, the same way for insertion, removal and queries, and
+/// everything is derived from the quantized box, so the three always agree).
+/// Memory: 24 bytes per face and cell it meets (at most 2¹⁶ cells along an axis).
 struct FaceGrid {
     origin: V3,
-    inv_cell: f64,
+    inv_quantum: f64,
+    shift: u32,
     dims: [usize; 3],
     cells: Vec<Vec<CellEntry>>,
 }
 
 impl FaceGrid {
     /// A grid over `p`'s bounding box with cells of edge `cell` (grown until at most [`MAX_CELLS`]
-    /// cells), holding every face of `tris` with its box from `boxes`.
-    fn new(p: &[V3], tris: &[[u32; 3]], boxes: &[Aabb], cell: f64) -> Self {
+    /// cells), holding every face of `tris`.
+    fn new(p: &[V3], tris: &[[u32; 3]], cell: f64) -> Self {
         let mut bounds = Aabb::EMPTY;
         p.iter().for_each(|&q| bounds.add(q));
         let extent = bounds.extent();
-        let mut cell = if cell.is_finite() && cell > 0.0 { cell } else { extent.iter().copied().fold(1.0, f64::max) };
+        let largest = extent.iter().copied().fold(0.0, f64::max);
+        let mut cell = if cell.is_finite() && cell > 0.0 { cell } else { largest.max(1.0) };
         let dims = loop {
             let d: [usize; 3] = std::array::from_fn(|k| ((extent[k] / cell).floor() as usize + 1).max(1));
             if d.iter().product::<usize>() <= MAX_CELLS && d.iter().all(|&n| n <= u16::MAX as usize) {
@@ -241,23 +248,36 @@ impl FaceGrid {
             }
             cell *= 1.5;
         };
-        let mut g =
-            FaceGrid { origin: bounds.min, inv_cell: 1.0 / cell, dims, cells: vec![Vec::new(); dims.iter().product()] };
-        for (t, b) in tris.iter().zip(boxes) {
-            g.insert(*t, b);
+        // Quanta of cell / 2^shift, as fine as 16 bits allow over the box (with room for the margins).
+        let fits = if largest > 0.0 { 65_000.0 * cell / largest } else { f64::INFINITY };
+        let shift = (0..=15).rev().find(|&s| f64::from(1u32 << s) <= fits).unwrap_or(0);
+        let inv_quantum = f64::from(1u32 << shift) / cell;
+        let cells = vec![Vec::new(); dims.iter().product()];
+        let mut g = FaceGrid { origin: bounds.min, inv_quantum, shift, dims, cells };
+        for &t in tris {
+            g.insert(t, g.quantize(&tri_box(p, t)));
         }
         g
     }
 
-    fn span(&self, b: &Aabb) -> [std::ops::RangeInclusive<usize>; 3] {
-        std::array::from_fn(|k| {
-            // Truncation is the floor here: the value is clamped to ≥ 0 first.
-            let cell = |x: f64| (((x - self.origin[k]) * self.inv_cell).max(0.0) as usize).min(self.dims[k] - 1);
-            cell(b.min[k])..=cell(b.max[k])
-        })
+    fn quantize(&self, b: &Aabb) -> QBox {
+        let q = |x: f64, k: usize, pad: f64| ((x - self.origin[k]) * self.inv_quantum).floor() + pad;
+        // `as u16` saturates: the clamp to 0..=65535 is the cast.
+        QBox {
+            lo: std::array::from_fn(|k| q(b.min[k], k, -1.0) as u16),
+            hi: std::array::from_fn(|k| q(b.max[k], k, 1.0) as u16),
+        }
     }
 
-    fn for_cells(&mut self, b: &Aabb, mut f: impl FnMut(&mut Vec<CellEntry>)) {
+    fn cell(&self, q: u16, k: usize) -> usize {
+        ((q >> self.shift) as usize).min(self.dims[k] - 1)
+    }
+
+    fn span(&self, b: &QBox) -> [std::ops::RangeInclusive<usize>; 3] {
+        std::array::from_fn(|k| self.cell(b.lo[k], k)..=self.cell(b.hi[k], k))
+    }
+
+    fn for_cells(&mut self, b: &QBox, mut f: impl FnMut(&mut Vec<CellEntry>)) {
         let [sx, sy, sz] = self.span(b);
         for z in sz {
             for y in sy.clone() {
@@ -268,25 +288,26 @@ impl FaceGrid {
         }
     }
 
-    fn insert(&mut self, tri: [u32; 3], b: &Aabb) {
-        let (bounds, first) = (box32(b), self.span(b).map(|r| *r.start() as u16));
-        self.for_cells(b, |c| c.push(CellEntry { tri, bounds, first }));
+    #[inline(never)]
+    fn insert(&mut self, tri: [u32; 3], bounds: QBox) {
+        self.for_cells(&bounds, |c| c.push(CellEntry { tri, bounds }));
     }
 
     /// Remove the face `tri`, which was inserted with the box `b`.
-    fn remove(&mut self, tri: [u32; 3], b: &Aabb) {
-        self.for_cells(b, |c| {
+    #[inline(never)]
+    fn remove(&mut self, tri: [u32; 3], b: QBox) {
+        self.for_cells(&b, |c| {
             if let Some(i) = c.iter().position(|e| e.tri == tri) {
                 c.swap_remove(i);
             }
         });
     }
 
-    /// The faces whose boxes meet `b`, each once, into `out`.
-    fn near(&self, b: &Aabb, out: &mut Vec<CellEntry>) {
+    /// The faces whose boxes meet `query`, each once, into `out`.
+    #[inline(never)]
+    fn near(&self, query: &QBox, out: &mut Vec<CellEntry>) {
         out.clear();
-        let query = box32(b);
-        let [sx, sy, sz] = self.span(b);
+        let [sx, sy, sz] = self.span(query);
         let start = [*sx.start(), *sy.start(), *sz.start()];
         for z in sz {
             for y in sy.clone() {
@@ -294,8 +315,8 @@ impl FaceGrid {
                     let at = [x, y, z];
                     for e in &self.cells[(z * self.dims[1] + y) * self.dims[0] + x] {
                         // Reported from the first cell that both its box and the query meet.
-                        let first = (0..3).all(|k| at[k] == start[k].max(e.first[k] as usize));
-                        if first && boxes32_meet(&e.bounds, &query) {
+                        if e.bounds.meets(query) && (0..3).all(|k| at[k] == start[k].max(self.cell(e.bounds.lo[k], k)))
+                        {
                             out.push(*e);
                         }
                     }
@@ -308,36 +329,49 @@ impl FaceGrid {
 /// The crossing test of [`decimate`]: a [`FaceGrid`] of the live faces, their boxes, and scratch space.
 struct CrossingGuard {
     grid: FaceGrid,
-    face_box: Vec<Aabb>,
     changed: Vec<Changed>,
     near: Vec<CellEntry>,
     star: Vec<[u32; 3]>,
+    corners: Vec<(V3, V3)>,
     ring: Vec<u32>,
+    ring_ok: Vec<bool>,
 }
 
 impl CrossingGuard {
     fn new(p: &[V3], tris: &[[u32; 3]], cell: f64) -> Self {
-        let face_box: Vec<Aabb> = tris.iter().map(|&t| tri_box(p, t)).collect();
-        let grid = FaceGrid::new(p, tris, &face_box, cell);
-        CrossingGuard { grid, face_box, changed: Vec::new(), near: Vec::new(), star: Vec::new(), ring: Vec::new() }
+        let grid = FaceGrid::new(p, tris, cell);
+        CrossingGuard {
+            grid,
+            changed: Vec::new(),
+            near: Vec::new(),
+            star: Vec::new(),
+            corners: Vec::new(),
+            ring: Vec::new(),
+            ring_ok: Vec::new(),
+        }
     }
 
     /// Would collapsing `u` into `v` (already moved to its new place in `s.p`) make a face cross another?
     /// The faces around u and v, as they will be, are tested against each other and against every other
     /// live face nearby. Local pairs (sharing one corner) cannot cross when the stars of v and of its
     /// neighbours stay embedded in projection; only where one does not are they tested one by one.
-    fn crosses(&mut self, s: &State, u: u32, v: u32) -> bool {
+    #[inline(never)]
+    fn crosses(&mut self, s: &State, u: u32, v: u32, old_v: V3) -> bool {
         let merged = |t: [u32; 3]| t.map(|x| if x == u { v } else { x });
         self.changed.clear();
         for &w in &[u, v] {
-            for &f in &s.vertex_faces[w as usize] {
+            for &f in s.vertex_faces.get(w) {
                 let old_tri = s.tris[f as usize];
                 // A face with both ends was listed from u's side already.
-                if s.face_alive[f as usize] && !(w == v && old_tri.contains(&u)) {
-                    let (tri, old_box) = (merged(old_tri), self.face_box[f as usize]);
+                if !(w == v && old_tri.contains(&u)) {
+                    // The box the face was filed under: its corners before the collapse.
+                    let mut old_box = Aabb::EMPTY;
+                    old_tri.iter().for_each(|&i| old_box.add(if i == v { old_v } else { s.p[i as usize] }));
+                    let tri = merged(old_tri);
                     let new_box = tri_box(s.p, tri);
-                    let (new_box32, normal) = (box32(&new_box), vec3::tri_cross(s.p, tri));
-                    self.changed.push(Changed { face: f, old_tri, tri, old_box, new_box, new_box32, normal });
+                    let (new_q, normal) = (self.grid.quantize(&new_box), vec3::tri_cross(s.p, tri));
+                    let old_q = self.grid.quantize(&old_box);
+                    self.changed.push(Changed { old_tri, tri, old_q, new_box, new_q, normal });
                 }
             }
         }
@@ -346,29 +380,29 @@ impl CrossingGuard {
             reach.add(ch.new_box.min);
             reach.add(ch.new_box.max);
         }
+        // Which stars stay embedded: v's, and those of its neighbours (`ring`, sorted; `ring_ok` alongside).
         self.star.clear();
         self.star.extend(self.changed.iter().filter(|c| !degenerate(&c.tri)).map(|c| c.tri));
-        let mut local_ok = star_embedded(s.p, v, &self.star);
+        let v_ok = star_embedded(s.p, v, &self.star, &mut self.corners);
         self.ring.clear();
         self.ring.extend(self.star.iter().flatten().copied().filter(|&x| x != v));
         self.ring.sort_unstable();
         self.ring.dedup();
+        self.ring_ok.clear();
         for &w in &self.ring {
-            if !local_ok {
-                break;
-            }
             self.star.clear();
-            for &f in &s.vertex_faces[w as usize] {
+            for &f in s.vertex_faces.get(w) {
                 let t = merged(s.tris[f as usize]);
-                if s.face_alive[f as usize] && !degenerate(&t) {
+                if !degenerate(&t) {
                     self.star.push(t);
                 }
             }
-            local_ok = star_embedded(s.p, w, &self.star);
+            self.ring_ok.push(star_embedded(s.p, w, &self.star, &mut self.corners));
         }
         let changed = &self.changed;
         let live = || changed.iter().filter(|c| !degenerate(&c.tri));
-        if !local_ok {
+        // Two changed faces share v; when v's star is embedded, they cannot cross.
+        if !v_ok {
             for (i, a) in live().enumerate() {
                 for b in live().skip(i + 1) {
                     if boxes_meet(&a.new_box, &b.new_box) && may_cross(s.p, a.tri, a.normal, b.tri, b.normal) {
@@ -380,7 +414,7 @@ impl CrossingGuard {
         if reach.is_empty() {
             return false;
         }
-        self.grid.near(&reach, &mut self.near);
+        self.grid.near(&self.grid.quantize(&reach), &mut self.near);
         for e in &self.near {
             // Every face around u or v is one of the changed faces, tested above.
             let t = e.tri;
@@ -388,9 +422,13 @@ impl CrossingGuard {
                 continue;
             }
             let mut nt = None;
-            for a in live().filter(|a| boxes32_meet(&a.new_box32, &e.bounds)) {
-                let shared = a.tri.iter().filter(|i| t.contains(i)).count();
-                if shared >= 2 || (shared == 1 && local_ok) {
+            for a in live().filter(|a| a.new_q.meets(&e.bounds)) {
+                let mut shared = a.tri.iter().filter(|i| t.contains(i));
+                let (first, second) = (shared.next(), shared.next());
+                // Sharing an edge: neighbours across it cannot cross. Sharing one corner w (a neighbour of
+                // v, as faces with v or u are the changed ones): both lie in w's star.
+                let in_embedded_star = first.is_some_and(|w| self.ring.binary_search(w).is_ok_and(|i| self.ring_ok[i]));
+                if second.is_some() || in_embedded_star {
                     continue;
                 }
                 let nt = *nt.get_or_insert_with(|| vec3::tri_cross(s.p, t));
@@ -403,13 +441,93 @@ impl CrossingGuard {
     }
 
     /// Move the faces the last tested collapse changed to their new places in the grid.
+    #[inline(never)]
     fn commit(&mut self) {
         for ch in &self.changed {
-            self.grid.remove(ch.old_tri, &ch.old_box);
+            self.grid.remove(ch.old_tri, ch.old_q);
             if !degenerate(&ch.tri) {
-                self.grid.insert(ch.tri, &ch.new_box);
-                self.face_box[ch.face as usize] = ch.new_box;
+                self.grid.insert(ch.tri, ch.new_q);
             }
+        }
+    }
+}
+
+/// Ids kept in place per vertex by [`FaceLists`] (with the length, one 64-byte cache line).
+const INLINE_FACES: usize = 15;
+
+/// One vertex's faces: up to [`INLINE_FACES`] ids in place; a longer list lives in [`FaceLists::spill`]
+/// and `ids[0]` says where.
+#[derive(Clone, Copy)]
+#[repr(C, align(64))]
+struct FaceSlot {
+    len: u32,
+    ids: [u32; INLINE_FACES],
+}
+
+/// The live faces around every vertex, in the order they were added. Reading a vertex's faces touches
+/// one cache line (a `Vec` per vertex costs two scattered reads, and the lists are read around every
+/// vertex of every candidate collapse).
+struct FaceLists {
+    slots: Vec<FaceSlot>,
+    spill: Vec<Vec<u32>>,
+}
+
+impl FaceLists {
+    fn new(n: usize) -> Self {
+        FaceLists { slots: vec![FaceSlot { len: 0, ids: [0; INLINE_FACES] }; n], spill: Vec::new() }
+    }
+
+    fn get(&self, v: u32) -> &[u32] {
+        let s = &self.slots[v as usize];
+        match s.len as usize {
+            n if n <= INLINE_FACES => &s.ids[..n],
+            _ => &self.spill[s.ids[0] as usize],
+        }
+    }
+
+    /// Change `v`'s list through `f` (moving it in place or out to the spill store as its length asks).
+    fn edit(&mut self, v: u32, f: impl FnOnce(&mut Vec<u32>)) {
+        let s = &mut self.slots[v as usize];
+        let mut list = match s.len as usize {
+            n if n <= INLINE_FACES => s.ids[..n].to_vec(),
+            _ => std::mem::take(&mut self.spill[s.ids[0] as usize]),
+        };
+        let spilled = (s.len as usize > INLINE_FACES).then_some(s.ids[0]);
+        f(&mut list);
+        s.len = list.len() as u32;
+        if list.len() <= INLINE_FACES {
+            s.ids[..list.len()].copy_from_slice(&list);
+        } else {
+            let at = spilled.unwrap_or_else(|| {
+                self.spill.push(Vec::new());
+                (self.spill.len() - 1) as u32
+            });
+            s.ids[0] = at;
+            self.spill[at as usize] = list;
+        }
+    }
+
+    fn push(&mut self, v: u32, face: u32) {
+        let s = &mut self.slots[v as usize];
+        if (s.len as usize) < INLINE_FACES {
+            s.ids[s.len as usize] = face;
+            s.len += 1;
+        } else {
+            self.edit(v, |l| l.push(face));
+        }
+    }
+
+    /// Remove `face` from `v`'s list, keeping the order of the others.
+    fn remove(&mut self, v: u32, face: u32) {
+        let s = &mut self.slots[v as usize];
+        let n = s.len as usize;
+        if n <= INLINE_FACES {
+            if let Some(i) = s.ids[..n].iter().position(|&g| g == face) {
+                s.ids.copy_within(i + 1..n, i);
+                s.len -= 1;
+            }
+        } else {
+            self.edit(v, |l| l.retain(|&g| g != face));
         }
     }
 }
@@ -426,12 +544,13 @@ struct State<'a> {
     p: &'a mut Vec<V3>,
     tris: &'a mut Vec<[u32; 3]>,
     face_alive: Vec<bool>,
-    vertex_faces: Vec<Vec<u32>>,
+    vertex_faces: FaceLists,
     q: Vec<Quadric>,
     alive: Vec<bool>,
 }
 
 impl State<'_> {
+    #[inline(never)]
     fn candidate(&self, u: u32, v: u32) -> Candidate {
         let mut q = self.q[u as usize];
         q_add(&mut q, &self.q[v as usize]);
@@ -447,12 +566,11 @@ impl State<'_> {
         Candidate { cost: best.0.max(0.0), u, v, at: best.1 }
     }
 
+    #[inline(never)]
     fn ring(&self, v: u32, out: &mut Vec<u32>) {
         out.clear();
-        for &f in &self.vertex_faces[v as usize] {
-            if self.face_alive[f as usize] {
-                out.extend(self.tris[f as usize].iter().copied().filter(|&w| w != v));
-            }
+        for &f in self.vertex_faces.get(v) {
+            out.extend(self.tris[f as usize].iter().copied().filter(|&w| w != v));
         }
         out.sort_unstable();
         out.dedup();
@@ -487,7 +605,7 @@ pub fn decimate(
     let n = p.len();
     let mut report = DecimateReport { target_vertices: target, vertices_before: n, ..Default::default() };
     let mut q = vec![[0.0; 10]; n];
-    let mut vertex_faces = vec![Vec::new(); n];
+    let mut vertex_faces = FaceLists::new(n);
     for (f, t) in tris.iter().enumerate() {
         if let Some(unit) = vec3::tri_unit_normal(p, *t) {
             let a = p[t[0] as usize];
@@ -497,7 +615,7 @@ pub fn decimate(
             }
         }
         for &v in t {
-            vertex_faces[v as usize].push(f as u32);
+            vertex_faces.push(v, f as u32);
         }
     }
     let face_count = tris.len();
@@ -515,7 +633,7 @@ pub fn decimate(
     let mut rng = Rng::new(seed);
     let mut alive_count = n;
     let mut stalled = 0usize;
-    let (mut ring_u, mut ring_v, mut ring_w) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut ring_u, mut ring_v, mut faces_u) = (Vec::new(), Vec::new(), Vec::new());
     let min_cos = MAX_NORMAL_TURN_DEG.to_radians().cos();
     while alive_count > target && stalled < MAX_STALLED {
         // Multiple choice: the cheapest of CHOICES random live edges (dead faces are skipped, bounded tries).
@@ -560,11 +678,7 @@ pub fn decimate(
             }
         }
         let merged_valence = ring_u.len() + ring_v.len() - n_shared - 2;
-        let opposite_ok = n_shared == 2
-            && shared.iter().all(|&w| {
-                s.ring(w, &mut ring_w);
-                ring_w.len() >= 4
-            });
+        let opposite_ok = n_shared == 2 && shared.iter().all(|&w| s.vertex_faces.get(w).len() >= 4);
         if !opposite_ok || merged_valence < 3 {
             report.refused_link += 1;
             stalled += 1;
@@ -573,9 +687,9 @@ pub fn decimate(
         // Fold-over and degeneracy test on the faces that survive the collapse.
         let mut ok = true;
         'faces: for &w in &[u, v] {
-            for &f in &s.vertex_faces[w as usize] {
+            for &f in s.vertex_faces.get(w) {
                 let t = s.tris[f as usize];
-                if !s.face_alive[f as usize] || (t.contains(&u) && t.contains(&v)) {
+                if t.contains(&u) && t.contains(&v) {
                     continue;
                 }
                 let old = s.normal(t, u32::MAX, [0.0; 3], u32::MAX);
@@ -595,7 +709,7 @@ pub fn decimate(
         // Crossing test, with v moved to where the collapse puts it.
         let old_v = s.p[v as usize];
         s.p[v as usize] = c.at;
-        if guard.as_mut().is_some_and(|g| g.crosses(&s, u, v)) {
+        if guard.as_mut().is_some_and(|g| g.crosses(&s, u, v, old_v)) {
             s.p[v as usize] = old_v;
             report.refused_intersection += 1;
             stalled += 1;
@@ -612,25 +726,31 @@ pub fn decimate(
         q_add(&mut s.q[v as usize], &qu);
         s.alive[u as usize] = false;
         alive_count -= 1;
-        let faces_u = std::mem::take(&mut s.vertex_faces[u as usize]);
-        for f in faces_u {
-            if !s.face_alive[f as usize] {
-                continue;
-            }
+        faces_u.clear();
+        faces_u.extend_from_slice(s.vertex_faces.get(u));
+        s.vertex_faces.edit(u, Vec::clear);
+        for &f in &faces_u {
             let t = &mut s.tris[f as usize];
             if t.contains(&v) {
+                // The face dies: off the list of its third corner too (v's list is filtered below), so
+                // that every vertex lists only live faces.
                 s.face_alive[f as usize] = false;
+                if let Some(&w) = t.iter().find(|&&x| x != u && x != v) {
+                    s.vertex_faces.remove(w, f);
+                }
             } else {
                 t.iter_mut().for_each(|x| {
                     if *x == u {
                         *x = v;
                     }
                 });
-                s.vertex_faces[v as usize].push(f);
+                s.vertex_faces.push(v, f);
             }
         }
         let face_alive = &s.face_alive;
-        s.vertex_faces[v as usize].retain(|&f| face_alive[f as usize]);
+        if s.vertex_faces.get(v).iter().any(|&f| !face_alive[f as usize]) {
+            s.vertex_faces.edit(v, |l| l.retain(|&f| face_alive[f as usize]));
+        }
     }
     tracing::debug!(seconds = t0.elapsed().as_secs_f64(), collapses = report.collapses, "decimation loop done");
     let kept: Vec<[u32; 3]> = s.tris.iter().zip(&s.face_alive).filter(|(_, a)| **a).map(|(t, _)| *t).collect();
