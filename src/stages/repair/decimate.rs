@@ -380,9 +380,18 @@ impl CrossingGuard {
             reach.add(ch.new_box.min);
             reach.add(ch.new_box.max);
         }
+        if reach.is_empty() {
+            return false;
+        }
+        // Every live face whose box meets the reach: all faces around v's neighbours among them.
+        self.grid.near(&self.grid.quantize(&reach), &mut self.near);
+        let changed = &self.changed;
+        let live = || changed.iter().filter(|c| !degenerate(&c.tri));
         // Which stars stay embedded: v's, and those of its neighbours (`ring`, sorted; `ring_ok` alongside).
+        // A neighbour's star is its changed faces and its faces in `near` (those with u or v are the
+        // changed ones, filed under their old corners).
         self.star.clear();
-        self.star.extend(self.changed.iter().filter(|c| !degenerate(&c.tri)).map(|c| c.tri));
+        self.star.extend(live().map(|c| c.tri));
         let v_ok = star_embedded(s.p, v, &self.star, &mut self.corners);
         self.ring.clear();
         self.ring.extend(self.star.iter().flatten().copied().filter(|&x| x != v));
@@ -391,16 +400,12 @@ impl CrossingGuard {
         self.ring_ok.clear();
         for &w in &self.ring {
             self.star.clear();
-            for &f in s.vertex_faces.get(w) {
-                let t = merged(s.tris[f as usize]);
-                if !degenerate(&t) {
-                    self.star.push(t);
-                }
-            }
+            self.star.extend(live().filter(|c| c.tri.contains(&w)).map(|c| c.tri));
+            let theirs =
+                self.near.iter().map(|e| e.tri).filter(|t| t.contains(&w) && !t.contains(&u) && !t.contains(&v));
+            self.star.extend(theirs);
             self.ring_ok.push(star_embedded(s.p, w, &self.star, &mut self.corners));
         }
-        let changed = &self.changed;
-        let live = || changed.iter().filter(|c| !degenerate(&c.tri));
         // Two changed faces share v; when v's star is embedded, they cannot cross.
         if !v_ok {
             for (i, a) in live().enumerate() {
@@ -411,10 +416,6 @@ impl CrossingGuard {
                 }
             }
         }
-        if reach.is_empty() {
-            return false;
-        }
-        self.grid.near(&self.grid.quantize(&reach), &mut self.near);
         for e in &self.near {
             // Every face around u or v is one of the changed faces, tested above.
             let t = e.tri;
@@ -551,14 +552,13 @@ struct State<'a> {
 
 impl State<'_> {
     #[inline(never)]
-    fn candidate(&self, u: u32, v: u32) -> Candidate {
-        let mut q = self.q[u as usize];
-        q_add(&mut q, &self.q[v as usize]);
+    /// Collapsing the edge u–v, whose summed quadric is `q`: where to, and at what cost.
+    fn candidate(&self, q: &Quadric, u: u32, v: u32) -> Candidate {
         let (pu, pv) = (self.p[u as usize], self.p[v as usize]);
         let mid = vec3::scale(vec3::add(pu, pv), 0.5);
-        let mut best = (q_eval(&q, mid), mid);
-        for c in [pu, pv].into_iter().chain(q_optimum(&q)) {
-            let e = q_eval(&q, c);
+        let mut best = (q_eval(q, mid), mid);
+        for c in [pu, pv].into_iter().chain(q_optimum(q)) {
+            let e = q_eval(q, c);
             if e < best.0 {
                 best = (e, c);
             }
@@ -637,22 +637,35 @@ pub fn decimate(
     let min_cos = MAX_NORMAL_TURN_DEG.to_radians().cos();
     while alive_count > target && stalled < MAX_STALLED {
         // Multiple choice: the cheapest of CHOICES random live edges (dead faces are skipped, bounded tries).
-        let mut best: Option<Candidate> = None;
-        let mut drawn = 0;
+        // The draws depend only on which faces are alive; the drawn faces' corners and quadrics are read
+        // afterwards, all together, so that their cache misses overlap.
+        let mut drawn = [(0usize, 0usize); CHOICES];
+        let mut n_drawn = 0;
         for _ in 0..CHOICES * 8 {
             let f = (rng.next_u64() % face_count as u64) as usize;
             if !s.face_alive[f] {
                 continue;
             }
-            let k = (rng.next_u64() % 3) as usize;
-            let t = s.tris[f];
-            let c = s.candidate(t[k], t[(k + 1) % 3]);
+            drawn[n_drawn] = (f, (rng.next_u64() % 3) as usize);
+            n_drawn += 1;
+            if n_drawn == CHOICES {
+                break;
+            }
+        }
+        let drawn = &drawn[..n_drawn];
+        let edges: [(u32, u32); CHOICES] =
+            std::array::from_fn(|i| drawn.get(i).map_or((0, 0), |&(f, k)| (s.tris[f][k], s.tris[f][(k + 1) % 3])));
+        let sums: [Quadric; CHOICES] = std::array::from_fn(|i| {
+            let (u, v) = edges[i];
+            let mut q = s.q[u as usize];
+            q_add(&mut q, &s.q[v as usize]);
+            q
+        });
+        let mut best: Option<Candidate> = None;
+        for (i, &(u, v)) in edges[..n_drawn].iter().enumerate() {
+            let c = s.candidate(&sums[i], u, v);
             if best.is_none_or(|b| c.cost < b.cost) {
                 best = Some(c);
-            }
-            drawn += 1;
-            if drawn == CHOICES {
-                break;
             }
         }
         let Some(c) = best else {
