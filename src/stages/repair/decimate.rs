@@ -164,7 +164,6 @@ fn off_plane(p: &[V3], a: [u32; 3], na: V3, b: [u32; 3]) -> bool {
 /// the star winds around `w` exactly once (the direction +x of the projection plane lies in exactly one
 /// triangle's corner sector). Then no two of its triangles meet other than along what they share.
 /// `corners` is scratch space. Cost: O(faces), two square roots, no trigonometry.
-#[inline(never)]
 fn star_embedded(p: &[V3], w: u32, faces: &[[u32; 3]], corners: &mut Vec<(V3, V3)>) -> bool {
     let pw = p[w as usize];
     corners.clear();
@@ -203,7 +202,6 @@ fn star_embedded(p: &[V3], w: u32, faces: &[[u32; 3]], corners: &mut Vec<(V3, V3
 
 /// Could faces `a` and `b` (normals `na`, `nb`) of the mesh cross? A cheap plane-side test first, then the
 /// exact one ([`mesh_triangles_intersect`]).
-#[inline(never)]
 fn may_cross(p: &[V3], a: [u32; 3], na: V3, b: [u32; 3], nb: V3) -> bool {
     let shared = a.iter().filter(|i| b.contains(i)).count();
     if shared >= 2 || off_plane(p, a, na, b) || off_plane(p, b, nb, a) {
@@ -288,13 +286,11 @@ impl FaceGrid {
         }
     }
 
-    #[inline(never)]
     fn insert(&mut self, tri: [u32; 3], bounds: QBox) {
         self.for_cells(&bounds, |c| c.push(CellEntry { tri, bounds }));
     }
 
     /// Remove the face `tri`, which was inserted with the box `b`.
-    #[inline(never)]
     fn remove(&mut self, tri: [u32; 3], b: QBox) {
         self.for_cells(&b, |c| {
             if let Some(i) = c.iter().position(|e| e.tri == tri) {
@@ -304,7 +300,6 @@ impl FaceGrid {
     }
 
     /// The faces whose boxes meet `query`, each once, into `out`.
-    #[inline(never)]
     fn near(&self, query: &QBox, out: &mut Vec<CellEntry>) {
         out.clear();
         let [sx, sy, sz] = self.span(query);
@@ -355,7 +350,6 @@ impl CrossingGuard {
     /// The faces around u and v, as they will be, are tested against each other and against every other
     /// live face nearby. Local pairs (sharing one corner) cannot cross when the stars of v and of its
     /// neighbours stay embedded in projection; only where one does not are they tested one by one.
-    #[inline(never)]
     fn crosses(&mut self, s: &State, u: u32, v: u32, old_v: V3) -> bool {
         let merged = |t: [u32; 3]| t.map(|x| if x == u { v } else { x });
         self.changed.clear();
@@ -442,7 +436,6 @@ impl CrossingGuard {
     }
 
     /// Move the faces the last tested collapse changed to their new places in the grid.
-    #[inline(never)]
     fn commit(&mut self) {
         for ch in &self.changed {
             self.grid.remove(ch.old_tri, ch.old_q);
@@ -551,7 +544,6 @@ struct State<'a> {
 }
 
 impl State<'_> {
-    #[inline(never)]
     /// Collapsing the edge u–v, whose summed quadric is `q`: where to, and at what cost.
     fn candidate(&self, q: &Quadric, u: u32, v: u32) -> Candidate {
         let (pu, pv) = (self.p[u as usize], self.p[v as usize]);
@@ -566,7 +558,6 @@ impl State<'_> {
         Candidate { cost: best.0.max(0.0), u, v, at: best.1 }
     }
 
-    #[inline(never)]
     fn ring(&self, v: u32, out: &mut Vec<u32>) {
         out.clear();
         for &f in self.vertex_faces.get(v) {
@@ -772,4 +763,60 @@ pub fn decimate(
     *s.tris = tris_out;
     report.vertices_after = s.p.len();
     report
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A fan of `n` triangles around the origin at scale `s`, the rim lifted by `lift` (a cone).
+    fn fan(n: u32, s: f64, lift: f64) -> (Vec<V3>, Vec<[u32; 3]>) {
+        let mut p = vec![[0.0; 3]];
+        for i in 0..n {
+            let a = std::f64::consts::TAU * f64::from(i) / f64::from(n);
+            p.push([s * a.cos(), s * a.sin(), s * lift]);
+        }
+        let tris = (0..n).map(|i| [0, 1 + i, 1 + (i + 1) % n]).collect();
+        (p, tris)
+    }
+
+    /// Regression: the projection basis was not normalised, so the sine tolerance shrank with the square of
+    /// the mesh's scale and a plain fan of a mesh in metres (edges of 0.5 mm) counted as not embedded.
+    #[test]
+    fn star_test_does_not_depend_on_the_scale() {
+        let mut scratch = Vec::new();
+        for s in [1e3, 1.0, 5e-4, 1e-6] {
+            for lift in [0.0, 0.3, -0.8] {
+                let (p, tris) = fan(7, s, lift);
+                assert!(star_embedded(&p, 0, &tris, &mut scratch), "fan at scale {s}, lift {lift}");
+            }
+            // A fan that winds twice around its centre is not embedded, at any scale.
+            let (p, _) = fan(7, s, 0.0);
+            let twice: Vec<[u32; 3]> = (0..7).map(|i| [0, 1 + (2 * i) % 7, 1 + (2 * i + 2) % 7]).collect();
+            assert!(!star_embedded(&p, 0, &twice, &mut scratch), "double fan at scale {s}");
+            // One triangle turned over: not embedded.
+            let (p, mut tris) = fan(7, s, 0.0);
+            tris[3].swap(1, 2);
+            assert!(!star_embedded(&p, 0, &tris, &mut scratch), "turned-over triangle at scale {s}");
+        }
+    }
+
+    /// Face lists keep their order through growth past the in-place capacity, removal and shrinking back.
+    #[test]
+    fn face_lists_spill_and_come_back() {
+        let mut l = FaceLists::new(3);
+        for f in 0..40 {
+            l.push(1, f);
+        }
+        l.push(2, 7);
+        assert_eq!(l.get(1), (0..40).collect::<Vec<_>>().as_slice());
+        for f in (0..40).filter(|f| f % 3 != 0) {
+            l.remove(1, f);
+        }
+        assert_eq!(l.get(1), (0..40).step_by(3).collect::<Vec<_>>().as_slice());
+        l.remove(1, 3);
+        l.edit(1, |v| v.retain(|&f| f < 20));
+        assert_eq!(l.get(1), &[0, 6, 9, 12, 15, 18]);
+        assert_eq!((l.get(0), l.get(2)), (&[][..], &[7][..]));
+    }
 }
