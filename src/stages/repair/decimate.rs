@@ -129,8 +129,8 @@ impl QBox {
     }
 }
 
-/// A face a collapse changes: its corners before and after, its box before and after (f64, and f32 for
-/// the grid prefilter), its normal (unnormalised) after.
+/// A face a collapse changes: its corners before and after, its grid box before (where it is filed) and
+/// after, its exact box and its normal (unnormalised) after.
 struct Changed {
     old_tri: [u32; 3],
     tri: [u32; 3],
