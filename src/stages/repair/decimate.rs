@@ -512,17 +512,21 @@ impl FaceLists {
         }
     }
 
-    /// Remove `face` from `v`'s list, keeping the order of the others.
-    fn remove(&mut self, v: u32, face: u32) {
+    /// Keep the faces of `v`'s list for which `keep` holds, in their order (in place when the list is).
+    fn retain(&mut self, v: u32, keep: impl Fn(u32) -> bool) {
         let s = &mut self.slots[v as usize];
         let n = s.len as usize;
         if n <= INLINE_FACES {
-            if let Some(i) = s.ids[..n].iter().position(|&g| g == face) {
-                s.ids.copy_within(i + 1..n, i);
-                s.len -= 1;
+            let mut kept = 0;
+            for i in 0..n {
+                if keep(s.ids[i]) {
+                    s.ids[kept] = s.ids[i];
+                    kept += 1;
+                }
             }
+            s.len = kept as u32;
         } else {
-            self.edit(v, |l| l.retain(|&g| g != face));
+            self.edit(v, |l| l.retain(|&f| keep(f)));
         }
     }
 }
@@ -733,7 +737,7 @@ pub fn decimate(
         alive_count -= 1;
         faces_u.clear();
         faces_u.extend_from_slice(s.vertex_faces.get(u));
-        s.vertex_faces.edit(u, Vec::clear);
+        s.vertex_faces.retain(u, |_| false);
         for &f in &faces_u {
             let t = &mut s.tris[f as usize];
             if t.contains(&v) {
@@ -741,7 +745,7 @@ pub fn decimate(
                 // that every vertex lists only live faces.
                 s.face_alive[f as usize] = false;
                 if let Some(&w) = t.iter().find(|&&x| x != u && x != v) {
-                    s.vertex_faces.remove(w, f);
+                    s.vertex_faces.retain(w, |g| g != f);
                 }
             } else {
                 t.iter_mut().for_each(|x| {
@@ -753,9 +757,7 @@ pub fn decimate(
             }
         }
         let face_alive = &s.face_alive;
-        if s.vertex_faces.get(v).iter().any(|&f| !face_alive[f as usize]) {
-            s.vertex_faces.edit(v, |l| l.retain(|&f| face_alive[f as usize]));
-        }
+        s.vertex_faces.retain(v, |f| face_alive[f as usize]);
     }
     tracing::debug!(seconds = t0.elapsed().as_secs_f64(), collapses = report.collapses, "decimation loop done");
     let kept: Vec<[u32; 3]> = s.tris.iter().zip(&s.face_alive).filter(|(_, a)| **a).map(|(t, _)| *t).collect();
@@ -811,13 +813,12 @@ mod tests {
         }
         l.push(2, 7);
         assert_eq!(l.get(1), (0..40).collect::<Vec<_>>().as_slice());
-        for f in (0..40).filter(|f| f % 3 != 0) {
-            l.remove(1, f);
-        }
+        l.retain(1, |f| f % 3 == 0);
         assert_eq!(l.get(1), (0..40).step_by(3).collect::<Vec<_>>().as_slice());
-        l.remove(1, 3);
-        l.edit(1, |v| v.retain(|&f| f < 20));
+        l.retain(1, |f| f != 3 && f < 20);
         assert_eq!(l.get(1), &[0, 6, 9, 12, 15, 18]);
+        l.retain(1, |f| f != 12);
+        assert_eq!(l.get(1), &[0, 6, 9, 15, 18]);
         assert_eq!((l.get(0), l.get(2)), (&[][..], &[7][..]));
     }
 }
