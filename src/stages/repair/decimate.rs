@@ -351,6 +351,8 @@ impl CrossingGuard {
     /// The faces around u and v, as they will be, are tested against each other and against every other
     /// live face nearby. Local pairs (sharing one corner) cannot cross when the stars of v and of its
     /// neighbours stay embedded in projection; only where one does not are they tested one by one.
+    /// Cost: one grid query over the collapse's reach, then O(k · c) box tests for its k nearby and c
+    /// changed faces (about 35 and 8 on the dragon) and exact tests only for pairs whose boxes meet.
     fn crosses(&mut self, s: &State, u: u32, v: u32, old_v: V3) -> bool {
         let merged = |t: [u32; 3]| t.map(|x| if x == u { v } else { x });
         self.changed.clear();
