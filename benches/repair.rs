@@ -60,17 +60,19 @@ fn main() {
     );
     let (mut dec_s, mut all_s, mut free_s) = (Vec::new(), Vec::new(), Vec::new());
     let (mut last, mut free_pairs) = (None, 0);
+    // A fresh working copy of the repaired dragon for each decimation.
+    let fresh = || -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+        (out.positions.iter().map(|q| q.map(|c| c as f64)).collect(), out.triangles.clone())
+    };
     reset_peak();
     for _ in 0..RUNS {
         // The same decimation without the crossing test, timed alternately: what the test costs.
-        let mut p: Vec<[f64; 3]> = out.positions.iter().map(|q| q.map(|c| c as f64)).collect();
-        let mut tris = out.triangles.clone();
+        let (mut p, mut tris) = fresh();
         let t = Instant::now();
         decimate::decimate(&mut p, &mut tris, 100_000, 0, decimate::Crossings::Ignore);
         free_s.push(t.elapsed().as_secs_f64());
         free_pairs = scanstation::geometry::intersect::self_intersections(&p, &tris).len();
-        let mut p: Vec<[f64; 3]> = out.positions.iter().map(|q| q.map(|c| c as f64)).collect();
-        let mut tris = out.triangles.clone();
+        let (mut p, mut tris) = fresh();
         let t = Instant::now();
         let d = decimate::decimate(&mut p, &mut tris, 100_000, 0, decimate::Crossings::Refuse);
         dec_s.push(t.elapsed().as_secs_f64());
