@@ -285,10 +285,26 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         // Faces still flipped after unfolding are collapsed (spot: 2, dragon: 2), so none is left.
         assert_eq!(o.flipped_faces, 0, "{f}: flipped faces ({} collapsed)", r.cleanup.flipped_quads_collapsed);
         let d = r.distance.as_ref().expect("measured");
-        // Measured ≤ 0.068 % except the dragon (0.16 %, whose narrow slot is capped; target 0.07 %, open).
-        // The armadillo needs the direct route: the split route loses its thin parts (0.63 %).
+        // Measured ≤ 0.087 % except the dragon (0.16 %, whose narrow slot is capped; target 0.07 %, open).
+        // The armadillo needs the adaptive split route: the uniform split loses its thin parts (0.24 %).
         let bound = if f.contains("dragon") { 0.25 } else { 0.1 };
         assert!(d.symmetric.rms.pct_of_diagonal <= bound, "{f}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
+        // Irregular vertices, measured 2026-12-01: 1.8–2.9 % on the meshes the uniform split keeps whole,
+        // 5.7 % on the armadillo (adaptive split; the direct route gave 9.5 %), 10.7 % on the dragon (direct;
+        // target ≤ 3 %, open).
+        let irregular = if f.contains("dragon") {
+            0.115
+        } else if f.contains("armadillo") {
+            0.065
+        } else {
+            0.031
+        };
+        assert!(
+            o.irregular_fraction <= irregular,
+            "{f}: irregular {:.4} {:?}",
+            o.irregular_fraction,
+            o.valence_histogram
+        );
         println!(
             "{f}: {:?} route, {} vertices, irregular {} ({:.2} %), χ {} → {}, flipped {} ({} collapsed), angle dev mean {:.1}° p95 {:.1}°, RMS {:.4} % (quad→input {:.4} %, input→quad {:.4} %), {:.1} s",
             r.mode.expect("chosen"),

@@ -6,7 +6,7 @@ mod common;
 use proptest::prelude::*;
 use scanstation::geometry::bvh::{TriangleBvh, closest_point_on_triangle};
 use scanstation::geometry::shapes::{cuboid, icosphere};
-use scanstation::geometry::vec3::{norm, sub};
+use scanstation::geometry::vec3::{cross, dot, norm, sub};
 use scanstation::stages::NoProgress;
 use scanstation::stages::quality::{CompareOptions, compare, percentile};
 use scanstation::{ErrorCode, Geometry, PointCloud, PolyMesh, TriMesh, assert_near, assert_rel_near};
@@ -177,6 +177,39 @@ proptest! {
         prop_assert_eq!(bvh.distance(p), brute);
     }
 
+    /// The ray cast finds the same first hit as testing every triangle (Möller–Trumbore in f64 on the
+    /// same f32 corners), for both facing signs.
+    #[test]
+    fn ray_hit_matches_brute_force(
+        m in random_mesh(),
+        o in prop::array::uniform3(-6.0f64..6.0),
+        d in prop::array::uniform3(-1.0f64..1.0),
+        sign in prop::sample::select(vec![1.0f64, -1.0]),
+    ) {
+        let l = norm(d);
+        prop_assume!(l > 0.1);
+        let d = d.map(|c| c / l);
+        let bvh = TriangleBvh::new(&m);
+        let mut brute: Option<f64> = None;
+        for t in 0..m.triangles.len() {
+            let [a, b, c] = m.corners(t);
+            let (e1, e2) = (sub(b, a), sub(c, a));
+            if sign * dot(cross(e1, e2), d) <= 0.0 {
+                continue;
+            }
+            let pv = cross(d, e2);
+            let id = 1.0 / dot(e1, pv);
+            let tv = sub(o, a);
+            let (u, qv) = (dot(tv, pv) * id, cross(tv, e1));
+            let v = dot(d, qv) * id;
+            let h = dot(e2, qv) * id;
+            if (0.0..=1.0).contains(&u) && v >= 0.0 && u + v <= 1.0 && h > 1e-9 && h < 20.0 {
+                brute = Some(brute.map_or(h, |b: f64| b.min(h)));
+            }
+        }
+        prop_assert_eq!(bvh.ray_hit(o, d, 1e-9, 20.0, sign), brute);
+    }
+
     #[test]
     fn statistics_are_ordered(a in random_mesh(), b in random_mesh()) {
         let r = compare(&mesh(a), &mesh(b), &opts(1_000), &NoProgress).unwrap();
@@ -184,6 +217,27 @@ proptest! {
             prop_assert!(s.median.value <= s.p95.value && s.p95.value <= s.max.value);
             prop_assert!(s.mean.value <= s.rms.value * (1.0 + 1e-12) && s.rms.value <= s.max.value);
         }
+    }
+}
+
+/// Analytic oracle for the ray cast the remesher measures thickness with: from a point of a unit icosphere
+/// along the inward normal, the far side is one diameter away (less the chordal sag at both ends); along
+/// the outward normal nothing is hit; a front-facing search from outside stops at the near side.
+#[test]
+fn ray_through_a_sphere_crosses_one_diameter() {
+    let s = icosphere(1.0, 4, [0.0; 3]);
+    let bvh = TriangleBvh::new(&s);
+    let sag = 1.0 - (1.0 - 0.5 * (1.0f64 / 2f64.powi(4) * 1.2).powi(2)); // generous bound on the chordal gap
+    for (i, p) in s.positions.iter().enumerate().step_by(97) {
+        let p = p.map(|c| c as f64);
+        let n = p.map(|c| c / norm(p));
+        let inward = n.map(|c| -c);
+        let t = bvh.ray_hit(p, inward, 1e-6, 10.0, 1.0).unwrap_or_else(|| panic!("vertex {i}: no far side"));
+        assert!((t - 2.0).abs() <= 2.0 * sag, "vertex {i}: diameter {t}");
+        assert_eq!(bvh.ray_hit(p, n, 1e-6, 10.0, -1.0), None, "vertex {i}: something outside the sphere");
+        let outside = [3.0 * n[0], 3.0 * n[1], 3.0 * n[2]];
+        let near = bvh.ray_hit(outside, inward, 0.0, 10.0, -1.0).expect("the near side");
+        assert!((near - 2.0).abs() <= sag, "vertex {i}: near side at {near}");
     }
 }
 

@@ -80,6 +80,9 @@ enum Command {
         /// vertices and faster, but features thinner than twice the spacing can be lost.
         #[arg(long)]
         split_only: bool,
+        /// One spacing everywhere (no finer spacing on thin parts).
+        #[arg(long)]
+        uniform_spacing: bool,
         /// Working-mesh vertices per output vertex.
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex)]
         work_per_vertex: f64,
@@ -234,6 +237,7 @@ fn main() -> ExitCode {
             curvature_weight,
             work_per_vertex,
             split_only,
+            uniform_spacing,
         } => {
             let opts = scanstation::stages::remesh::RemeshOptions {
                 seed: *seed,
@@ -241,6 +245,7 @@ fn main() -> ExitCode {
                 curvature_weight: *curvature_weight,
                 work_per_vertex: *work_per_vertex,
                 try_direct: !*split_only,
+                adaptive_spacing: !*uniform_spacing,
                 memory_budget: cli.memory_budget,
                 ..Default::default()
             };

@@ -298,6 +298,78 @@ impl TriangleBvh {
         Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
     }
 
+    /// Distance along the ray `origin + t·dir` (`dir` a unit vector) to the first triangle hit with
+    /// `t_min < t < t_max` whose (corner-order) normal `n_t` has `sign · (n_t · dir) > 0` (`sign` = 1: a
+    /// triangle seen from behind, i.e. leaving the solid; −1: seen from the front). `None` when none is hit.
+    /// Cost: O(log F) for a short ray, up to the triangles whose boxes the ray passes.
+    pub fn ray_hit(&self, origin: V3, dir: V3, t_min: f64, t_max: f64, sign: f64) -> Option<f64> {
+        let nodes = &self.tree.nodes;
+        if nodes.is_empty() {
+            return None;
+        }
+        let inv = dir.map(|d| if d.abs() > 1e-300 { 1.0 / d } else { f64::INFINITY.copysign(d) });
+        let slab = |n: &Node, best: f64| -> bool {
+            let (mut t0, mut t1) = (t_min, best);
+            for k in 0..3 {
+                let a = (n.min[k] as f64 - origin[k]) * inv[k];
+                let b = (n.max[k] as f64 - origin[k]) * inv[k];
+                let (lo, hi) = if a <= b { (a, b) } else { (b, a) };
+                t0 = t0.max(lo);
+                t1 = t1.min(hi);
+                if !(t0 <= t1) {
+                    return false;
+                }
+            }
+            true
+        };
+        let mut best = t_max;
+        let mut hit = false;
+        let mut stack: Vec<u32> = vec![0];
+        while let Some(ni) = stack.pop() {
+            let node = &nodes[ni as usize];
+            if !slab(node, best) {
+                continue;
+            }
+            if node.count > 0 {
+                let s0 = node.start as usize;
+                for slot in s0..s0 + node.count as usize {
+                    let [a, b, c] = self.tris[slot].map(wide);
+                    let (e1, e2) = (vec3::sub(b, a), vec3::sub(c, a));
+                    let n = vec3::cross(e1, e2);
+                    if sign * vec3::dot(n, dir) <= 0.0 {
+                        continue;
+                    }
+                    // Möller–Trumbore.
+                    let pv = vec3::cross(dir, e2);
+                    let det = vec3::dot(e1, pv);
+                    if det.abs() < 1e-300 {
+                        continue;
+                    }
+                    let id = 1.0 / det;
+                    let tv = vec3::sub(origin, a);
+                    let u = vec3::dot(tv, pv) * id;
+                    if !(0.0..=1.0).contains(&u) {
+                        continue;
+                    }
+                    let qv = vec3::cross(tv, e1);
+                    let v = vec3::dot(dir, qv) * id;
+                    if v < 0.0 || u + v > 1.0 {
+                        continue;
+                    }
+                    let t = vec3::dot(e2, qv) * id;
+                    if t > t_min && t < best {
+                        best = t;
+                        hit = true;
+                    }
+                }
+            } else {
+                stack.push(node.start);
+                stack.push(node.start + 1);
+            }
+        }
+        hit.then_some(best)
+    }
+
     #[inline]
     fn dist2(&self, slot: usize, p: V3) -> f64 {
         let [a, b, c] = self.tris[slot].map(wide);

@@ -41,21 +41,21 @@ pub struct Extracted {
     pub pinch_vertices_removed: usize,
 }
 
-/// Extract from level 0 with orientation `q`, lattice origins `o` and spacing `s`.
-pub fn extract(level: &Level, q: &[V3], o: &[V3], s: f64) -> Extracted {
+/// Extract from level 0 with orientation `q`, lattice origins `o` and spacing `s[i]` at vertex i.
+pub fn extract(level: &Level, q: &[V3], o: &[V3], s: &[f64]) -> Extracted {
     let n = level.len();
     // 1. Classify input edges in parallel.
     let per_vertex: Vec<Vec<(u32, u32, bool)>> = (0..n)
         .into_par_iter()
         .map(|i| {
-            let f0 = Frame { p: level.p[i], n: level.n[i], q: q[i], o: o[i] };
+            let f0 = Frame { p: level.p[i], n: level.n[i], q: q[i], o: o[i], s: s[i] };
             let mut out = Vec::new();
             for (j, _) in level.neighbours(i) {
                 if j <= i {
                     continue;
                 }
-                let f1 = Frame { p: level.p[j], n: level.n[j], q: q[j], o: o[j] };
-                let (c0, c1) = compat_position_index(&f0, &f1, s);
+                let f1 = Frame { p: level.p[j], n: level.n[j], q: q[j], o: o[j], s: s[j] };
+                let (c0, c1) = compat_position_index(&f0, &f1);
                 let d = [c0[0] - c1[0], c0[1] - c1[1]];
                 let l1 = d[0].abs() + d[1].abs();
                 if l1 == 0 {
@@ -78,10 +78,11 @@ pub fn extract(level: &Level, q: &[V3], o: &[V3], s: f64) -> Extracted {
     }
     let mut out = Extracted::default();
     // 2. Clusters, then snapping of near-coincident clusters (once).
-    let mut graph = cluster_graph(level, o, &mut uf, &links);
+    let mut graph = cluster_graph(level, o, s, &mut uf, &links);
     let mut snapped = 0;
     for &(a, b) in &graph.edges {
-        if vec3::norm(sub(graph.p[a as usize], graph.p[b as usize])) < SNAP * s {
+        let local = 0.5 * (graph.s[a as usize] + graph.s[b as usize]);
+        if vec3::norm(sub(graph.p[a as usize], graph.p[b as usize])) < SNAP * local {
             let (ra, rb) = (graph.members[a as usize], graph.members[b as usize]);
             if uf.find(ra) != uf.find(rb) {
                 uf.union(ra, rb);
@@ -90,7 +91,7 @@ pub fn extract(level: &Level, q: &[V3], o: &[V3], s: f64) -> Extracted {
         }
     }
     if snapped > 0 {
-        graph = cluster_graph(level, o, &mut uf, &links);
+        graph = cluster_graph(level, o, s, &mut uf, &links);
     }
     out.snapped = snapped;
     // 3. Prune low valence, trace faces, remove dangling edges, repeat.
@@ -150,13 +151,15 @@ pub fn extract(level: &Level, q: &[V3], o: &[V3], s: f64) -> Extracted {
 struct ClusterGraph {
     p: Vec<V3>,
     n: Vec<V3>,
+    /// Area-weighted mean spacing of each cluster's members.
+    s: Vec<f64>,
     /// One input vertex of each cluster (for re-joining).
     members: Vec<u32>,
     /// Undirected edges (a < b), sorted, unique.
     edges: Vec<(u32, u32)>,
 }
 
-fn cluster_graph(level: &Level, o: &[V3], uf: &mut UnionFind, links: &[(u32, u32)]) -> ClusterGraph {
+fn cluster_graph(level: &Level, o: &[V3], s: &[f64], uf: &mut UnionFind, links: &[(u32, u32)]) -> ClusterGraph {
     let n = level.len();
     let mut id = vec![u32::MAX; n];
     let mut roots = Vec::new();
@@ -173,15 +176,18 @@ fn cluster_graph(level: &Level, o: &[V3], uf: &mut UnionFind, links: &[(u32, u32
     let mut p = vec![[0.0; 3]; m];
     let mut nn = vec![[0.0; 3]; m];
     let mut w = vec![0.0; m];
+    let mut cs = vec![0.0; m];
     for i in 0..n {
         let c = cluster[i] as usize;
         let a = level.area[i].max(1e-300);
+        cs[c] += a * s[i];
         p[c] = add(p[c], scale(o[i], a));
         nn[c] = add(nn[c], scale(level.n[i], a));
         w[c] += a;
     }
     for c in 0..m {
         p[c] = scale(p[c], 1.0 / w[c]);
+        cs[c] /= w[c];
         nn[c] = vec3::unit_or(nn[c], [0.0, 0.0, 1.0]);
     }
     let mut edges: Vec<(u32, u32)> = links
@@ -193,7 +199,7 @@ fn cluster_graph(level: &Level, o: &[V3], uf: &mut UnionFind, links: &[(u32, u32
         .collect();
     edges.sort_unstable();
     edges.dedup();
-    ClusterGraph { p, n: nn, members: roots, edges }
+    ClusterGraph { p, n: nn, s: cs, members: roots, edges }
 }
 
 /// Remove vertices with fewer than 3 edges until none is left. Returns the remaining edges (sorted) and

@@ -141,26 +141,27 @@ pub struct Frame {
     pub n: V3,
     pub q: V3,
     pub o: V3,
+    /// Lattice spacing at this vertex (varies slowly where the spacing adapts to thin parts).
+    pub s: f64,
 }
 
 /// Closest pair of lattice points of two frames near their edge's middle point, as integer coordinates
-/// relative to each frame's origin (frame 1 rotated to match frame 0 first).
+/// relative to each frame's origin (frame 1 rotated to match frame 0 first; each frame on its own spacing).
 #[inline]
-pub fn compat_position_index(f0: &Frame, f1: &Frame, s: f64) -> ([i64; 2], [i64; 2]) {
-    let inv_s = 1.0 / s;
+pub fn compat_position_index(f0: &Frame, f1: &Frame) -> ([i64; 2], [i64; 2]) {
     let q1 = rotate90(f1.q, f1.n, best_rotation(f0.q, f1.q, f1.n));
     let t0 = cross(f0.n, f0.q);
     let t1 = cross(f1.n, q1);
     let m = middle_point(f0.p, f0.n, f1.p, f1.n);
-    let b0 = lattice_floor(f0.o, f0.q, t0, m, inv_s);
-    let b1 = lattice_floor(f1.o, q1, t1, m, inv_s);
+    let b0 = lattice_floor(f0.o, f0.q, t0, m, 1.0 / f0.s);
+    let b1 = lattice_floor(f1.o, q1, t1, m, 1.0 / f1.s);
     let mut best = (f64::INFINITY, b0, b1);
     for i in 0..4 {
         let c0 = [b0[0] + (i & 1), b0[1] + (i >> 1)];
-        let x0 = lattice_point(f0.o, f0.q, t0, c0, s);
+        let x0 = lattice_point(f0.o, f0.q, t0, c0, f0.s);
         for j in 0..4 {
             let c1 = [b1[0] + (j & 1), b1[1] + (j >> 1)];
-            let x1 = lattice_point(f1.o, q1, t1, c1, s);
+            let x1 = lattice_point(f1.o, q1, t1, c1, f1.s);
             let d = vec3::norm2(sub(x0, x1));
             if d < best.0 {
                 best = (d, c0, c1);
@@ -171,10 +172,10 @@ pub fn compat_position_index(f0: &Frame, f1: &Frame, s: f64) -> ([i64; 2], [i64;
 }
 
 #[inline]
-fn compat_position(f0: &Frame, f1: &Frame, s: f64) -> (V3, V3) {
-    let (c0, c1) = compat_position_index(f0, f1, s);
+fn compat_position(f0: &Frame, f1: &Frame) -> (V3, V3) {
+    let (c0, c1) = compat_position_index(f0, f1);
     let q1 = rotate90(f1.q, f1.n, best_rotation(f0.q, f1.q, f1.n));
-    (lattice_point(f0.o, f0.q, cross(f0.n, f0.q), c0, s), lattice_point(f1.o, q1, cross(f1.n, q1), c1, s))
+    (lattice_point(f0.o, f0.q, cross(f0.n, f0.q), c0, f0.s), lattice_point(f1.o, q1, cross(f1.n, q1), c1, f1.s))
 }
 
 /// The lattice point of (`o`, `q`) nearest `p` (rounding), within the tangent plane at `p`.
@@ -187,21 +188,22 @@ pub fn lattice_round(o: V3, q: V3, n: V3, p: V3, s: f64) -> V3 {
     lattice_point(o, q, t, c, s)
 }
 
-/// Smooth the position field of `level` in place (`o` holds lattice origins) with lattice spacing `s`.
-pub fn smooth_position(level: &Level, q: &[V3], o: &mut [V3], s: f64, iterations: usize) {
+/// Smooth the position field of `level` in place (`o` holds lattice origins) with lattice spacing `s[i]`
+/// at vertex i.
+pub fn smooth_position(level: &Level, q: &[V3], o: &mut [V3], s: &[f64], iterations: usize) {
     sweep(level, o, iterations, |i, o| {
-        let (pi, ni, qi) = (level.p[i], level.n[i], q[i]);
+        let (pi, ni, qi, si) = (level.p[i], level.n[i], q[i], s[i]);
         let mut sum = o[i];
         let mut wsum = 0.0;
         for (j, w) in level.neighbours(i) {
-            let f0 = Frame { p: pi, n: ni, q: qi, o: sum };
-            let f1 = Frame { p: level.p[j], n: level.n[j], q: q[j], o: o[j] };
-            let (a, b) = compat_position(&f0, &f1, s);
+            let f0 = Frame { p: pi, n: ni, q: qi, o: sum, s: si };
+            let f1 = Frame { p: level.p[j], n: level.n[j], q: q[j], o: o[j], s: s[j] };
+            let (a, b) = compat_position(&f0, &f1);
             sum = scale(add(scale(a, wsum), scale(b, w)), 1.0 / (wsum + w));
             wsum += w;
             sum = sub(sum, scale(ni, dot(ni, sub(sum, pi))));
         }
-        lattice_round(sum, qi, ni, pi, s)
+        lattice_round(sum, qi, ni, pi, si)
     });
 }
 
@@ -231,8 +233,9 @@ pub fn solve_orientation(
     all
 }
 
-/// Solve the position field on all levels (needs each level's orientation: `qs[l]`), coarsest first.
-pub fn solve_position(levels: &[Level], qs: &[Vec<V3>], s: f64, iterations: usize, seed: u64) -> Vec<V3> {
+/// Solve the position field on all levels (needs each level's orientation `qs[l]` and spacing `s[l]`, one
+/// per vertex), coarsest first.
+pub fn solve_position(levels: &[Level], qs: &[Vec<V3>], s: &[Vec<f64>], iterations: usize, seed: u64) -> Vec<V3> {
     let mut rng = Rng::new(seed ^ 0x9e37_79b9_7f4a_7c15);
     let last = levels.len() - 1;
     let coarse = &levels[last];
@@ -240,6 +243,7 @@ pub fn solve_position(levels: &[Level], qs: &[Vec<V3>], s: f64, iterations: usiz
         .map(|i| {
             let (p, n, q) = (coarse.p[i], coarse.n[i], qs[last][i]);
             let t = cross(n, q);
+            let s = s[last][i];
             add(p, add(scale(q, (rng.next_f64() - 0.5) * s), scale(t, (rng.next_f64() - 0.5) * s)))
         })
         .collect();
@@ -254,7 +258,22 @@ pub fn solve_position(levels: &[Level], qs: &[Vec<V3>], s: f64, iterations: usiz
                 })
                 .collect();
         }
-        smooth_position(level, &qs[l], &mut o, s, iterations);
+        smooth_position(level, &qs[l], &mut o, &s[l], iterations);
     }
     o
+}
+
+/// Per-level spacings from the finest level's (`s0`, one per level-0 vertex): a coarse vertex takes the
+/// smallest spacing of the fine vertices it stands for, so thin parts stay fine all the way up.
+pub fn level_spacings(levels: &[Level], s0: Vec<f64>) -> Vec<Vec<f64>> {
+    let mut all = vec![s0];
+    for l in 0..levels.len() - 1 {
+        let mut next = vec![f64::INFINITY; levels[l + 1].len()];
+        for (i, &par) in levels[l].parent.iter().enumerate() {
+            let p = par as usize;
+            next[p] = next[p].min(all[l][i]);
+        }
+        all.push(next);
+    }
+    all
 }
