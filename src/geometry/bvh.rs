@@ -235,6 +235,9 @@ pub struct Closest {
     pub distance: f64,
 }
 
+/// Barycentric slack of [`TriangleBvh::ray_hit`]: a hit this close outside a triangle still counts.
+pub const RAY_EDGE_SLACK: f64 = 1e-9;
+
 /// BVH over the triangles of a mesh.
 #[derive(Clone, Debug)]
 pub struct TriangleBvh {
@@ -298,7 +301,8 @@ impl TriangleBvh {
         Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
     }
 
-    /// Distance along the ray `origin + t·dir` (`dir` a unit vector) to the first triangle hit with
+    /// Distance along the ray `origin + t·dir` (barycentric slack [`RAY_EDGE_SLACK`], so a ray through an
+    /// edge or a vertex cannot slip between its triangles) (`dir` a unit vector) to the first triangle hit with
     /// `t_min < t < t_max` whose (corner-order) normal `n_t` has `sign · (n_t · dir) > 0` (`sign` = 1: a
     /// triangle seen from behind, i.e. leaving the solid; −1: seen from the front). `None` when none is hit.
     /// Cost: O(log F) for a short ray, up to the triangles whose boxes the ray passes.
@@ -348,12 +352,12 @@ impl TriangleBvh {
                     let id = 1.0 / det;
                     let tv = vec3::sub(origin, a);
                     let u = vec3::dot(tv, pv) * id;
-                    if !(0.0..=1.0).contains(&u) {
+                    if !(-RAY_EDGE_SLACK..=1.0 + RAY_EDGE_SLACK).contains(&u) {
                         continue;
                     }
                     let qv = vec3::cross(tv, e1);
                     let v = vec3::dot(dir, qv) * id;
-                    if v < 0.0 || u + v > 1.0 {
+                    if v < -RAY_EDGE_SLACK || u + v > 1.0 + RAY_EDGE_SLACK {
                         continue;
                     }
                     let t = vec3::dot(e2, qv) * id;
