@@ -323,7 +323,8 @@ pub struct RemeshReport {
     /// "as-is", "decimated" or "subdivided ×k".
     pub working_mesh: String,
     pub hierarchy_levels: usize,
-    /// Working vertices whose local thickness asks for a finer spacing than the coarsest tried.
+    /// Working vertices within reach of a thin part or a narrow gap (measured only when the adaptive split
+    /// route ran; 0 otherwise).
     pub thin_vertices: usize,
     /// Working-mesh triangles around which the orientation field turns by a non-zero multiple of 90°.
     pub orientation_singularities: usize,
@@ -454,17 +455,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         modes.push(Mode::Direct);
     }
     let bvh = TriangleBvh::new(mesh);
-    // Local thickness of the working mesh (far side of thin parts and narrow gaps), searched only as far as
-    // the coarsest spacing tried could need.
-    let t0 = Instant::now();
-    let thick: Option<Vec<f64>> = opts.adaptive_spacing.then(|| {
-        let reach = 1.5 * (area * 4.0 / target).sqrt() / THIN_RATIO;
-        thickness(&levels[0], &p, &tris, reach)
-    });
-    if let Some(t) = &thick {
-        report.thin_vertices = t.iter().filter(|x| x.is_finite()).count();
-    }
-    report.seconds.insert("thickness".into(), t0.elapsed().as_secs_f64());
+    // Local thickness of the working mesh (far side of thin parts and narrow gaps), measured when the
+    // adaptive route is first reached, searched only as far as the coarsest spacing tried could need.
+    let mut thick: Option<Vec<f64>> = None;
     let input_p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
     let input_geometry = Geometry::Mesh(poly);
     let diagonal = mesh.bbox().diagonal();
@@ -479,6 +472,14 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             break;
         }
         let per_vertex = if mode == Mode::Direct { 1.0 } else { 4.0 };
+        if mode == Mode::AdaptiveSplit {
+            let t0 = Instant::now();
+            let reach = 1.5 * (area * 4.0 / target).sqrt() / THIN_RATIO;
+            let t = thickness(&levels[0], &p, &tris, reach);
+            report.thin_vertices = t.iter().filter(|x| x.is_finite()).count();
+            thick = Some(t);
+            report.seconds.insert("thickness".into(), t0.elapsed().as_secs_f64());
+        }
         let thick = if mode == Mode::AdaptiveSplit { thick.as_ref() } else { None };
         let max_attempts = if mode == Mode::Direct { MAX_DIRECT_ATTEMPTS } else { MAX_ATTEMPTS };
         let mut s = START_SCALE * (area * per_vertex / target).sqrt();
