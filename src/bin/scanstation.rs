@@ -356,7 +356,10 @@ fn convert(
         unit,
         quads_output: quads.clone(),
         memory_budget: cli.memory_budget,
-        remesh: scanstation::stages::remesh::RemeshOptions { try_direct: direct, ..Default::default() },
+        remesh: scanstation::stages::remesh::RemeshOptions {
+            try_direct: direct,
+            ..scanstation::stages::remesh::RemeshOptions::convert_default()
+        },
         ..Default::default()
     };
     let r = pipeline::convert_file(input, output, read, &opts, &NoProgress)?;

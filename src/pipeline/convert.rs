@@ -53,7 +53,7 @@ impl Default for ConvertOptions {
         ConvertOptions {
             resolution: Resolution::Vertices(10_000),
             repair: RepairOptions::default(),
-            remesh: RemeshOptions::default(),
+            remesh: RemeshOptions::convert_default(),
             fit: FitOptions::default(),
             compare_samples: 200_000,
             seed: 0,
