@@ -465,9 +465,6 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         modes.push(Mode::Direct);
     }
     let bvh = TriangleBvh::new(mesh);
-    // Local thickness of the working mesh (far side of thin parts and narrow gaps), measured when the
-    // adaptive route is first reached, searched only as far as the coarsest spacing tried could need.
-    let mut thick: Option<Vec<f64>> = None;
     let input_p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
     let input_geometry = Geometry::Mesh(poly);
     let diagonal = mesh.bbox().diagonal();
@@ -482,15 +479,17 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             break;
         }
         let per_vertex = if mode == Mode::Direct { 1.0 } else { 4.0 };
-        if mode == Mode::AdaptiveSplit {
+        // Local thickness of the working mesh (far side of thin parts and narrow gaps), for the adaptive route
+        // only, searched only as far as the coarsest spacing tried could need.
+        let thick: Option<Vec<f64>> = (mode == Mode::AdaptiveSplit).then(|| {
             let t0 = Instant::now();
             let reach = 1.5 * (area * 4.0 / target).sqrt() / THIN_RATIO;
             let t = thickness(&levels[0], &p, &tris, reach);
             report.thin_vertices = t.iter().filter(|x| x.is_finite()).count();
-            thick = Some(t);
             report.seconds.insert("thickness".into(), t0.elapsed().as_secs_f64());
-        }
-        let thick = if mode == Mode::AdaptiveSplit { thick.as_ref() } else { None };
+            t
+        });
+        let thick = thick.as_deref();
         let max_attempts = if mode == Mode::Direct { MAX_DIRECT_ATTEMPTS } else { MAX_ATTEMPTS };
         let mut s = START_SCALE * (area * per_vertex / target).sqrt();
         if let Some(t) = thick {
@@ -758,12 +757,11 @@ fn thickness(level: &hierarchy::Level, p: &[V3], tris: &[[u32; 3]], reach: f64) 
         .collect()
 }
 
-/// Spacing per vertex for global spacing `s`: `THIN_RATIO · thickness`, clamped to
-/// [`MIN_SPACING_FACTOR`·s, s], then limited to grow by at most [`GRADATION`] per unit distance from any
-/// vertex (a few Gauss–Seidel sweeps of `s_i ≤ s_j + GRADATION·|p_i − p_j|`, forward and backward).
+/// Spacing per vertex for global spacing `s`: `THIN_RATIO · thickness`, clamped between a floor (the larger
+/// of [`MIN_SPACING_FACTOR`]·s and [`SPACING_PER_WORK_EDGE`] mean edges of the working mesh at that vertex)
+/// and s, then limited to grow by at most [`GRADATION`] per unit distance from any vertex (Gauss–Seidel
+/// sweeps of `s_i ≤ s_j + GRADATION·|p_i − p_j|`, alternately forward and backward, until none changes, at most 100).
 fn spacing_field(level: &hierarchy::Level, thick: &[f64], s: f64) -> Vec<f64> {
-    // Never finer than twice the working mesh's local edge length (the fields need edges shorter than half
-    // the spacing).
     let floor = |i: usize| {
         let (mut sum, mut k) = (0.0, 0.0);
         for (j, _) in level.neighbours(i) {
