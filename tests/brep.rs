@@ -135,9 +135,9 @@ fn polar_ball(n: usize, bands: usize) -> scanstation::geometry::mesh::PolyMesh {
     scanstation::geometry::mesh::PolyMesh::new(pos, &faces).unwrap()
 }
 
-/// Extraordinary vertices of valence 3 to 6: patches around them stay within 1° of each other's normal.
-/// Valence 8 is where the tangent-plane conditions would fold a patch's interior; the fit then backs off
-/// (measured 5.6°), bounded here at 10° so a regression shows.
+/// Extraordinary vertices of valence 3 to 8: the faces around them are cut towards the vertex until the
+/// normal jump is below `JUMP_TARGET_DEG` (0.25°), so every join stays within it (before the cuts, one
+/// bicubic patch per face: 0.05–0.28° at valence 3–6 and 5.6° at valence 8).
 #[test]
 fn high_valence_patches_join_within_one_degree() {
     let mut worst = Vec::new();
@@ -154,8 +154,8 @@ fn high_valence_patches_join_within_one_degree() {
         worst.push((n, report.max_normal_jump_deg));
     }
     for (n, j) in worst {
-        let bound = if n <= 6 { 1.0 } else { 10.0 };
-        assert!(j < bound, "valence {n}: {j}° ≥ {bound}°");
+        let bound = scanstation::stages::brep::patches::JUMP_TARGET_DEG;
+        assert!(j <= bound, "valence {n}: {j}° > {bound}°");
     }
 }
 
@@ -167,7 +167,7 @@ fn high_valence_patches_join_within_one_degree() {
 /// valence 8, and armadillo's solid had 180° jumps.
 #[test]
 fn patch_corners_at_extraordinary_vertices_never_turn_over() {
-    use scanstation::stages::brep::patches::{self, bezier_eval};
+    use scanstation::stages::brep::patches;
     use scanstation::stages::surface::LimitSurface;
     use scanstation::stages::surface::limit::{FaceKind, tangent_stencils};
     use scanstation::stages::surface::net::combine;
@@ -193,7 +193,7 @@ fn patch_corners_at_extraordinary_vertices_never_turn_over() {
             let v = surface.net.faces[f][c as usize];
             let [a, b] = tangent_stencils(&surface.net, v).map(|t| combine(&t, &p1));
             let limit = vec3::unit_or(vec3::cross(a, b), [0.0; 3]);
-            let ours = vec3::unit_or(bezier_eval(&built.bezier[f], 0.0, 0.0).1, [0.0; 3]);
+            let ours = vec3::unit_or(built.nets[f].eval(0.0, 0.0).1, [0.0; 3]);
             assert!(
                 vec3::dot(limit, ours) > 1.0 - 1e-9,
                 "valence {n}, face {f}: corner normal {ours:?} vs the limit's {limit:?}"
@@ -321,4 +321,54 @@ fn a_diverging_fit_is_refused() {
     let (net, pos) = control_net(&shapes::quad_ball(1.0, 2)).unwrap();
     let e = fit_control_points(&net, &pos, &Nan, &FitOptions::default(), &NoProgress).unwrap_err();
     assert_eq!(e.code, ErrorCode::SurfaceFitDiverged, "{e}");
+}
+
+/// Analytic oracle for the cut extraordinary faces: every cell but the corner one is the exact limit
+/// surface (evaluated by local subdivision), to rounding; the corner cell is the only approximation, and
+/// it stays within a small fraction of an edge of the limit.
+#[test]
+fn only_the_corner_cell_of_an_extraordinary_face_is_approximated() {
+    use scanstation::stages::brep::patches;
+    use scanstation::stages::surface::LimitSurface;
+    use scanstation::stages::surface::limit::{EvPatch, FaceKind, point_weights};
+    use scanstation::stages::surface::net::combine;
+    for n in [3usize, 5, 8] {
+        let (net, pos) = control_net(&polar_ball(n, 4)).unwrap();
+        let surface = LimitSurface::new(&net).unwrap();
+        let p1 = surface.refine.apply(&pos);
+        let built = patches::build(&surface, &p1).unwrap();
+        let (mut exact_worst, mut corner_worst, mut cells) = (0.0f64, 0.0f64, 0);
+        // The corner error relative to the corner cell's own diagonal.
+        let mut corner_rel = 0.0f64;
+        for (f, kind) in surface.kinds.iter().enumerate() {
+            let FaceKind::Extraordinary(c) = *kind else { continue };
+            let ev = EvPatch::new(&surface.net, f, c as usize).unwrap();
+            let g = &built.nets[f];
+            assert!(g.is_split(), "valence {n}, face {f}: an extraordinary face is cut");
+            let corner = g.bu[1];
+            let diag = vec3::norm(vec3::sub(g.eval(corner, corner).0, g.eval(0.0, 0.0).0));
+            let mut face_corner_worst = 0.0f64;
+            for j in 0..=20 {
+                for i in 0..=20 {
+                    let (u, v) = (i as f64 / 20.0, j as f64 / 20.0);
+                    let limit = combine(&point_weights(&surface, f, u, v, Some(&ev)).pos, &p1);
+                    let d = vec3::norm(vec3::sub(g.eval(u, v).0, limit));
+                    if u < corner && v < corner {
+                        corner_worst = corner_worst.max(d);
+                        face_corner_worst = face_corner_worst.max(d);
+                    } else {
+                        exact_worst = exact_worst.max(d);
+                        cells += 1;
+                    }
+                }
+            }
+            corner_rel = corner_rel.max(face_corner_worst / diag);
+        }
+        eprintln!("valence {n}: exact cells {exact_worst:.2e}, corner cell {corner_worst:.2e} ({corner_rel:.4} of its diagonal)");
+        assert!(cells > 0);
+        assert!(exact_worst < 1e-12, "valence {n}: an exact cell is {exact_worst:.3e} from the limit");
+        // Measured 1.4 % (valence 3), 2.2 % (5), 6.5 % (8) of a cell that is a quarter of the face or less; the
+        // fitted solids are no farther from the scan than with one bicubic patch per face (0.0103 % on igea).
+        assert!(corner_rel < 0.1, "valence {n}: the corner cell is {corner_rel:.4} of its diagonal from the limit");
+    }
 }

@@ -19,6 +19,11 @@ pub const DISTANCE_ZERO_REL: f64 = 1e-7;
 /// bbox diagonal (OpenCASCADE's `Precision::Confusion()` is 1e-7 in model units). Unitless.
 pub const BREP_EDGE_REL: f64 = 1e-7;
 
+/// A knot of a B-rep face is removed only when no control point of the face moves by more than this
+/// fraction of the face's bbox diagonal (the joins that are C¹ or C² by construction, up to rounding).
+/// Unitless; a thousandth of [`BREP_EDGE_REL`].
+pub const KNOT_REMOVAL_REL: f64 = 1e-10;
+
 /// Assert that two floating-point values are within an absolute tolerance, printing both sides and the gap.
 ///
 /// `assert_near!(a, b, tol)` or `assert_near!(a, b, tol, "context {}", x)`.

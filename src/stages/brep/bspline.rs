@@ -147,6 +147,113 @@ fn basis(knots: &[f64], n: usize, t: f64) -> (usize, [f64; 4], [f64; 4]) {
     (i0, nb, d)
 }
 
+/// Try to remove one occurrence of the knot at `knots[r]` (its last occurrence, multiplicity `s`) from
+/// every curve of `curves` (cubic B-splines sharing the expanded knot vector `knots`), as in Piegl &
+/// Tiller's RemoveCurveKnot (The NURBS Book, A5.8, one removal). Succeeds, and changes `knots` and every
+/// curve, only when each curve can lose the knot with its geometry moving by at most `tol` (a join that is
+/// one order smoother than the multiplicity says); otherwise leaves everything as it was.
+fn remove_knot_once(knots: &mut Vec<f64>, curves: &mut [Vec<V3>], r: usize, s: usize, tol: f64) -> bool {
+    const P: usize = DEGREE;
+    let u = knots[r];
+    let (first, last) = (r - P, r - s);
+    let off = first - 1;
+    let mut news: Vec<Vec<V3>> = Vec::with_capacity(curves.len());
+    for c in curves.iter() {
+        let mut temp = vec![[0.0; 3]; last + 2 - off];
+        temp[0] = c[off];
+        temp[last + 1 - off] = c[last + 1];
+        let (mut i, mut j, mut ii, mut jj) = (first, last, 1, last - off);
+        while j > i {
+            let ai = (u - knots[i]) / (knots[i + P + 1] - knots[i]);
+            let aj = (u - knots[j]) / (knots[j + P + 1] - knots[j]);
+            temp[ii] = vec3::scale(vec3::sub(c[i], vec3::scale(temp[ii - 1], 1.0 - ai)), 1.0 / ai);
+            temp[jj] = vec3::scale(vec3::sub(c[j], vec3::scale(temp[jj + 1], aj)), 1.0 / (1.0 - aj));
+            i += 1;
+            ii += 1;
+            j -= 1;
+            jj -= 1;
+        }
+        let ok = if j < i {
+            vec3::norm(vec3::sub(temp[ii - 1], temp[jj + 1])) <= tol
+        } else {
+            let ai = (u - knots[i]) / (knots[i + P + 1] - knots[i]);
+            let q = vec3::add(vec3::scale(temp[ii + 1], ai), vec3::scale(temp[ii - 1], 1.0 - ai));
+            vec3::norm(vec3::sub(c[i], q)) <= tol
+        };
+        if !ok {
+            return false;
+        }
+        let mut n = c.clone();
+        let (mut i, mut j) = (first, last);
+        while j > i {
+            n[i] = temp[i - off];
+            n[j] = temp[j - off];
+            i += 1;
+            j -= 1;
+        }
+        n.remove((2 * r - s - P) / 2);
+        news.push(n);
+    }
+    for (c, n) in curves.iter_mut().zip(news) {
+        *c = n;
+    }
+    knots.remove(r);
+    true
+}
+
+/// Remove from cubic B-splines sharing the expanded knot vector `knots` every interior knot occurrence
+/// whose removal moves no curve by more than `tol` (each distinct knot left to right, down to
+/// multiplicity 1).
+pub fn remove_curve_knots(knots: &mut Vec<f64>, curves: &mut [Vec<V3>], tol: f64) {
+    let (values, _) = knot_multiplicities(knots);
+    for &x in &values[1..values.len() - 1] {
+        for _ in 0..DEGREE - 1 {
+            let s = knots.iter().filter(|&&k| k == x).count();
+            let Some(r) = knots.iter().rposition(|&k| k == x) else { break };
+            if s < 2 || !remove_knot_once(knots, curves, r, s, tol) {
+                break;
+            }
+        }
+    }
+}
+
+impl BsplineSurface {
+    /// Remove every interior knot occurrence (along u, then v) whose removal moves no control point by
+    /// more than `tol`: a piecewise-Bézier face (triple knots) whose pieces join C¹ or C² keeps one pole
+    /// row per piece instead of three. Cost: O(knots · poles) per pass.
+    pub fn remove_knots(&mut self, tol: f64) {
+        for dir in 0..2 {
+            let (knots, lines) = if dir == 0 { (&self.knots_u, self.nv) } else { (&self.knots_v, self.nu) };
+            let mut knots = knots.clone();
+            let along = if dir == 0 { self.nu } else { self.nv };
+            let mut curves: Vec<Vec<V3>> = (0..lines)
+                .map(|l| {
+                    (0..along)
+                        .map(|k| if dir == 0 { self.poles[l * self.nu + k] } else { self.poles[k * self.nu + l] })
+                        .collect()
+                })
+                .collect();
+            remove_curve_knots(&mut knots, &mut curves, tol);
+            let along = curves[0].len();
+            if dir == 0 {
+                self.nu = along;
+                self.poles = (0..lines).flat_map(|l| curves[l].clone()).collect();
+                self.knots_u = knots;
+            } else {
+                self.nv = along;
+                let mut poles = vec![[0.0; 3]; self.nu * along];
+                for (l, c) in curves.iter().enumerate() {
+                    for (k, &q) in c.iter().enumerate() {
+                        poles[k * self.nu + l] = q;
+                    }
+                }
+                self.poles = poles;
+                self.knots_v = knots;
+            }
+        }
+    }
+}
+
 /// Insert knot `t` once (Boehm) into a cubic B-spline with expanded knots `knots` and poles `p`.
 fn insert_knot(knots: &mut Vec<f64>, p: &mut Vec<V3>, t: f64) {
     // Span k with knots[k] <= t < knots[k + 1]; at the right end of the range use the last span (inserting
@@ -189,6 +296,84 @@ fn clamp_uniform(poles: &[V3], w: usize) -> (Vec<f64>, Vec<V3>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Knot removal: a uniform bicubic spline written as triple-knot Bézier pieces loses every removable
+    /// knot occurrence (back to simple knots, `(w + 3) × (h + 3)` poles) and evaluates the same; a join that
+    /// is only C¹ keeps a double knot, a crease keeps its triple knot.
+    #[test]
+    fn knot_removal_undoes_bezier_splitting_and_keeps_what_is_needed() {
+        let (w, h) = (4, 3);
+        let grid: Vec<V3> = (0..(w + 3) * (h + 3))
+            .map(|k| {
+                let (i, j) = ((k % (w + 3)) as f64, (k / (w + 3)) as f64);
+                [i, j, (0.9 * i).sin() * (0.4 * j).cos()]
+            })
+            .collect();
+        let smooth = BsplineSurface::from_uniform_grid(&grid, w, h);
+        // Triple every interior knot (insert each twice more), along u and v.
+        let mut tripled = smooth.clone();
+        for dir in 0..2 {
+            let (knots, lines, along) = if dir == 0 {
+                (&tripled.knots_u, tripled.nv, tripled.nu)
+            } else {
+                (&tripled.knots_v, tripled.nu, tripled.nv)
+            };
+            let mut k = knots.clone();
+            let mut curves: Vec<Vec<V3>> = (0..lines)
+                .map(|l| {
+                    (0..along)
+                        .map(|a| {
+                            if dir == 0 { tripled.poles[l * tripled.nu + a] } else { tripled.poles[a * tripled.nu + l] }
+                        })
+                        .collect()
+                })
+                .collect();
+            let inner: Vec<f64> = (1..if dir == 0 { w } else { h }).map(|x| x as f64).collect();
+            for &x in &inner {
+                for _ in 0..2 {
+                    let mut kk = k.clone();
+                    for c in curves.iter_mut() {
+                        kk = k.clone();
+                        insert_knot(&mut kk, c, x);
+                    }
+                    k = kk;
+                }
+            }
+            let along = curves[0].len();
+            if dir == 0 {
+                tripled.nu = along;
+                tripled.poles = curves.concat();
+                tripled.knots_u = k;
+            } else {
+                tripled.nv = along;
+                let mut poles = vec![[0.0; 3]; tripled.nu * along];
+                for (l, c) in curves.iter().enumerate() {
+                    for (a, &q) in c.iter().enumerate() {
+                        poles[a * tripled.nu + l] = q;
+                    }
+                }
+                tripled.poles = poles;
+                tripled.knots_v = k;
+            }
+        }
+        assert_eq!((tripled.nu, tripled.nv), (3 * w + 1, 3 * h + 1));
+        let mut reduced = tripled.clone();
+        reduced.remove_knots(1e-10);
+        assert_eq!((reduced.nu, reduced.nv), (w + 3, h + 3), "every interior knot back to simple");
+        for &(u, v) in &[(0.3, 0.2), (1.0, 1.0), (2.5, 2.9), (3.99, 0.01)] {
+            let (a, b) = (smooth.eval(u, v).0, reduced.eval(u, v).0);
+            assert!(vec3::norm(vec3::sub(a, b)) < 1e-12, "({u},{v}): {a:?} vs {b:?}");
+        }
+        // A crease: move the shared pole row of the first interior u-knot off the line of its neighbours.
+        let mut creased = tripled.clone();
+        for j in 0..creased.nv {
+            creased.poles[j * creased.nu + 3][2] += 0.5;
+        }
+        creased.remove_knots(1e-10);
+        let (_, mult) = knot_multiplicities(&creased.knots_u);
+        assert_eq!(mult[1], 3, "the crease keeps its triple knot: {mult:?}");
+        assert!(mult[2..mult.len() - 1].iter().all(|&m| m == 1), "the other knots become simple: {mult:?}");
+    }
 
     #[test]
     fn clamped_grid_reproduces_the_uniform_spline() {

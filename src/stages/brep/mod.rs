@@ -27,7 +27,7 @@ use crate::geometry::vec3::{self, Aabb, V3};
 use crate::stages::surface::limit::FaceKind;
 use crate::stages::surface::{LimitSurface, QuadNet};
 use bspline::{BsplineSurface, bezier_point};
-use patches::Patches;
+use patches::{FaceNet, Patches};
 
 /// Largest packed face, in refined faces per side. Larger blocks halve the face count again, but faces that
 /// wrap far around a thin part defeat gmsh's parametric surface mesher (measured on Spot at 48).
@@ -42,13 +42,15 @@ pub struct Coedge {
     pub uv: [[f64; 2]; 2],
 }
 
-/// A topological edge with its curve from `start` to `end`: a piecewise cubic Bézier of `spans` spans on
-/// the parameter range `[0, spans]` (`curve` holds `3·spans + 1` points; span i is `curve[3i..=3i+3]`).
+/// A topological edge with its curve from `start` to `end`: a piecewise cubic Bézier over the ascending
+/// breaks `knots` (span i, on `[knots[i], knots[i+1]]`, is `curve[3i..=3i+3]`), from 0 to the number of
+/// refined edges it runs along; a face loop's coedge maps it linearly onto its `uv` segment.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Edge {
     pub start: u32,
     pub end: u32,
     pub curve: Vec<V3>,
+    pub knots: Vec<f64>,
 }
 
 impl Edge {
@@ -57,12 +59,17 @@ impl Edge {
         (self.curve.len() - 1) / 3
     }
 
-    /// The curve at parameter `t ∈ [0, spans]`.
+    /// Parameter length (the last break).
+    pub fn length(&self) -> f64 {
+        *self.knots.last().expect("a break")
+    }
+
+    /// The curve at parameter `t ∈ [0, length]`.
     pub fn point(&self, t: f64) -> V3 {
         let n = self.spans();
-        let i = (t.floor().max(0.0) as usize).min(n - 1);
+        let i = (0..n).find(|&i| t < self.knots[i + 1]).unwrap_or(n - 1);
         let span: [V3; 4] = std::array::from_fn(|k| self.curve[3 * i + k]);
-        bezier_point(&span, t - i as f64)
+        bezier_point(&span, (t - self.knots[i]) / (self.knots[i + 1] - self.knots[i]))
     }
 }
 
@@ -245,27 +252,42 @@ fn pack(surface: &LimitSurface) -> Vec<Block> {
     blocks
 }
 
-/// A Bézier net given in the frame starting at corner `from`, re-expressed in the frame starting at `to`.
-fn rotate_net(b: &[V3; 16], from: usize, to: usize) -> [V3; 16] {
-    let mut cur = *b;
-    for _ in 0..(to + 4 - from) % 4 {
-        let old = cur;
-        for j in 0..4 {
-            for i in 0..4 {
-                cur[4 * j + i] = old[4 * i + (3 - j)];
+/// A `w × h` block of face nets (`cells[w·j + i]`, in the block's frame) as one B-spline surface with
+/// triple interior knots on `[0, w] × [0, h]`. Each column (row) has the union of its cells' breaks, and
+/// every cell is cut there exactly (de Casteljau).
+fn bezier_block(cells: &[FaceNet], w: usize, h: usize) -> BsplineSurface {
+    let union = |lists: &mut dyn Iterator<Item = &Vec<f64>>| -> Vec<f64> {
+        let mut b: Vec<f64> = lists.flatten().copied().collect();
+        b.sort_by(f64::total_cmp);
+        b.dedup();
+        b
+    };
+    let col_breaks: Vec<Vec<f64>> = (0..w).map(|i| union(&mut (0..h).map(|j| &cells[w * j + i].bu))).collect();
+    let row_breaks: Vec<Vec<f64>> = (0..h).map(|j| union(&mut (0..w).map(|i| &cells[w * j + i].bv))).collect();
+    let global = |breaks: &[Vec<f64>]| -> Vec<f64> {
+        let mut k = vec![0.0];
+        for (x, b) in breaks.iter().enumerate() {
+            k.extend(b[1..].iter().map(|t| x as f64 + t));
+        }
+        k
+    };
+    let (bu, bv) = (global(&col_breaks), global(&row_breaks));
+    let (su, sv) = (bu.len() - 1, bv.len() - 1);
+    let mut spans = Vec::with_capacity(su * sv);
+    for (j, rb) in row_breaks.iter().enumerate() {
+        for jj in 0..rb.len() - 1 {
+            for (i, cb) in col_breaks.iter().enumerate() {
+                for ii in 0..cb.len() - 1 {
+                    spans.push(cells[w * j + i].extract([cb[ii], cb[ii + 1]], [rb[jj], rb[jj + 1]]));
+                }
             }
         }
     }
-    cur
-}
-
-/// A `w × h` block of Bézier nets (`nets[w·j + i]`) as one B-spline surface with triple interior knots.
-fn bezier_block(nets: &[[V3; 16]], w: usize, h: usize) -> BsplineSurface {
-    let (nu, nv) = (3 * w + 1, 3 * h + 1);
+    let (nu, nv) = (3 * su + 1, 3 * sv + 1);
     let mut poles = vec![[0.0; 3]; nu * nv];
-    for j in 0..h {
-        for i in 0..w {
-            let b = &nets[w * j + i];
+    for j in 0..sv {
+        for i in 0..su {
+            let b = &spans[su * j + i];
             for bj in 0..4 {
                 for bi in 0..4 {
                     poles[(3 * j + bj) * nu + 3 * i + bi] = b[4 * bj + bi];
@@ -273,15 +295,15 @@ fn bezier_block(nets: &[[V3; 16]], w: usize, h: usize) -> BsplineSurface {
             }
         }
     }
-    let knots = |n: usize| -> Vec<f64> {
-        let mut k = vec![0.0; 4];
-        for x in 1..n {
-            k.extend([x as f64; 3]);
+    let knots = |b: &[f64]| -> Vec<f64> {
+        let mut k = vec![b[0]; 4];
+        for &x in &b[1..b.len() - 1] {
+            k.extend([x; 3]);
         }
-        k.extend([n as f64; 4]);
+        k.extend([b[b.len() - 1]; 4]);
         k
     };
-    BsplineSurface { nu, nv, poles, knots_u: knots(w), knots_v: knots(h) }
+    BsplineSurface { nu, nv, poles, knots_u: knots(&bu), knots_v: knots(&bv) }
 }
 
 /// Build the solid from the fitted surface (`p1`: control points on the refined net).
@@ -361,7 +383,8 @@ fn assemble(surface: &LimitSurface, patches: &Patches, blocks: &[Block], p1: &[V
         };
         let (a, b) = (vid(net.from(h), &mut solid), vid(net.to(h), &mut solid));
         edge_id[e] = solid.edges.len() as u32;
-        solid.edges.push(Edge { start: a, end: b, curve: patches.edge_curve[e].to_vec() });
+        let c = &patches.edge_curve[e];
+        solid.edges.push(Edge { start: a, end: b, curve: c.points.clone(), knots: c.knots.clone() });
     }
     for blk in blocks {
         let (w, h) = (blk.w, blk.h);
@@ -371,10 +394,10 @@ fn assemble(surface: &LimitSurface, patches: &Patches, blocks: &[Block], p1: &[V
                 BsplineSurface::from_uniform_grid(&pts, w, h)
             }
             None => {
-                let nets: Vec<[V3; 16]> = blk
+                let nets: Vec<FaceNet> = blk
                     .cells
                     .iter()
-                    .map(|&(g, s)| rotate_net(&patches.bezier[g as usize], surface.frame_start(g as usize), s as usize))
+                    .map(|&(g, s)| patches.nets[g as usize].rotated(surface.frame_start(g as usize), s as usize))
                     .collect();
                 bezier_block(&nets, w, h)
             }
@@ -458,18 +481,25 @@ fn merge_edge_chains(solid: Solid) -> Solid {
         let mut v = start_v;
         let mut e = first;
         let mut pts: Vec<V3> = Vec::new();
+        let mut knots: Vec<f64> = Vec::new();
         loop {
             chain_of[e as usize] = id;
             let edge = &solid.edges[e as usize];
             let forward = edge.start == v;
             let mut c = edge.curve.clone();
+            let len = edge.length();
+            let mut k: Vec<f64> = edge.knots.clone();
             if !forward {
                 c.reverse();
+                k = k.iter().rev().map(|x| len - x).collect();
             }
+            let offset = knots.last().copied().unwrap_or(0.0);
             if pts.is_empty() {
                 pts.extend(c);
+                knots.extend(k);
             } else {
                 pts.extend(c.into_iter().skip(1));
+                knots.extend(k.into_iter().skip(1).map(|x| x + offset));
             }
             along[e as usize] = forward;
             v = if forward { edge.end } else { edge.start };
@@ -483,7 +513,7 @@ fn merge_edge_chains(solid: Solid) -> Solid {
             }
             e = next;
         }
-        new_edges.push(Edge { start: start_v, end: v, curve: pts });
+        new_edges.push(Edge { start: start_v, end: v, curve: pts, knots });
     };
     for v in 0..nv as u32 {
         if mergeable[v as usize] {
@@ -590,12 +620,22 @@ pub fn check(solid: &Solid, diagonal: f64) -> Result<f64> {
                     return Err(bad(format!("edge {}: curve end is {d:.3e} from vertex {v}", c.edge)));
                 }
             }
-            let spans = edge.spans() as f64;
-            for m in 0..=8 * edge.spans() {
-                let t = m as f64 / (8.0 * spans);
+            if edge.knots.len() != edge.spans() + 1 || edge.knots.windows(2).any(|w| !(w[0] < w[1])) {
+                return Err(bad(format!("edge {}: its breaks do not ascend one per span", c.edge)));
+            }
+            let len = edge.length();
+            // 8 samples per span, at the edge's own breaks.
+            let ts: Vec<f64> = edge
+                .knots
+                .windows(2)
+                .flat_map(|w| (0..8).map(move |m| w[0] + (w[1] - w[0]) * m as f64 / 8.0))
+                .chain(std::iter::once(len))
+                .collect();
+            for s in ts {
+                let t = if c.forward { s / len } else { 1.0 - s / len };
                 let uv = [c.uv[0][0] + t * (c.uv[1][0] - c.uv[0][0]), c.uv[0][1] + t * (c.uv[1][1] - c.uv[0][1])];
                 let on_face = face.surface.eval(uv[0], uv[1]).0;
-                let on_curve = edge.point(spans * if c.forward { t } else { 1.0 - t });
+                let on_curve = edge.point(s);
                 let d = vec3::norm(vec3::sub(on_face, on_curve));
                 worst = worst.max(d);
                 if !(d <= tol) {
@@ -722,8 +762,9 @@ impl Solid {
         (vol, area)
     }
 
-    /// A triangle mesh through points of the exact surfaces, `per_span` × `per_span` quads per knot span,
-    /// with vertices shared along edges inside a face (faces are separate sheets). For distance checks.
+    /// A triangle mesh through points of the exact surfaces, `per_span` × `per_span` quads per unit of
+    /// parameter (one refined face), with vertices shared along edges inside a face (faces are separate
+    /// sheets, whose shared boundaries are sampled at the same points). For distance checks.
     pub fn tessellate(&self, per_span: usize) -> Result<TriMesh> {
         let n = per_span.max(1);
         let mut pos: Vec<[f32; 3]> = Vec::new();
@@ -754,13 +795,16 @@ impl Solid {
     }
 }
 
+/// `n` points per unit of parameter over the knots' range (faces are built in units of refined faces, so
+/// two faces sample the boundary they share at the same points even when one has a knot in the middle of
+/// a unit and the other does not), and the last knot.
 fn param_points(knots: &[f64], n: usize) -> Vec<f64> {
-    let mut out = Vec::with_capacity((knots.len() - 1) * n + 1);
-    for w in knots.windows(2) {
-        for k in 0..n {
-            out.push(w[0] + (w[1] - w[0]) * k as f64 / n as f64);
-        }
+    let (a, b) = (knots[0], *knots.last().expect("a knot"));
+    let units = ((b - a).round() as usize).max(1);
+    let mut out = Vec::with_capacity(units * n + 1);
+    for k in 0..units * n {
+        out.push(a + (b - a) * k as f64 / (units * n) as f64);
     }
-    out.push(*knots.last().unwrap());
+    out.push(b);
     out
 }

@@ -1,14 +1,23 @@
-//! Bicubic Bézier patches, one per face of the refined net, that share their boundary curves exactly.
+//! Bicubic Bézier patches on the refined net that share their boundary curves exactly.
 //!
 //! - Regular faces: the exact B-spline patch converted to Bézier form.
-//! - Edge curves: from a regular neighbour when there is one (exact); otherwise (both faces extraordinary)
-//!   a cubic whose end tangents point exactly along the limit's tangent directions of the edge at its two
-//!   vertices (so all patches at a vertex share its tangent plane, with their corners in cyclic order),
-//!   their lengths fitted to the exact limit along the edge with its derivative in the limit's tangent
-//!   planes.
-//! - Extraordinary faces: the 12 boundary points come from the edge curves; the 4 interior points are a
-//!   least-squares fit to the exact limit (positions inside; along the edges, the cross-boundary
-//!   derivative in the limit's tangent plane, so neighbours agree in their normals).
+//! - Extraordinary faces (one extraordinary corner, where the face's frame starts) are cut towards that
+//!   corner [`EV_SPLIT_LEVELS`] times, like the local subdivision that evaluates them: breaks at
+//!   `0, 2⁻ᴸ, …, ¼, ½, 1` in u and in v ([`FaceNet`]).
+//!   - Every cell but the corner one is the **exact** limit (a piece of a regular sub-patch of the local
+//!     subdivision), so those cells join each other and the neighbouring faces exactly.
+//!   - Only the corner cell, `[0, 2⁻ᴸ]²`, is approximated. Along its inner sides it takes the boundary and
+//!     the second row of its exact neighbours, so it joins them C¹. Its corner is the limit point. Its two
+//!     edges at the extraordinary vertex leave it along the limit's exact tangent directions of those edges
+//!     (so every corner at the vertex has the vertex's normal, in cyclic order), with fitted lengths. Its
+//!     one free interior point is fitted to the exact limit: positions, and, along its two edges at the
+//!     vertex, the cross-boundary derivative in the limit's tangent plane, which bounds the normal jump
+//!     between the corner cells of neighbouring faces.
+//!   The approximated region is 4⁻ᴸ of the face, and the only place a normal jump can remain; the limit's
+//!   normal varies less and less over it as L grows.
+//! - Edge curves ([`EdgeCurve`]): piecewise cubic over breaks along the edge. An edge at an extraordinary
+//!   vertex has the face's breaks (its first span the fitted one, the others exact); every other edge is
+//!   exact. Both faces take their boundary from the same curve.
 
 use crate::error::{Error, Result};
 use crate::geometry::linalg::NormalEquations;
@@ -18,13 +27,130 @@ use crate::stages::surface::limit::{EvPatch, FaceKind, LimitSurface, limit_stenc
 use crate::stages::surface::net::combine;
 use rayon::prelude::*;
 
-/// The Bézier net of every refined face (in its patch frame) and the curve of every refined edge.
+/// The most times an extraordinary face is cut towards its extraordinary corner (see the module docs).
+pub const EV_SPLIT_LEVELS: usize = 4;
+
+/// Normal jump (degrees) above which the faces of an extraordinary vertex are cut once more.
+pub const JUMP_TARGET_DEG: f64 = 0.25;
+
+/// The Bézier nets of one refined face over a tensor grid of parameter breaks, in the face's patch frame
+/// (from corner [`LimitSurface::frame_start`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaceNet {
+    /// Breaks along u, from 0 to 1.
+    pub bu: Vec<f64>,
+    /// Breaks along v, from 0 to 1.
+    pub bv: Vec<f64>,
+    /// `nets[(bu.len() − 1)·j + i]` over `[bu[i], bu[i+1]] × [bv[j], bv[j+1]]`, each on `[0, 1]²`.
+    pub nets: Vec<[V3; 16]>,
+}
+
+/// The cell of `breaks` holding `t` and the parameter in it.
+fn locate(breaks: &[f64], t: f64) -> (usize, f64) {
+    let n = breaks.len() - 1;
+    let i = (0..n).find(|&i| t < breaks[i + 1]).unwrap_or(n - 1);
+    (i, (t - breaks[i]) / (breaks[i + 1] - breaks[i]))
+}
+
+impl FaceNet {
+    /// One net over the whole face.
+    pub fn whole(b: [V3; 16]) -> Self {
+        FaceNet { bu: vec![0.0, 1.0], bv: vec![0.0, 1.0], nets: vec![b] }
+    }
+
+    /// Whether the face has more than one net.
+    pub fn is_split(&self) -> bool {
+        self.nets.len() > 1
+    }
+
+    fn cols(&self) -> usize {
+        self.bu.len() - 1
+    }
+
+    /// Point and unnormalised normal at `(u, v) ∈ [0, 1]²` of the face's frame.
+    pub fn eval(&self, u: f64, v: f64) -> (V3, V3) {
+        let (i, a) = locate(&self.bu, u);
+        let (j, b) = locate(&self.bv, v);
+        let (p, n) = bezier_eval(&self.nets[self.cols() * j + i], a, b);
+        let area = (self.bu[i + 1] - self.bu[i]) * (self.bv[j + 1] - self.bv[j]);
+        (p, vec3::scale(n, 1.0 / area))
+    }
+
+    /// The same surface in the frame starting at corner `to`, given in the frame starting at `from`.
+    pub fn rotated(&self, from: usize, to: usize) -> FaceNet {
+        let mut cur = self.clone();
+        for _ in 0..(to + 4 - from) % 4 {
+            // One quarter turn: new (u, v) = old (1 − v, u)... as a net: new[4j + i] = old[4i + 3 − j].
+            let old = cur;
+            let (oc, or) = (old.cols(), old.bv.len() - 1);
+            let bu = old.bv.clone();
+            let bv: Vec<f64> = old.bu.iter().rev().map(|x| 1.0 - x).collect();
+            let mut nets = Vec::with_capacity(old.nets.len());
+            // New grid: or columns, oc rows; new cell (I, J) is old cell (oc − 1 − J, I).
+            for jj in 0..oc {
+                for ii in 0..or {
+                    nets.push(rotate_once(&old.nets[oc * ii + (oc - 1 - jj)]));
+                }
+            }
+            cur = FaceNet { bu, bv, nets };
+        }
+        cur
+    }
+
+    /// The Bézier net of the surface over `[u0, u1] × [v0, v1]`, which must lie inside one cell.
+    pub fn extract(&self, [u0, u1]: [f64; 2], [v0, v1]: [f64; 2]) -> [V3; 16] {
+        let (i, _) = locate(&self.bu, 0.5 * (u0 + u1));
+        let (j, _) = locate(&self.bv, 0.5 * (v0 + v1));
+        let (du, dv) = (self.bu[i + 1] - self.bu[i], self.bv[j + 1] - self.bv[j]);
+        let lu = [(u0 - self.bu[i]) / du, (u1 - self.bu[i]) / du];
+        let lv = [(v0 - self.bv[j]) / dv, (v1 - self.bv[j]) / dv];
+        sub_net(&self.nets[self.cols() * j + i], lu, lv)
+    }
+}
+
+/// A net turned by one quarter: `new[4j + i] = old[4i + 3 − j]`.
+pub fn rotate_once(b: &[V3; 16]) -> [V3; 16] {
+    std::array::from_fn(|k| {
+        let (i, j) = (k % 4, k / 4);
+        b[4 * i + (3 - j)]
+    })
+}
+
+/// A piecewise cubic curve over `knots` (its breaks, ascending): span i, on `[knots[i], knots[i+1]]`, is
+/// `points[3i..=3i+3]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EdgeCurve {
+    pub knots: Vec<f64>,
+    pub points: Vec<V3>,
+}
+
+impl EdgeCurve {
+    fn single(c: [V3; 4]) -> Self {
+        EdgeCurve { knots: vec![0.0, 1.0], points: c.to_vec() }
+    }
+
+    /// The same curve run backwards, on `[0, knots.last]` again.
+    pub fn reversed(&self) -> Self {
+        let end = *self.knots.last().expect("a knot");
+        EdgeCurve {
+            knots: self.knots.iter().rev().map(|k| end - k).collect(),
+            points: self.points.iter().rev().copied().collect(),
+        }
+    }
+
+    /// Span `i`.
+    pub fn span(&self, i: usize) -> [V3; 4] {
+        std::array::from_fn(|k| self.points[3 * i + k])
+    }
+}
+
+/// The nets of every refined face and the curve of every refined edge.
 #[derive(Clone, Debug)]
 pub struct Patches {
-    /// `bezier[f][4·j + i]`, frame from corner [`LimitSurface::frame_start`].
-    pub bezier: Vec<[V3; 16]>,
-    /// Curve of the edge of half-edge `edge_half[e]`, running from its start vertex to its end vertex.
-    pub edge_curve: Vec<[V3; 4]>,
+    /// Per refined face.
+    pub nets: Vec<FaceNet>,
+    /// Curve of the edge of half-edge `edge_half[e]`, on `[0, 1]`, from its start vertex to its end vertex.
+    pub edge_curve: Vec<EdgeCurve>,
     /// A representative half-edge (the lower-numbered of the two) of every edge.
     pub edge_half: Vec<u32>,
     /// Edge of every half-edge.
@@ -86,6 +212,87 @@ fn edge_param(k: usize, t: f64) -> ((f64, f64), (f64, f64)) {
     }
 }
 
+/// A cubic split at `t` by de Casteljau: the part over `[0, t]` and the part over `[t, 1]`, each on
+/// `[0, 1]`.
+pub fn split_at(c: [V3; 4], t: f64) -> ([V3; 4], [V3; 4]) {
+    let lerp = |a: V3, b: V3| vec3::add(a, vec3::scale(vec3::sub(b, a), t));
+    let (a, b, e) = (lerp(c[0], c[1]), lerp(c[1], c[2]), lerp(c[2], c[3]));
+    let (d, g) = (lerp(a, b), lerp(b, e));
+    let m = lerp(d, g);
+    ([c[0], a, d, m], [m, g, e, c[3]])
+}
+
+/// The part of a cubic over `[t0, t1] ⊆ [0, 1]`, on `[0, 1]`.
+pub fn sub_curve(c: [V3; 4], t0: f64, t1: f64) -> [V3; 4] {
+    let left = if t1 < 1.0 { split_at(c, t1).0 } else { c };
+    if t0 > 0.0 { split_at(left, t0 / t1).1 } else { left }
+}
+
+/// The part of a Bézier net over `[u0, u1] × [v0, v1] ⊆ [0, 1]²`.
+pub fn sub_net(b: &[V3; 16], [u0, u1]: [f64; 2], [v0, v1]: [f64; 2]) -> [V3; 16] {
+    if (u0, u1, v0, v1) == (0.0, 1.0, 0.0, 1.0) {
+        return *b;
+    }
+    let mut out = *b;
+    for j in 0..4 {
+        let row = sub_curve(std::array::from_fn(|i| out[4 * j + i]), u0, u1);
+        out[4 * j..4 * j + 4].copy_from_slice(&row);
+    }
+    for i in 0..4 {
+        let col = sub_curve(std::array::from_fn(|j| out[4 * j + i]), v0, v1);
+        for j in 0..4 {
+            out[4 * j + i] = col[j];
+        }
+    }
+    out
+}
+
+/// Side (0: v = 0, 1: u = 1, 2: v = 1, 3: u = 0) of half-edge `h` in the frame of its face.
+fn side_of(surface: &LimitSurface, h: u32) -> usize {
+    let f = (h / 4) as usize;
+    ((h % 4) as usize + 4 - surface.frame_start(f)) % 4
+}
+
+/// The breaks `0, 2⁻ᴸ, …, ½, 1` of an extraordinary face.
+pub fn ev_breaks(levels: usize) -> Vec<f64> {
+    let mut b = vec![0.0];
+    b.extend((0..levels).rev().map(|l| 0.5f64.powi(l as i32 + 1)));
+    b.push(1.0);
+    b
+}
+
+/// The exact cells of an extraordinary face (all but the corner, which is left zero), from the local
+/// subdivision's regular sub-patches: cell `(i, j)` with `m = max(i, j) ≥ 1` lies in sub-patch level
+/// `L + 1 − m`, quadrant by which of `i`, `j` equal `m`.
+fn exact_cells(ev: &EvPatch, p1: &[V3], levels: usize) -> FaceNet {
+    let breaks = ev_breaks(levels);
+    let n = levels + 1;
+    let quadrants: Vec<[[V3; 16]; 3]> =
+        (1..=levels).map(|l| [1, 2, 3].map(|q| bspline_to_bezier(&ev.sub_grid(l, q, p1)))).collect();
+    let mut nets = vec![[[0.0; 3]; 16]; n * n];
+    for j in 0..n {
+        for i in 0..n {
+            let m = i.max(j);
+            if m == 0 {
+                continue;
+            }
+            let level = levels + 1 - m;
+            let size = 0.5f64.powi(level as i32);
+            let (hu, hv) = (i == m, j == m);
+            let q = match (hu, hv) {
+                (true, false) => 0,
+                (true, true) => 1,
+                _ => 2,
+            };
+            let (ou, ov) = (if hu { size } else { 0.0 }, if hv { size } else { 0.0 });
+            let lu = [(breaks[i] - ou) / size, (breaks[i + 1] - ou) / size];
+            let lv = [(breaks[j] - ov) / size, (breaks[j + 1] - ov) / size];
+            nets[n * j + i] = sub_net(&quadrants[level - 1][q], lu, lv);
+        }
+    }
+    FaceNet { bu: breaks.clone(), bv: breaks, nets }
+}
+
 /// Build all patches from the fitted control points on the refined net (`p1`).
 ///
 /// # Errors
@@ -120,235 +327,293 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
             FaceKind::Regular(_) => Ok(None),
         })
         .collect::<Result<_>>()?;
-
-    // Regular faces: exact Bézier nets.
-    let mut bezier: Vec<[V3; 16]> = (0..net.faces.len())
-        .into_par_iter()
-        .map(|f| match surface.kinds[f] {
-            FaceKind::Regular(grid) => bspline_to_bezier(&grid.map(|g| p1[g as usize])),
-            FaceKind::Extraordinary(_) => [[0.0; 3]; 16],
-        })
+    // Cut every extraordinary face once; cut the faces of an extraordinary vertex again while the largest
+    // normal jump at them is above JUMP_TARGET_DEG (up to EV_SPLIT_LEVELS cuts).
+    let mut level = vec![1usize; net.faces.len()];
+    let evs: Vec<(u32, Vec<usize>)> = (0..net.vertex_count as u32)
+        .filter(|&v| net.valence(v) != 4)
+        .map(|v| (v, net.outgoing(v).iter().map(|&h| (h / 4) as usize).collect()))
         .collect();
+    loop {
+        // Regular faces: exact Bézier nets. Extraordinary faces: the exact cells.
+        let mut nets: Vec<FaceNet> = (0..net.faces.len())
+            .into_par_iter()
+            .map(|f| match (surface.kinds[f], &ev_tables[f]) {
+                (FaceKind::Regular(grid), _) => Ok(FaceNet::whole(bspline_to_bezier(&grid.map(|g| p1[g as usize])))),
+                (FaceKind::Extraordinary(_), Some(ev)) => Ok(exact_cells(ev, p1, level[f])),
+                _ => Err(Error::internal(format!("face {f} has no local evaluation"))),
+            })
+            .collect::<Result<_>>()?;
 
-    // Edge curves.
-    let edge_curve: Vec<[V3; 4]> = edge_half
-        .par_iter()
-        .map(|&h| {
-            let t = net.twin[h as usize];
-            let (a, b) = (net.from(h), net.to(h));
-            for (half, reversed) in [(h, false), (t, true)] {
-                let f = (half / 4) as usize;
-                if let FaceKind::Regular(_) = surface.kinds[f] {
-                    let k = ((half % 4) as usize + 4 - surface.frame_start(f)) % 4;
-                    let slots = boundary_slots(k);
-                    let mut c = slots.map(|s| bezier[f][s]);
-                    if reversed {
-                        c.reverse();
+        // Edge curves.
+        let edge_curve: Vec<EdgeCurve> = edge_half
+            .par_iter()
+            .map(|&h| -> Result<EdgeCurve> {
+                let t = net.twin[h as usize];
+                let (a, b) = (net.from(h), net.to(h));
+                let mut c = 'curve: {
+                    for (half, reversed) in [(h, false), (t, true)] {
+                        let g = &nets[(half / 4) as usize];
+                        if !g.is_split() {
+                            let mut c = boundary_slots(side_of(surface, half)).map(|s| g.nets[0][s]);
+                            if reversed {
+                                c.reverse();
+                            }
+                            break 'curve EdgeCurve::single(c);
+                        }
                     }
-                    c[0] = vertex[a as usize];
-                    c[3] = vertex[b as usize];
-                    return c;
-                }
-            }
-            // Both faces extraordinary: fit to the exact limit along the edge (seen from the face of h).
-            let f = (h / 4) as usize;
-            let k = ((h % 4) as usize + 4 - surface.frame_start(f)) % 4;
-            let ev = ev_tables[f].as_ref().expect("extraordinary face has a table");
-            let ends = [(vertex[a as usize], normal[a as usize]), (vertex[b as usize], normal[b as usize])];
-            fit_edge_curve(surface, f, k, ev, p1, ends, edge_direction(h).zip(edge_direction(t)).map(|(a, b)| [a, b]))
-        })
-        .collect();
+                    // Both faces extraordinary: read the exact cells of the face of h, and fit the span at an
+                    // extraordinary vertex.
+                    let f = (h / 4) as usize;
+                    let g = &nets[f];
+                    let levels = g.bu.len() - 2;
+                    let n = levels + 1;
+                    let cell = |i: usize, j: usize| &g.nets[n * j + i];
+                    let ev = ev_tables[f].as_ref().ok_or_else(|| Error::internal("missing table"))?;
+                    match side_of(surface, h) {
+                        // u = 1 and v = 1: exact, one span per cell along the side.
+                        1 => concat((0..n).map(|j| [3, 7, 11, 15].map(|s| cell(levels, j)[s])), g.bv.clone()),
+                        2 => concat(
+                            (0..n).rev().map(|i| [15, 14, 13, 12].map(|s| cell(i, levels)[s])),
+                            g.bu.iter().rev().map(|x| 1.0 - x).collect(),
+                        ),
+                        0 => {
+                            let ends = (vertex[a as usize], normal[a as usize], edge_direction(h));
+                            let spans: Vec<[V3; 4]> = (1..n).map(|i| [0, 1, 2, 3].map(|s| cell(i, 0)[s])).collect();
+                            fit_ev_edge(surface, f, ev, p1, true, ends, &spans, levels)
+                        }
+                        _ => {
+                            let ends = (vertex[b as usize], normal[b as usize], edge_direction(t));
+                            let spans: Vec<[V3; 4]> = (1..n).map(|j| [0, 4, 8, 12].map(|s| cell(0, j)[s])).collect();
+                            fit_ev_edge(surface, f, ev, p1, false, ends, &spans, levels).reversed()
+                        }
+                    }
+                };
+                c.points[0] = vertex[a as usize];
+                *c.points.last_mut().expect("points") = vertex[b as usize];
+                Ok(c)
+            })
+            .collect::<Result<_>>()?;
 
-    // Boundary rows of every face from the shared edge curves (regular faces too, so both sides are equal
-    // bit for bit), then the interiors of extraordinary faces.
-    bezier.par_iter_mut().enumerate().try_for_each(|(f, b)| -> Result<()> {
-        let s = surface.frame_start(f);
-        for (k, half) in frame_halfedges(f, s).into_iter().enumerate() {
-            let e = edge_of[half as usize] as usize;
-            let mut c = edge_curve[e];
-            if edge_half[e] != half {
-                c.reverse();
+        // Regular faces take their boundary rows from the shared (single-span) edge curves; extraordinary faces
+        // build their corner cell from the curves at the vertex and its exact neighbours.
+        nets.par_iter_mut().enumerate().try_for_each(|(f, g)| -> Result<()> {
+            let s = surface.frame_start(f);
+            let side = |k: usize| -> EdgeCurve {
+                let half = frame_halfedges(f, s)[k];
+                let e = edge_of[half as usize] as usize;
+                if edge_half[e] == half { edge_curve[e].clone() } else { edge_curve[e].reversed() }
+            };
+            if !g.is_split() {
+                for k in 0..4 {
+                    let c = side(k);
+                    // A regular face's curves are its own (single-span) rows, or another regular face's.
+                    if c.knots.len() != 2 {
+                        return Err(Error::internal(format!("regular face {f} has a split edge curve")));
+                    }
+                    for (slot, q) in boundary_slots(k).into_iter().zip(c.span(0)) {
+                        g.nets[0][slot] = q;
+                    }
+                }
+                return Ok(());
             }
-            for (slot, q) in boundary_slots(k).into_iter().zip(c) {
-                b[slot] = q;
+            let n = g.bu.len() - 1;
+            let (r, tq) = (g.nets[1], g.nets[n]);
+            let (s0, s3) = (side(0), side(3));
+            let mut c = [[0.0; 3]; 16];
+            c[..4].copy_from_slice(&s0.span(0));
+            let last = s3.knots.len() - 2;
+            for (slot, q) in [12, 8, 4, 0].into_iter().zip(s3.span(last)) {
+                c[slot] = q;
             }
-        }
-        if let FaceKind::Extraordinary(_) = surface.kinds[f] {
+            // The inner sides are the exact neighbours' (R at u = 2⁻ᴸ, T at v = 2⁻ᴸ), and the corner joins them C¹:
+            // its second column from u = 1 and second row from v = 1 mirror theirs (c[2] and c[8] already do,
+            // through the edge curves).
+            for k in 1..4 {
+                c[4 * k + 3] = r[4 * k];
+                c[12 + k] = tq[k];
+            }
+            c[15] = r[12];
+            let ext = |a: V3, b: V3| vec3::sub(vec3::scale(a, 2.0), b);
+            c[6] = ext(r[4], r[5]);
+            c[9] = ext(tq[1], tq[5]);
+            c[10] = vec3::scale(vec3::add(ext(r[8], r[9]), ext(tq[2], tq[6])), 0.5);
             let ev = ev_tables[f].as_ref().ok_or_else(|| Error::internal("missing table"))?;
-            fit_interior(surface, f, ev, p1, b);
+            fit_corner(surface, f, ev, p1, &mut c, g.bu[1]);
+            g.nets[0] = c;
+            Ok(())
+        })?;
+        let patches = Patches {
+            nets,
+            edge_curve,
+            edge_half: edge_half.clone(),
+            edge_of: edge_of.clone(),
+            vertex: vertex.clone(),
+        };
+        let jumps = face_jumps(surface, &patches);
+        let mut raised = false;
+        for (_, faces) in &evs {
+            let worst = faces.iter().map(|&f| jumps[f]).fold(0.0, f64::max);
+            if worst > JUMP_TARGET_DEG && faces.iter().all(|&f| level[f] < EV_SPLIT_LEVELS) {
+                for &f in faces {
+                    level[f] += 1;
+                }
+                raised = true;
+            }
         }
-        Ok(())
-    })?;
-    Ok(Patches { bezier, edge_curve, edge_half, edge_of, vertex })
+        if !raised {
+            return Ok(patches);
+        }
+    }
+}
+/// A curve from consecutive spans (each starting where the last ended) over `knots`.
+fn concat(spans: impl IntoIterator<Item = [V3; 4]>, knots: Vec<f64>) -> EdgeCurve {
+    let mut points: Vec<V3> = Vec::new();
+    for s in spans {
+        if points.is_empty() {
+            points.push(s[0]);
+        }
+        points.extend_from_slice(&s[1..]);
+    }
+    EdgeCurve { knots, points }
 }
 
 /// Weight of a tangent-plane row (per unit of length residual) against a position row.
 const G1_WEIGHT: f64 = 100.0;
 
-/// The cubic of an edge between two extraordinary faces, from `ends[0]` to `ends[1]` (position, limit
-/// normal), along frame side `k` of face `f`, fitted to the exact limit at 15 points along the edge:
-/// positions, and the curve's derivative in the limit's tangent plane there (`n · c'(t) = 0`).
-///
-/// With `directions` (the exact limit tangent of this edge at each end; always, on a valid net) the end
-/// tangents take those directions and only their two lengths are fitted (a third of the chord when a
-/// fitted length is below a tenth of the chord or above the chord): the edges around a vertex then leave
-/// it in their cyclic order, so no patch corner there turns over.
-///
-/// Without (a vanishing limit tangent), c1 and c2 are fitted freely with the end tangents heavily weighted
-/// into the vertices' tangent planes, then projected exactly. That fit is kept only when its end tangents
-/// point the way a positions-only fit's do, with a comparable length; otherwise the positions-only fit is
-/// used.
-fn fit_edge_curve(
+/// The curve of an edge between two extraordinary faces that ends at the extraordinary vertex, running
+/// from that vertex over the face's breaks ([`ev_breaks`]): `exact` are the exact spans from the second on
+/// (the boundary rows of face `f`'s exact cells); the first is `[p0, p0 + α·d, 2·e[0] − e[1], e[0]]`
+/// (`e` the second span), C¹ to the second, leaving the vertex (`ends`: limit point, limit normal, exact
+/// limit tangent of the edge) along `d`. Only α is fitted, to the exact limit at 15 points of the first
+/// span: positions, and the curve's derivative in the limit's tangent plane (`n · c'(t) = 0`). A fitted α
+/// outside a tenth of the chord to the chord becomes a third of the chord. Without a tangent (a degenerate
+/// vertex), `d` is the inner point's direction projected into the tangent plane.
+#[allow(clippy::too_many_arguments)]
+fn fit_ev_edge(
     surface: &LimitSurface,
     f: usize,
-    k: usize,
     ev: &EvPatch,
     p1: &[V3],
-    ends: [(V3, V3); 2],
-    directions: Option<[V3; 2]>,
-) -> [V3; 4] {
-    let [(p0, n0), (p3, n3)] = ends;
-    // Unknowns: the two lengths α, β of c1 = p0 + α d0, c2 = p3 + β d3 (with directions), or c1 and c2.
-    let mut lengths = NormalEquations::<2>::default();
-    let mut plain = NormalEquations::<6>::default();
-    let mut ne = NormalEquations::<6>::default();
+    along_u: bool,
+    (p0, n0, direction): (V3, V3, Option<V3>),
+    exact: &[[V3; 4]],
+    levels: usize,
+) -> EdgeCurve {
+    let size = 0.5f64.powi(levels as i32);
+    let c3 = exact[0][0];
+    let c2 = vec3::sub(vec3::scale(exact[0][0], 2.0), exact[0][1]);
+    let chord = vec3::norm(vec3::sub(c3, p0));
+    let d = direction.unwrap_or_else(|| {
+        let q = vec3::sub(c2, p0);
+        let q = vec3::sub(q, vec3::scale(n0, vec3::dot(q, n0)));
+        let d = vec3::unit_or(q, [0.0; 3]);
+        if d == [0.0; 3] { vec3::unit_or(vec3::sub(c3, p0), [0.0; 3]) } else { d }
+    });
+    let mut ne = NormalEquations::<1>::default();
     let n = 16;
     for m in 1..n {
         let t = m as f64 / n as f64;
-        let ((u, v), _) = edge_param(k, t);
+        let (u, v) = if along_u { (size * t, 0.0) } else { (0.0, size * t) };
         let w = point_weights(surface, f, u, v, Some(ev));
         let x = combine(&w.pos, p1);
         let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
         let (bb, db) = bernstein(t);
-        if let Some([d0, d3]) = directions {
-            for c in 0..3 {
-                let rhs = x[c] - (bb[0] + bb[1]) * p0[c] - (bb[2] + bb[3]) * p3[c];
-                lengths.add_row(&[(0, bb[1] * d0[c]), (1, bb[2] * d3[c])], rhs, 1.0);
-            }
-            let rhs = -((db[0] + db[1]) * vec3::dot(nrm, p0) + (db[2] + db[3]) * vec3::dot(nrm, p3));
-            lengths.add_row(&[(0, db[1] * vec3::dot(nrm, d0)), (1, db[2] * vec3::dot(nrm, d3))], rhs, G1_WEIGHT);
-            continue;
-        }
         for c in 0..3 {
-            let rhs = x[c] - bb[0] * p0[c] - bb[3] * p3[c];
-            plain.add_row(&[(c, bb[1]), (3 + c, bb[2])], rhs, 1.0);
-            ne.add_row(&[(c, bb[1]), (3 + c, bb[2])], rhs, 1.0);
+            let rhs = x[c] - (bb[0] + bb[1]) * p0[c] - bb[2] * c2[c] - bb[3] * c3[c];
+            ne.add_row(&[(0, bb[1] * d[c])], rhs, 1.0);
         }
-        if nrm != [0.0; 3] {
-            let rhs = -(db[0] * vec3::dot(nrm, p0) + db[3] * vec3::dot(nrm, p3));
-            let row: Vec<(usize, f64)> = (0..3).flat_map(|c| [(c, db[1] * nrm[c]), (3 + c, db[2] * nrm[c])]).collect();
-            ne.add_row(&row, rhs, G1_WEIGHT);
-        }
+        let rhs = -((db[0] + db[1]) * vec3::dot(nrm, p0) + db[2] * vec3::dot(nrm, c2) + db[3] * vec3::dot(nrm, c3));
+        ne.add_row(&[(0, db[1] * vec3::dot(nrm, d))], rhs, G1_WEIGHT);
     }
-    if let Some([d0, d3]) = directions {
-        let chord = vec3::norm(vec3::sub(p3, p0));
-        let len = |x: f64| if (0.1 * chord..=chord).contains(&x) { x } else { chord / 3.0 };
-        let [a, b] = lengths.solve().unwrap_or([chord / 3.0; 2]);
-        return [p0, vec3::add(p0, vec3::scale(d0, len(a))), vec3::add(p3, vec3::scale(d3, len(b))), p3];
-    }
-    for (off, origin, nrm) in [(0, p0, n0), (3, p3, n3)] {
-        let row: Vec<(usize, f64)> = (0..3).map(|c| (off + c, nrm[c])).collect();
-        ne.add_row(&row, vec3::dot(nrm, origin), 1e6);
-    }
-    let split = |x: [f64; 6]| -> (V3, V3) { ([x[0], x[1], x[2]], [x[3], x[4], x[5]]) };
-    // The positions-only system is the 2×2 Bernstein system per coordinate: singular only for a
-    // degenerate sampling, never here.
-    let reference = plain.solve().map(split).unwrap_or((p0, p3));
-    let (mut c1, mut c2) = ne.solve().map(split).unwrap_or(reference);
-    let agrees = |q: V3, r: V3, origin: V3| {
-        let (a, b) = (vec3::sub(q, origin), vec3::sub(r, origin));
-        vec3::dot(a, b) > 0.0 && (0.25..4.0).contains(&(vec3::norm(a) / vec3::norm(b).max(f64::MIN_POSITIVE)))
+    let alpha = match ne.solve() {
+        Some([a]) if (0.1 * chord..=chord).contains(&a) => a,
+        _ => chord / 3.0,
     };
-    if !(agrees(c1, reference.0, p0) && agrees(c2, reference.1, p3)) {
-        (c1, c2) = reference;
-    }
-    let project =
-        |q: V3, origin: V3, nrm: V3| -> V3 { vec3::sub(q, vec3::scale(nrm, vec3::dot(vec3::sub(q, origin), nrm))) };
-    [p0, project(c1, p0, n0), project(c2, p3, n3), p3]
+    let first = [p0, vec3::add(p0, vec3::scale(d, alpha)), c2, c3];
+    concat(std::iter::once(first).chain(exact.iter().copied()), ev_breaks(levels))
 }
 
-/// Least-squares fit of the 4 interior points of an extraordinary face's Bézier net `b` (boundary fixed):
-/// positions on an 8×8 grid of the exact limit, and along each edge the condition that the patch's
-/// cross-boundary derivative lies in the exact limit's tangent plane (`n · ∂S = 0`; scale-free, so it
-/// holds near the extraordinary vertex where the limit's parametric derivatives blow up or vanish). Both
-/// patches at an edge satisfy the same condition, which bounds the normal jump between them.
-fn fit_interior_weighted(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &mut [V3; 16], g1_weight: f64) {
-    const INTERIOR: [usize; 4] = [5, 6, 9, 10];
-    // Unknowns: x[3·i + c] = coordinate c of interior point i.
-    let mut ne = NormalEquations::<12>::default();
-    let mut add_row = |row: &[(usize, f64)], rhs: f64, weight: f64| ne.add_row(row, rhs, weight);
+/// Least-squares fit of the free interior point `c[5]` of the corner cell `c` of extraordinary face `f`
+/// (over `[0, size]²` of the face): positions on an 8×8 grid of the exact limit, and along its two edges at
+/// the extraordinary vertex the condition that the cross-boundary derivative lies in the exact limit's
+/// tangent plane (`n · ∂S = 0`, scale-free). The corner cells of both faces at such an edge satisfy the
+/// same condition, which bounds the normal jump between them.
+fn fit_corner_weighted(
+    surface: &LimitSurface,
+    f: usize,
+    ev: &EvPatch,
+    p1: &[V3],
+    c: &mut [V3; 16],
+    size: f64,
+    g1_weight: f64,
+) {
+    const FREE: usize = 5;
+    let mut ne = NormalEquations::<3>::default();
     let n = 8;
     for j in 0..n {
         for i in 0..n {
-            let (u, v) = ((i as f64 + 0.5) / n as f64, (j as f64 + 0.5) / n as f64);
-            let x = combine(&point_weights(surface, f, u, v, Some(ev)).pos, p1);
-            let (bu, _) = bernstein(u);
-            let (bv, _) = bernstein(v);
-            let coef: [f64; 16] = std::array::from_fn(|s| bu[s % 4] * bv[s / 4]);
-            for c in 0..3 {
-                let mut rhs = x[c];
+            let (a, b) = ((i as f64 + 0.5) / n as f64, (j as f64 + 0.5) / n as f64);
+            let x = combine(&point_weights(surface, f, size * a, size * b, Some(ev)).pos, p1);
+            let (ba, _) = bernstein(a);
+            let (bb, _) = bernstein(b);
+            let coef: [f64; 16] = std::array::from_fn(|s| ba[s % 4] * bb[s / 4]);
+            for k in 0..3 {
+                let mut rhs = x[k];
                 for (s, &w) in coef.iter().enumerate() {
-                    if !INTERIOR.contains(&s) {
-                        rhs -= w * b[s][c];
+                    if s != FREE {
+                        rhs -= w * c[s][k];
                     }
                 }
-                let row: Vec<(usize, f64)> = INTERIOR.iter().enumerate().map(|(i, &s)| (3 * i + c, coef[s])).collect();
-                add_row(&row, rhs, 1.0);
+                ne.add_row(&[(k, coef[FREE])], rhs, 1.0);
             }
         }
     }
-    for k in 0..4 {
+    for along_u in [true, false] {
         for m in 1..16 {
             let t = m as f64 / 16.0;
-            let ((u, v), (du_dir, dv_dir)) = edge_param(k, t);
-            let w = point_weights(surface, f, u, v, Some(ev));
+            let (a, b) = if along_u { (t, 0.0) } else { (0.0, t) };
+            let w = point_weights(surface, f, size * a, size * b, Some(ev));
             let nrm = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
             if nrm == [0.0; 3] {
                 continue;
             }
-            let (bu, dbu) = bernstein(u);
-            let (bv, dbv) = bernstein(v);
+            let (ba, dba) = bernstein(a);
+            let (bb, dbb) = bernstein(b);
+            // The derivative across the edge: along v on v = 0, along u on u = 0.
             let coef: [f64; 16] =
-                std::array::from_fn(|s| du_dir * dbu[s % 4] * bv[s / 4] + dv_dir * bu[s % 4] * dbv[s / 4]);
+                std::array::from_fn(|s| if along_u { ba[s % 4] * dbb[s / 4] } else { dba[s % 4] * bb[s / 4] });
             let mut rhs = 0.0;
             for (s, &w) in coef.iter().enumerate() {
-                if !INTERIOR.contains(&s) {
-                    rhs -= w * vec3::dot(nrm, b[s]);
+                if s != FREE {
+                    rhs -= w * vec3::dot(nrm, c[s]);
                 }
             }
-            let mut row = Vec::with_capacity(12);
-            for (i, &s) in INTERIOR.iter().enumerate() {
-                for c in 0..3 {
-                    row.push((3 * i + c, coef[s] * nrm[c]));
-                }
-            }
-            add_row(&row, rhs, g1_weight);
+            let row: Vec<(usize, f64)> = (0..3).map(|k| (k, coef[FREE] * nrm[k])).collect();
+            ne.add_row(&row, rhs, g1_weight);
         }
     }
     if let Some(x) = ne.solve() {
-        for (i, &s) in INTERIOR.iter().enumerate() {
-            b[s] = [x[3 * i], x[3 * i + 1], x[3 * i + 2]];
-        }
+        c[FREE] = x;
     }
 }
 
-/// [`fit_interior_weighted`] with the strongest tangent-plane weight that leaves the patch unfolded: its
-/// normal within 90° of the exact limit's on the inner 7×7 points of a 9×9 grid (a strong weight constrains only the normal
-/// component of the cross derivative, which can swing a weakly held interior over).
-fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &mut [V3; 16]) {
-    let boundary = *b;
+/// [`fit_corner_weighted`] with the strongest tangent-plane weight that leaves the corner cell unfolded:
+/// its normal within 90° of the exact limit's on a 9×9 grid (away from the vertex itself, whose normal
+/// comes from the shared edge curves alone). When no weight does, the interior point that gives the
+/// corner zero twist.
+fn fit_corner(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], c: &mut [V3; 16], size: f64) {
     for weight in [G1_WEIGHT, G1_WEIGHT / 10.0, 1.0, 0.0] {
-        *b = boundary;
-        fit_interior_weighted(surface, f, ev, p1, b, weight);
+        fit_corner_weighted(surface, f, ev, p1, c, size, weight);
         let unfolded = (0..=8).all(|j| {
             (0..=8).all(|i| {
-                let (u, v) = (i as f64 / 8.0, j as f64 / 8.0);
-                if u + v < 0.2 {
-                    return true; // the corner's normal comes from the (shared) edge curves alone
+                let (a, b) = (i as f64 / 8.0, j as f64 / 8.0);
+                if a + b < 0.2 {
+                    return true;
                 }
-                let w = point_weights(surface, f, u, v, Some(ev));
+                let w = point_weights(surface, f, size * a, size * b, Some(ev));
                 let exact = vec3::unit_or(vec3::cross(combine(&w.du, p1), combine(&w.dv, p1)), [0.0; 3]);
-                let ours = vec3::unit_or(bezier_eval(b, u, v).1, [0.0; 3]);
+                let ours = vec3::unit_or(bezier_eval(c, a, b).1, [0.0; 3]);
                 exact == [0.0; 3] || vec3::dot(exact, ours) > 0.0
             })
         });
@@ -356,12 +621,7 @@ fn fit_interior(surface: &LimitSurface, f: usize, ev: &EvPatch, p1: &[V3], b: &m
             return;
         }
     }
-    // No weight leaves the fit unfolded: the interior that gives the patch zero twist at its corners.
-    *b = boundary;
-    b[5] = vec3::sub(vec3::add(b[1], b[4]), b[0]);
-    b[6] = vec3::sub(vec3::add(b[2], b[7]), b[3]);
-    b[9] = vec3::sub(vec3::add(b[8], b[13]), b[12]);
-    b[10] = vec3::sub(vec3::add(b[11], b[14]), b[15]);
+    c[5] = vec3::sub(vec3::add(c[1], c[4]), c[0]);
 }
 
 /// Point, and unnormalised normal `∂u × ∂v`, of a Bézier net at `(u, v)`.
@@ -396,40 +656,100 @@ pub struct NormalJumps {
     pub p99_deg: f64,
 }
 
-/// Measure [`NormalJumps`].
-pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> NormalJumps {
-    let per_edge: Vec<(f64, V3, f64)> = patches
-        .edge_half
-        .par_iter()
-        .map(|&h| {
-            let t = surface.net.twin[h as usize];
-            let mut worst: (f64, V3, f64) = (0.0, [0.0; 3], 0.0);
-            for m in 0..=10 {
-                let x = m as f64 / 10.0;
-                let mut normals = [[0.0; 3]; 2];
-                let mut at = [0.0; 3];
-                for (side, (half, frac)) in [(h, x), (t, 1.0 - x)].into_iter().enumerate() {
-                    let f = (half / 4) as usize;
-                    let k = ((half % 4) as usize + 4 - surface.frame_start(f)) % 4;
-                    let ((u, v), _) = edge_param(k, frac);
-                    let (p, n) = bezier_eval(&patches.bezier[f], u, v);
-                    normals[side] = vec3::unit_or(n, [0.0; 3]);
-                    at = p;
+/// The largest normal jump across the edge of half-edge `h` (11 samples): degrees, where, and the fraction
+/// along the edge from its start vertex.
+fn edge_jump(surface: &LimitSurface, patches: &Patches, h: u32) -> (f64, V3, f64) {
+    let t = surface.net.twin[h as usize];
+    let mut worst: (f64, V3, f64) = (0.0, [0.0; 3], 0.0);
+    for m in 0..=10 {
+        let x = m as f64 / 10.0;
+        let mut normals = [[0.0; 3]; 2];
+        let mut at = [0.0; 3];
+        for (side, (half, frac)) in [(h, x), (t, 1.0 - x)].into_iter().enumerate() {
+            let f = (half / 4) as usize;
+            let ((u, v), _) = edge_param(side_of(surface, half), frac);
+            let (p, n) = patches.nets[f].eval(u, v);
+            normals[side] = vec3::unit_or(n, [0.0; 3]);
+            at = p;
+        }
+        let c = vec3::dot(normals[0], normals[1]).clamp(-1.0, 1.0);
+        let a = c.acos().to_degrees();
+        if a > worst.0 {
+            worst = (a, at, x);
+        }
+    }
+    worst
+}
+
+/// The largest normal jump across the inner breaks of a face's nets (5 samples per cell side; C¹ by
+/// construction, measured all the same): degrees and where.
+fn inner_jump(g: &FaceNet) -> (f64, V3) {
+    let (cols, rows) = (g.bu.len() - 1, g.bv.len() - 1);
+    let mut worst = (0.0f64, [0.0; 3]);
+    let mut pair = |x: &[V3; 16], ax: (f64, f64), y: &[V3; 16], ay: (f64, f64)| {
+        let (p, na) = bezier_eval(x, ax.0, ax.1);
+        let (_, nb) = bezier_eval(y, ay.0, ay.1);
+        let c = vec3::dot(vec3::unit_or(na, [0.0; 3]), vec3::unit_or(nb, [0.0; 3])).clamp(-1.0, 1.0);
+        let a = c.acos().to_degrees();
+        if a > worst.0 {
+            worst = (a, p);
+        }
+    };
+    for j in 0..rows {
+        for i in 0..cols {
+            let here = &g.nets[cols * j + i];
+            for m in 0..=4 {
+                let x = m as f64 / 4.0;
+                if i + 1 < cols {
+                    pair(here, (1.0, x), &g.nets[cols * j + i + 1], (0.0, x));
                 }
-                let c = vec3::dot(normals[0], normals[1]).clamp(-1.0, 1.0);
-                let a = c.acos().to_degrees();
-                if a > worst.0 {
-                    worst = (a, at, x);
+                if j + 1 < rows {
+                    pair(here, (x, 1.0), &g.nets[cols * (j + 1) + i], (x, 0.0));
                 }
             }
-            worst
-        })
-        .collect();
+        }
+    }
+    worst
+}
+
+/// The largest normal jump at each face: across its four edges and its inner breaks, degrees.
+fn face_jumps(surface: &LimitSurface, patches: &Patches) -> Vec<f64> {
+    let per_edge: Vec<f64> = patches.edge_half.par_iter().map(|&h| edge_jump(surface, patches, h).0).collect();
+    let mut out: Vec<f64> = patches.nets.par_iter().map(|g| if g.is_split() { inner_jump(g).0 } else { 0.0 }).collect();
+    for (&h, &j) in patches.edge_half.iter().zip(&per_edge) {
+        for f in [h / 4, surface.net.twin[h as usize] / 4] {
+            out[f as usize] = out[f as usize].max(j);
+        }
+    }
+    out
+}
+
+/// Measure [`NormalJumps`].
+pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> NormalJumps {
+    let per_edge: Vec<(f64, V3, f64)> = patches.edge_half.par_iter().map(|&h| edge_jump(surface, patches, h)).collect();
     let Some((imax, &(max_deg, max_at, max_at_fraction))) =
         per_edge.iter().enumerate().max_by(|a, b| a.1.0.total_cmp(&b.1.0))
     else {
         return NormalJumps::default();
     };
+    let inner = patches
+        .nets
+        .par_iter()
+        .filter(|g| g.is_split())
+        .map(inner_jump)
+        .reduce(|| (0.0, [0.0; 3]), |a, b| if b.0 > a.0 { b } else { a });
+    if inner.0 > max_deg {
+        let mut v: Vec<f64> = per_edge.iter().map(|e| e.0).collect();
+        let p99_deg = crate::stages::quality::percentile(&mut v, 0.99);
+        return NormalJumps {
+            max_deg: inner.0,
+            max_at: inner.1,
+            max_at_extraordinary: true,
+            max_at_fraction: 0.5,
+            max_at_valences: [0, 0],
+            p99_deg,
+        };
+    }
     let h = patches.edge_half[imax];
     let t = surface.net.twin[h as usize];
     let max_at_extraordinary =

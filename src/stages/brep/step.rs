@@ -102,6 +102,24 @@ fn reals(xs: &[f64]) -> String {
     format!("({})", v.join(","))
 }
 
+/// An edge's curve as written: its control points and expanded knot vector, with every knot removed that
+/// the curve does not need.
+fn reduced_curve(edge: &super::Edge) -> (Vec<V3>, Vec<f64>) {
+    let mut knots = vec![edge.knots[0]; 4];
+    for &k in &edge.knots[1..edge.knots.len() - 1] {
+        knots.extend([k; 3]);
+    }
+    knots.extend([edge.length(); 4]);
+    let mut bbox = crate::geometry::vec3::Aabb::EMPTY;
+    for &p in &edge.curve {
+        bbox.add(p);
+    }
+    let tol = crate::geometry::tolerance::KNOT_REMOVAL_REL * bbox.diagonal();
+    let mut curves = vec![edge.curve.clone()];
+    super::bspline::remove_curve_knots(&mut knots, &mut curves, tol);
+    (curves.pop().expect("one curve"), knots)
+}
+
 /// The STEP text of `solid`.
 pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
     let name = text(&opts.name);
@@ -144,7 +162,14 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
     // Surfaces first (pcurves refer to them).
     let mut surf = Vec::with_capacity(solid.faces.len());
     for face in &solid.faces {
-        let s = &face.surface;
+        // Written with every knot removed that the face does not need (pieces that join C¹ or C²).
+        let mut s = face.surface.clone();
+        let mut bbox = crate::geometry::vec3::Aabb::EMPTY;
+        for &p in &s.poles {
+            bbox.add(p);
+        }
+        s.remove_knots(crate::geometry::tolerance::KNOT_REMOVAL_REL * bbox.diagonal());
+        let s = &s;
         let mut rows = Vec::with_capacity(s.nu);
         for i in 0..s.nu {
             let ids: Vec<usize> = (0..s.nv).map(|j| o.point(s.poles[j * s.nu + i])).collect();
@@ -172,18 +197,17 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
     // Edges.
     let mut edge_curve = Vec::with_capacity(solid.edges.len());
     for (e, edge) in solid.edges.iter().enumerate() {
-        let last = edge.curve.len() - 1;
+        let (curve, expanded) = reduced_curve(edge);
+        let last = curve.len() - 1;
         let ctrl: Vec<usize> = (0..=last)
             .map(|i| match i {
                 0 => vpoint[edge.start as usize],
                 i if i == last => vpoint[edge.end as usize],
-                i => o.point(edge.curve[i]),
+                i => o.point(curve[i]),
             })
             .collect();
-        let spans = edge.spans();
-        let mults: Vec<String> =
-            (0..=spans).map(|i| if i == 0 || i == spans { "4".to_string() } else { "3".to_string() }).collect();
-        let knots: Vec<f64> = (0..=spans).map(|i| i as f64).collect();
+        let (knots, mults) = knot_multiplicities(&expanded);
+        let mults: Vec<String> = mults.iter().map(|m| m.to_string()).collect();
         let c3 = o.add(format!(
             "B_SPLINE_CURVE_WITH_KNOTS('',3,{},.UNSPECIFIED.,.F.,.F.,({}),{},.UNSPECIFIED.)",
             list(ctrl),
@@ -200,7 +224,7 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
                 let pb = o.add(format!("CARTESIAN_POINT('',({},{}))", real(b[0]), real(b[1])));
                 let line = o.add(format!(
                     "B_SPLINE_CURVE_WITH_KNOTS('',1,(#{pa},#{pb}),.POLYLINE_FORM.,.F.,.F.,(2,2),(0.,{}),.UNSPECIFIED.)",
-                    real(spans as f64)
+                    real(edge.length())
                 ));
                 let dr = o.add(format!("DEFINITIONAL_REPRESENTATION('',(#{line}),#{ctx2})"));
                 pcs.push(o.add(format!("PCURVE('',#{},#{dr})", surf[fi])));

@@ -186,6 +186,27 @@ impl EvPatch {
         Ok(EvPatch { local, weights })
     }
 
+    /// The uniform B-spline control grid (`grid[4·j + i]`, frame from the extraordinary corner) of
+    /// regular sub-patch `q` (1: `u ≥ ½, v < ½`, 2: both `≥ ½`, 3: `u < ½, v ≥ ½` of the level's corner
+    /// square) at subdivision `level` (1 = the face split once), as positions from the level-1 control
+    /// points `p1`. Its parameter square maps onto the quadrant linearly. Cost: O(16 · local).
+    pub fn sub_grid(&self, level: usize, q: usize, p1: &[[f64; 3]]) -> [[f64; 3]; 16] {
+        assert!((1..=EV_LEVELS).contains(&level) && (1..=3).contains(&q), "sub-patch {q} at level {level}");
+        let k = self.local.len();
+        let base = ((level - 1) * 3 + (q - 1)) * 16 * k;
+        std::array::from_fn(|g| {
+            let row = &self.weights[base + g * k..base + (g + 1) * k];
+            let mut acc = [0.0; 3];
+            for (&w, &v) in row.iter().zip(&self.local) {
+                if w != 0.0 {
+                    let x = p1[v as usize];
+                    acc = [acc[0] + w * x[0], acc[1] + w * x[1], acc[2] + w * x[2]];
+                }
+            }
+            acc
+        })
+    }
+
     /// Weights of the limit point at `(u, v)` (frame from the extraordinary corner) and of its derivatives,
     /// over [`EvPatch::local`] indices.
     pub fn eval(&self, u: f64, v: f64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
