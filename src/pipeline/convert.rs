@@ -81,6 +81,11 @@ pub struct StageReport {
 pub struct Attempt {
     pub target_vertices: usize,
     pub control_vertices: usize,
+    /// The remesh seed of this try.
+    pub seed: u64,
+    /// Crossing triangle pairs of the solid's tessellation (a try with any is built again from another
+    /// seed, up to [`SOLID_RETRIES`] times).
+    pub solid_self_intersections: usize,
     pub solid_rms: f64,
     pub solid_rms_pct: f64,
 }
@@ -129,6 +134,10 @@ pub const CHAIN_MEMORY_FACTOR: u64 = 8;
 
 /// Remesh attempts with other seeds when the quad mesh intersects itself.
 pub const REMESH_RETRIES: usize = 3;
+
+/// Whole remesh → surface → brep chains built again from other seeds when the solid's surface crosses
+/// itself.
+pub const SOLID_RETRIES: usize = 2;
 
 /// Pairs of non-adjacent triangles of the (fan-triangulated) quad mesh that intersect.
 fn quad_self_intersections(quads: &PolyMesh) -> usize {
@@ -262,60 +271,77 @@ pub fn convert_file(
     let mut attempts = Vec::new();
     let mut best = None;
     for (k, &n) in targets.iter().enumerate() {
-        let mut attempt_stages = Vec::new();
-        check_cancelled(progress)?;
-        let clock = Clock::start();
-        let span = ProgressSpan::new(progress, 0.1, 0.5, "remesh");
-        let ropts =
-            RemeshOptions { target_vertices: n, seed: opts.seed, memory_budget: opts.memory_budget, ..opts.remesh };
-        // A quad mesh that folds through itself would give a self-intersecting solid: try other seeds
-        // (up to REMESH_RETRIES) and keep the one with the fewest crossings.
-        let mut best_quads: Option<(PolyMesh, RemeshReport, usize)> = None;
-        for retry in 0..=REMESH_RETRIES {
-            let ropts = RemeshOptions { seed: opts.seed.wrapping_add(retry as u64), ..ropts.clone() };
-            let (q, r) = remesh(&repaired, &ropts, &span).map_err(|e| e.in_file(input))?;
-            let crossings = quad_self_intersections(&q);
-            if crossings > 0 {
-                tracing::warn!(crossings, seed = ropts.seed, "the quad mesh intersects itself; trying another seed");
+        // A solid whose surface crosses itself (a pleat of the fitted surface at a thin part, which depends
+        // on the quad layout there) is built again from another seed's quads, up to SOLID_RETRIES times; the
+        // one with the fewest crossings is kept (the first clean one ends the search).
+        let mut best_try: Option<(PolyMesh, RemeshReport, FitReport, Solid, BrepReport, Vec<StageReport>, f64)> = None;
+        for solid_try in 0..=SOLID_RETRIES {
+            let seed = opts.seed.wrapping_add((solid_try * (REMESH_RETRIES + 1)) as u64);
+            let mut attempt_stages = Vec::new();
+            check_cancelled(progress)?;
+            let clock = Clock::start();
+            let span = ProgressSpan::new(progress, 0.1, 0.5, "remesh");
+            let ropts = RemeshOptions { target_vertices: n, seed, memory_budget: opts.memory_budget, ..opts.remesh };
+            // A quad mesh that folds through itself would give a self-intersecting solid: try other seeds
+            // (up to REMESH_RETRIES) and keep the one with the fewest crossings.
+            let mut best_quads: Option<(PolyMesh, RemeshReport, usize)> = None;
+            for retry in 0..=REMESH_RETRIES {
+                let ropts = RemeshOptions { seed: seed.wrapping_add(retry as u64), ..ropts.clone() };
+                let (q, r) = remesh(&repaired, &ropts, &span).map_err(|e| e.in_file(input))?;
+                let crossings = quad_self_intersections(&q);
+                if crossings > 0 {
+                    tracing::warn!(crossings, seed = ropts.seed, "the quad mesh intersects itself; trying another seed");
+                }
+                if best_quads.as_ref().is_none_or(|b| crossings < b.2) {
+                    best_quads = Some((q, r, crossings));
+                }
+                if crossings == 0 {
+                    break;
+                }
             }
-            if best_quads.as_ref().is_none_or(|b| crossings < b.2) {
-                best_quads = Some((q, r, crossings));
+            let (quads, remesh_report, quad_crossings) = best_quads.expect("at least one remesh ran");
+            let d = compare(&Geometry::Mesh(quads.clone()), &input_geom, &cmp_opts, &span)?;
+            attempt_stages.push(clock.stop("remesh", Some(d)));
+
+            check_cancelled(progress)?;
+            let clock = Clock::start();
+            let span = ProgressSpan::new(progress, 0.5, 0.8, "surface");
+            let (net, pos) = control_net(&quads)?;
+            let (p, surface, fit_report) = fit_control_points(&net, &pos, &target_bvh, &opts.fit, &span)?;
+            attempt_stages.push(clock.stop("surface", None));
+
+            check_cancelled(progress)?;
+            let clock = Clock::start();
+            let span = ProgressSpan::new(progress, 0.8, 0.95, "brep");
+            let p1 = surface.refine.apply(&p);
+            let (solid, mut brep_report) = build_solid(&surface, &p1)?;
+            brep_report.quad_self_intersections = quad_crossings;
+            (brep_report.self_intersections, brep_report.self_intersection_at) = solid_self_intersections(&solid)?;
+            let tess = tessellate_for_check(&solid, 1_500_000)?;
+            let d = compare(&Geometry::Mesh(PolyMesh::from(tess)), &input_geom, &cmp_opts, &span)?;
+            let rms = d.symmetric.rms.value;
+            attempt_stages.push(clock.stop("brep", Some(d)));
+            let crossings = brep_report.self_intersections;
+            attempts.push(Attempt {
+                target_vertices: n,
+                control_vertices: net.vertex_count,
+                seed,
+                solid_self_intersections: crossings,
+                solid_rms: rms,
+                solid_rms_pct: 100.0 * rms / diag,
+            });
+            if crossings > 0 {
+                tracing::warn!(pairs = crossings, seed, "the solid's surface intersects itself; trying another seed");
+            }
+            if best_try.as_ref().is_none_or(|b| crossings < b.4.self_intersections) {
+                best_try = Some((quads, remesh_report, fit_report, solid, brep_report, attempt_stages, rms));
             }
             if crossings == 0 {
                 break;
             }
         }
-        let (quads, remesh_report, quad_crossings) = best_quads.expect("at least one remesh ran");
-        let d = compare(&Geometry::Mesh(quads.clone()), &input_geom, &cmp_opts, &span)?;
-        attempt_stages.push(clock.stop("remesh", Some(d)));
-
-        check_cancelled(progress)?;
-        let clock = Clock::start();
-        let span = ProgressSpan::new(progress, 0.5, 0.8, "surface");
-        let (net, pos) = control_net(&quads)?;
-        let (p, surface, fit_report) = fit_control_points(&net, &pos, &target_bvh, &opts.fit, &span)?;
-        attempt_stages.push(clock.stop("surface", None));
-
-        check_cancelled(progress)?;
-        let clock = Clock::start();
-        let span = ProgressSpan::new(progress, 0.8, 0.95, "brep");
-        let p1 = surface.refine.apply(&p);
-        let (solid, mut brep_report) = build_solid(&surface, &p1)?;
-        brep_report.quad_self_intersections = quad_crossings;
-        (brep_report.self_intersections, brep_report.self_intersection_at) = solid_self_intersections(&solid)?;
-        if brep_report.self_intersections > 0 {
-            tracing::warn!(pairs = brep_report.self_intersections, "the solid's surface intersects itself");
-        }
-        let tess = tessellate_for_check(&solid, 1_500_000)?;
-        let d = compare(&Geometry::Mesh(PolyMesh::from(tess)), &input_geom, &cmp_opts, &span)?;
-        let rms = d.symmetric.rms.value;
-        attempt_stages.push(clock.stop("brep", Some(d)));
-        attempts.push(Attempt {
-            target_vertices: n,
-            control_vertices: net.vertex_count,
-            solid_rms: rms,
-            solid_rms_pct: 100.0 * rms / diag,
-        });
+        let (quads, remesh_report, fit_report, solid, brep_report, attempt_stages, rms) =
+            best_try.expect("at least one solid was built");
         let done = match opts.resolution {
             Resolution::Vertices(_) => true,
             Resolution::Tolerance(t) => rms <= t || k + 1 == targets.len(),
