@@ -364,7 +364,9 @@ fn only_the_corner_cell_of_an_extraordinary_face_is_approximated() {
             }
             corner_rel = corner_rel.max(face_corner_worst / diag);
         }
-        eprintln!("valence {n}: exact cells {exact_worst:.2e}, corner cell {corner_worst:.2e} ({corner_rel:.4} of its diagonal)");
+        eprintln!(
+            "valence {n}: exact cells {exact_worst:.2e}, corner cell {corner_worst:.2e} ({corner_rel:.4} of its diagonal)"
+        );
         assert!(cells > 0);
         assert!(exact_worst < 1e-12, "valence {n}: an exact cell is {exact_worst:.3e} from the limit");
         // Measured 1.4 % (valence 3), 2.2 % (5), 6.5 % (8) of a cell that is a quarter of the face or less; the

@@ -290,7 +290,11 @@ pub fn convert_file(
                 let (q, r) = remesh(&repaired, &ropts, &span).map_err(|e| e.in_file(input))?;
                 let crossings = quad_self_intersections(&q);
                 if crossings > 0 {
-                    tracing::warn!(crossings, seed = ropts.seed, "the quad mesh intersects itself; trying another seed");
+                    tracing::warn!(
+                        crossings,
+                        seed = ropts.seed,
+                        "the quad mesh intersects itself; trying another seed"
+                    );
                 }
                 if best_quads.as_ref().is_none_or(|b| crossings < b.2) {
                     best_quads = Some((q, r, crossings));

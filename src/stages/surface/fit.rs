@@ -47,6 +47,10 @@ impl FitTarget for MeshTarget {
     }
 }
 
+/// Cosine of the angle between a sample's surface normal and its target's normal beyond which the sample
+/// is fitted point-to-point instead of point-to-plane.
+const CREASE_COS: f64 = 0.7;
+
 /// A sphere as target (analytic oracle for tests).
 #[derive(Copy, Clone, Debug)]
 pub struct SphereTarget {
@@ -399,10 +403,17 @@ pub fn fit_control_points(
     let mut bad_rounds = 0;
     for round in 0..opts.rounds {
         progress.report(0.1 + 0.85 * round as f64 / opts.rounds as f64, "surface: fit");
-        // Per-sample metric a_s (n nᵀ + μ I): point-to-plane plus a little point-to-point.
+        // Per-sample metric a_s (n nᵀ + μ I): point-to-plane plus a little point-to-point. Where the target's
+        // normal is far from the surface's (a crease finer than the net), point-to-point: a plane from the
+        // other side of the crease would pull the surface past it into a pleat.
+        let crease: Vec<bool> =
+            (0..x.len()).map(|s| vec3::dot(vec3::unit_or(facing[s], [0.0; 3]), normal[s]) < CREASE_COS).collect();
         let metric = |s: usize, v: V3| -> V3 {
             let n = normal[s];
             let a = samples.area[s];
+            if crease[s] {
+                return vec3::scale(v, a * (1.0 + mu));
+            }
             vec3::scale(vec3::add(vec3::scale(n, vec3::dot(n, v)), vec3::scale(v, mu)), a)
         };
         let apply_h = |xv: &[V3]| -> Vec<V3> {
