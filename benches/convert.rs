@@ -61,6 +61,18 @@ fn main() {
             b.p99_normal_jump_deg,
             std::fs::metadata(&out).map(|m| m.len()).unwrap_or(0)
         );
+        // Every chain built (the stage rows are the kept one's; the total includes all of them).
+        let tries: Vec<String> = r
+            .attempts
+            .iter()
+            .map(|a| format!("seed {} → {} crossing pairs", a.seed, a.solid_self_intersections))
+            .collect();
+        println!(
+            "chains: {}; kept: {} crossing pairs, {} folded faces",
+            tries.join(", "),
+            b.self_intersections,
+            b.folded_faces
+        );
     }
     let _ = std::fs::remove_dir_all(&tmp);
 }
