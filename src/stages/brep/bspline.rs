@@ -223,33 +223,39 @@ impl BsplineSurface {
     /// row per piece instead of three. Cost: O(knots · poles) per pass.
     pub fn remove_knots(&mut self, tol: f64) {
         for dir in 0..2 {
-            let (knots, lines) = if dir == 0 { (&self.knots_u, self.nv) } else { (&self.knots_v, self.nu) };
-            let mut knots = knots.clone();
-            let along = if dir == 0 { self.nu } else { self.nv };
-            let mut curves: Vec<Vec<V3>> = (0..lines)
-                .map(|l| {
-                    (0..along)
-                        .map(|k| if dir == 0 { self.poles[l * self.nu + k] } else { self.poles[k * self.nu + l] })
-                        .collect()
-                })
-                .collect();
+            let (mut knots, mut curves) = self.lines(dir);
             remove_curve_knots(&mut knots, &mut curves, tol);
-            let along = curves[0].len();
-            if dir == 0 {
-                self.nu = along;
-                self.poles = (0..lines).flat_map(|l| curves[l].clone()).collect();
-                self.knots_u = knots;
-            } else {
-                self.nv = along;
-                let mut poles = vec![[0.0; 3]; self.nu * along];
-                for (l, c) in curves.iter().enumerate() {
-                    for (k, &q) in c.iter().enumerate() {
-                        poles[k * self.nu + l] = q;
-                    }
+            self.set_lines(dir, knots, curves);
+        }
+    }
+
+    /// The pole lines along u (`dir` 0: one per v index) or along v (`dir` 1: one per u index), with that
+    /// direction's expanded knots.
+    fn lines(&self, dir: usize) -> (Vec<f64>, Vec<Vec<V3>>) {
+        let (knots, count, along) =
+            if dir == 0 { (&self.knots_u, self.nv, self.nu) } else { (&self.knots_v, self.nu, self.nv) };
+        let pole =
+            |l: usize, k: usize| if dir == 0 { self.poles[l * self.nu + k] } else { self.poles[k * self.nu + l] };
+        (knots.clone(), (0..count).map(|l| (0..along).map(|k| pole(l, k)).collect()).collect())
+    }
+
+    /// Replace the pole lines of direction `dir` (see [`Self::lines`]) and that direction's knots.
+    fn set_lines(&mut self, dir: usize, knots: Vec<f64>, curves: Vec<Vec<V3>>) {
+        let along = curves[0].len();
+        if dir == 0 {
+            self.nu = along;
+            self.poles = curves.concat();
+            self.knots_u = knots;
+        } else {
+            self.nv = along;
+            let mut poles = vec![[0.0; 3]; self.nu * along];
+            for (l, c) in curves.iter().enumerate() {
+                for (k, &q) in c.iter().enumerate() {
+                    poles[k * self.nu + l] = q;
                 }
-                self.poles = poles;
-                self.knots_v = knots;
             }
+            self.poles = poles;
+            self.knots_v = knots;
         }
     }
 }
@@ -313,21 +319,7 @@ mod tests {
         // Triple every interior knot (insert each twice more), along u and v.
         let mut tripled = smooth.clone();
         for dir in 0..2 {
-            let (knots, lines, along) = if dir == 0 {
-                (&tripled.knots_u, tripled.nv, tripled.nu)
-            } else {
-                (&tripled.knots_v, tripled.nu, tripled.nv)
-            };
-            let mut k = knots.clone();
-            let mut curves: Vec<Vec<V3>> = (0..lines)
-                .map(|l| {
-                    (0..along)
-                        .map(|a| {
-                            if dir == 0 { tripled.poles[l * tripled.nu + a] } else { tripled.poles[a * tripled.nu + l] }
-                        })
-                        .collect()
-                })
-                .collect();
+            let (mut k, mut curves) = tripled.lines(dir);
             let inner: Vec<f64> = (1..if dir == 0 { w } else { h }).map(|x| x as f64).collect();
             for &x in &inner {
                 for _ in 0..2 {
@@ -339,22 +331,7 @@ mod tests {
                     k = kk;
                 }
             }
-            let along = curves[0].len();
-            if dir == 0 {
-                tripled.nu = along;
-                tripled.poles = curves.concat();
-                tripled.knots_u = k;
-            } else {
-                tripled.nv = along;
-                let mut poles = vec![[0.0; 3]; tripled.nu * along];
-                for (l, c) in curves.iter().enumerate() {
-                    for (a, &q) in c.iter().enumerate() {
-                        poles[a * tripled.nu + l] = q;
-                    }
-                }
-                tripled.poles = poles;
-                tripled.knots_v = k;
-            }
+            tripled.set_lines(dir, k, curves);
         }
         assert_eq!((tripled.nu, tripled.nv), (3 * w + 1, 3 * h + 1));
         let mut reduced = tripled.clone();
