@@ -155,12 +155,10 @@ fn run_json(script: &Path, args: &[&std::ffi::OsStr]) -> Value {
 ///
 /// gmsh must tetrahedralise every one of them.
 ///
-/// Known defects (issue 5, open): on the dragon (20k control vertices) the fitted surface crosses itself
-/// (our own check counts the crossing triangle pairs), and on armadillo and the dragon one face of the
-/// fitted limit surface folds over (the normal turns back between neighbouring samples; `Solid::folds`).
-/// Our checks must report no crossings except the files in `KNOWN_CROSSINGS` and no folds except the files
-/// in `KNOWN_FOLDS`; every solid must keep its largest normal jump across patch edges within
-/// `MAX_JUMP_DEG` (1°, the issue's target).
+/// Our own checks must find no crossing of the solid's surface (a welded tessellation's triangle pairs) and
+/// no folded face (`Solid::folds`), and every solid must keep its largest normal jump across patch edges,
+/// ours and OpenCASCADE's, within `MAX_JUMP_DEG` (1°, the issue's target). Until the crease-aware fit,
+/// armadillo and the dragon had one folded face each and the dragon 34 crossing pairs.
 #[test]
 fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
     use scanstation::pipeline::{ConvertOptions, Resolution, convert_file};
@@ -177,13 +175,8 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
         ("bunny/reconstruction/bun_zipper.ply", 10_000, None),
         ("large/dragon_vrip_draco.ply.gz", 20_000, None),
     ];
-    // Surfaces that cross themselves (the dragon at 20k: 34 triangle pairs of the tessellation, measured).
-    const KNOWN_CROSSINGS: [&str; 1] = ["large/dragon_vrip_draco.ply.gz"];
-    // Faces whose fitted limit surface itself folds over (measured 1 on armadillo and 1 on the dragon). gmsh
-    // meshes both all the same.
-    const KNOWN_FOLDS: [&str; 2] = ["meshes/armadillo_50k.ply", "large/dragon_vrip_draco.ply.gz"];
     // The issue's target. Extraordinary faces are cut towards their vertex until the jump there is below
-    // `patches::JUMP_TARGET_DEG` (0.25°), so every solid is held to it, folded ones too.
+    // `patches::JUMP_TARGET_DEG` (0.25°), so every solid is held to it.
     const MAX_JUMP_DEG: f64 = 1.0;
     for (file, vertices, accuracy) in cases {
         let input = data.join(file);
@@ -274,24 +267,18 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
         println!("{file}: gmsh {g}");
         assert_eq!(g["volumes"], 1, "{file}: gmsh sees {} volumes", g["volumes"]);
         assert!(g["tetrahedra"].as_u64().unwrap() > 0, "{file}: gmsh made no tetrahedra: {g}");
-        if folds > 0 {
-            assert!(KNOWN_FOLDS.contains(&file), "{file}: {folds} folded faces near {:?}", report.brep.fold_at);
-            println!("{file}: KNOWN DEFECT: {folds} folded faces near {:?}", report.brep.fold_at);
-        }
+        assert_eq!(folds, 0, "{file}: {folds} folded faces near {:?}", report.brep.fold_at);
         assert!(
             report.brep.max_normal_jump_deg <= MAX_JUMP_DEG,
             "{file}: largest normal jump {:.3}° > {MAX_JUMP_DEG}° at {:?}",
             report.brep.max_normal_jump_deg,
             report.brep.max_normal_jump_at
         );
-        if crossings > 0 {
-            assert!(
-                KNOWN_CROSSINGS.contains(&file),
-                "{file}: the solid intersects itself ({crossings} pairs near {:?})",
-                report.brep.self_intersection_at
-            );
-            println!("{file}: KNOWN DEFECT: {crossings} crossing pairs near {:?}", report.brep.self_intersection_at);
-        }
+        assert_eq!(
+            crossings, 0,
+            "{file}: the solid intersects itself ({crossings} pairs near {:?})",
+            report.brep.self_intersection_at
+        );
     }
 }
 

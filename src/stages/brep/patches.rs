@@ -2,8 +2,9 @@
 //!
 //! - Regular faces: the exact B-spline patch converted to Bézier form.
 //! - Extraordinary faces (one extraordinary corner, where the face's frame starts) are cut towards that
-//!   corner [`EV_SPLIT_LEVELS`] times, like the local subdivision that evaluates them: breaks at
-//!   `0, 2⁻ᴸ, …, ¼, ½, 1` in u and in v ([`FaceNet`]).
+//!   corner L times (L from 1 to [`EV_SPLIT_LEVELS`]), like the local subdivision that evaluates them:
+//!   breaks at `0, 2⁻ᴸ, …, ¼, ½, 1` in u and in v ([`FaceNet`]). The faces of a vertex are cut once more
+//!   while the largest normal jump at them exceeds [`JUMP_TARGET_DEG`].
 //!   - Every cell but the corner one is the **exact** limit (a piece of a regular sub-patch of the local
 //!     subdivision), so those cells join each other and the neighbouring faces exactly.
 //!   - Only the corner cell, `[0, 2⁻ᴸ]²`, is approximated. Along its inner sides it takes the boundary and
@@ -298,7 +299,8 @@ fn exact_cells(ev: &EvPatch, p1: &[V3], levels: usize) -> FaceNet {
 /// # Errors
 /// `internal.bug` when an extraordinary face's local evaluation cannot be built.
 ///
-/// Cost: O(F) with a constant of a few thousand flops per extraordinary face.
+/// Cost: O(F) per pass, a few thousand flops per extraordinary face; at most [`EV_SPLIT_LEVELS`] passes
+/// (each re-cuts the faces of the vertices still above the jump target).
 pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
     let net = &surface.net;
     let (edge_of, edge_half) = net.edges();
