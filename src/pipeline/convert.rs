@@ -197,6 +197,29 @@ fn tessellate_for_check(solid: &Solid, budget: usize) -> Result<TriMesh> {
 /// written or would overwrite the input; `input.bad-argument` for a bad resolution; `cancelled` when
 /// `progress` asks to stop (checked between stages, so nothing is written).
 ///
+/// A progress sink that passes on the largest fraction reported so far (with each new phase).
+struct Monotonic<'a> {
+    parent: &'a dyn Progress,
+    last: std::sync::Mutex<f64>,
+}
+
+impl Progress for Monotonic<'_> {
+    fn report(&self, fraction: f64, phase: &str) {
+        let v = {
+            let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
+            if fraction.is_finite() {
+                *last = last.max(fraction);
+            }
+            *last
+        };
+        self.parent.report(v, phase);
+    }
+
+    fn cancelled(&self) -> bool {
+        self.parent.cancelled()
+    }
+}
+
 /// Progress: one monotonic overall fraction with phases `STAGE/phase`, STAGE one of `read`, `repair`,
 /// `remesh`, `surface`, `brep`, `step` (see [`ProgressSpan`]).
 pub fn convert_file(
@@ -206,6 +229,10 @@ pub fn convert_file(
     opts: &ConvertOptions,
     progress: &dyn Progress,
 ) -> Result<ConvertReport> {
+    // Stages run again for another resolution (`--tolerance`) or another seed (a self-crossing solid);
+    // the overall fraction must not go back when they do.
+    let monotonic = Monotonic { parent: progress, last: std::sync::Mutex::new(0.0) };
+    let progress: &dyn Progress = &monotonic;
     ensure_not_input(output, &[input])?;
     if let Some(q) = &opts.quads_output {
         ensure_not_input(q, &[input, output])?;
@@ -390,4 +417,28 @@ pub fn convert_file(
         attempts,
         total_seconds: t_total.elapsed().as_secs_f64(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Record(std::sync::Mutex<Vec<f64>>);
+    impl Progress for Record {
+        fn report(&self, fraction: f64, _phase: &str) {
+            self.0.lock().unwrap().push(fraction);
+        }
+    }
+
+    /// A stage that runs again (another seed, another resolution) reports lower fractions; the caller
+    /// still sees the overall fraction hold, not go back.
+    #[test]
+    fn progress_never_goes_back_when_stages_run_again() {
+        let rec = Record(std::sync::Mutex::new(Vec::new()));
+        let m = Monotonic { parent: &rec, last: std::sync::Mutex::new(0.0) };
+        for f in [0.1, 0.5, 0.95, 0.1, 0.5, f64::NAN, 0.97, 1.0] {
+            m.report(f, "x");
+        }
+        assert_eq!(*rec.0.lock().unwrap(), vec![0.1, 0.5, 0.95, 0.95, 0.95, 0.95, 0.97, 1.0]);
+    }
 }
