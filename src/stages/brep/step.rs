@@ -102,6 +102,17 @@ fn reals(xs: &[f64]) -> String {
     format!("({})", v.join(","))
 }
 
+/// How far knot removal may move the control points `poles`: [`KNOT_REMOVAL_REL`] of their bbox diagonal.
+///
+/// [`KNOT_REMOVAL_REL`]: crate::geometry::tolerance::KNOT_REMOVAL_REL
+fn knot_tolerance(poles: &[V3]) -> f64 {
+    let mut bbox = crate::geometry::vec3::Aabb::EMPTY;
+    for &p in poles {
+        bbox.add(p);
+    }
+    crate::geometry::tolerance::KNOT_REMOVAL_REL * bbox.diagonal()
+}
+
 /// An edge's curve as written: its control points and expanded knot vector, with every knot removed that
 /// the curve does not need.
 fn reduced_curve(edge: &super::Edge) -> (Vec<V3>, Vec<f64>) {
@@ -110,11 +121,7 @@ fn reduced_curve(edge: &super::Edge) -> (Vec<V3>, Vec<f64>) {
         knots.extend([k; 3]);
     }
     knots.extend([edge.length(); 4]);
-    let mut bbox = crate::geometry::vec3::Aabb::EMPTY;
-    for &p in &edge.curve {
-        bbox.add(p);
-    }
-    let tol = crate::geometry::tolerance::KNOT_REMOVAL_REL * bbox.diagonal();
+    let tol = knot_tolerance(&edge.curve);
     let mut curves = vec![edge.curve.clone()];
     super::bspline::remove_curve_knots(&mut knots, &mut curves, tol);
     (curves.pop().expect("one curve"), knots)
@@ -164,11 +171,7 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
     for face in &solid.faces {
         // Written with every knot removed that the face does not need (pieces that join C¹ or C²).
         let mut s = face.surface.clone();
-        let mut bbox = crate::geometry::vec3::Aabb::EMPTY;
-        for &p in &s.poles {
-            bbox.add(p);
-        }
-        s.remove_knots(crate::geometry::tolerance::KNOT_REMOVAL_REL * bbox.diagonal());
+        s.remove_knots(knot_tolerance(&s.poles));
         let s = &s;
         let mut rows = Vec::with_capacity(s.nu);
         for i in 0..s.nu {
