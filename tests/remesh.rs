@@ -42,9 +42,14 @@ fn torus_field_is_nearly_regular() {
     let deficit: i64 = o.valence_histogram.iter().map(|(&k, &n)| (4 - k as i64) * n as i64).sum();
     assert_eq!(deficit, 0, "torus: valences {:?}", o.valence_histogram);
     println!(
-        "torus: {} orientation singularities, irregular {} valences {:?}",
-        r.orientation_singularities, o.irregular_vertices, o.valence_histogram
+        "torus: {} orientation singularities, irregular {} valences {:?}, mode {:?}, singularities {:?}",
+        r.orientation_singularities,
+        o.irregular_vertices,
+        o.valence_histogram,
+        r.mode,
+        r.attempts[r.chosen_attempt].position_singularities
     );
+    println!("torus: other routes {:?}", r.alternatives);
     assert!(r.orientation_singularities <= 20, "torus: {} orientation singularities", r.orientation_singularities);
     assert!(
         o.irregular_fraction <= 0.05,
@@ -64,8 +69,12 @@ fn sphere_field_has_eight_valence_deficits() {
     let deficit: i64 = o.valence_histogram.iter().map(|(&k, &n)| (4 - k as i64) * n as i64).sum();
     assert_eq!(deficit, 8, "sphere: valences {:?}", o.valence_histogram);
     println!("sphere: irregular {} valences {:?}", o.irregular_vertices, o.valence_histogram);
-    // Measured 61 of 2000 (position singularities come in 3–5 pairs); the target is 8 ± a few.
-    assert!(o.irregular_fraction <= 0.035, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
+    // Position singularities come in 3–5 pairs: 61 of 2000 as extracted; 39 once pairs are cancelled
+    // (integer::cancel_pairs, kept by the trade rule). The target is 8 ± a few.
+    assert!(o.irregular_fraction <= 0.025, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
+    let kept: Vec<_> = r.cancellation.iter().filter(|t| t.kept).collect();
+    assert_eq!(kept.len(), 1, "sphere: the cancelled extraction should win: {:?}", r.cancellation);
+    assert!(kept[0].counts.singular_after * 2 < kept[0].counts.singular_before, "sphere: {:?}", kept[0].counts);
     // Analytic oracle: every vertex lies on the unit sphere up to the icosphere's chordal error.
     let worst = q.positions.iter().map(|p| (p.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt() - 1.0).abs());
     let worst = worst.fold(0.0, f64::max);

@@ -83,6 +83,9 @@ enum Command {
         /// One spacing everywhere (no finer spacing on thin parts).
         #[arg(long)]
         uniform_spacing: bool,
+        /// Extract from the position field as it is, without cancelling its singularities in pairs.
+        #[arg(long)]
+        keep_singularities: bool,
         /// Working-mesh vertices per output vertex.
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex)]
         work_per_vertex: f64,
@@ -238,6 +241,7 @@ fn main() -> ExitCode {
             work_per_vertex,
             split_only,
             uniform_spacing,
+            keep_singularities,
         } => {
             let opts = scanstation::stages::remesh::RemeshOptions {
                 seed: *seed,
@@ -246,6 +250,7 @@ fn main() -> ExitCode {
                 work_per_vertex: *work_per_vertex,
                 try_direct: !*split_only,
                 adaptive_spacing: !*uniform_spacing,
+                cancel_singularities: !*keep_singularities,
                 memory_budget: cli.memory_budget,
                 ..Default::default()
             };

@@ -11,12 +11,12 @@
 //!    construction; edges with the same face on both sides and vertices a face visits twice are removed
 //!    and the tracing repeated.
 
-use rayon::prelude::*;
-
-use super::field::{Frame, compat_position_index, tangent_unit};
+use super::field::tangent_unit;
 use super::hierarchy::Level;
+use super::integer;
 use crate::geometry::topology::UnionFind;
 use crate::geometry::vec3::{self, V3, add, cross, dot, scale, sub};
+use rayon::prelude::*;
 
 /// Vertices with fewer edges are pruned before faces are traced (a valence-2 vertex between two quads is a
 /// doublet; keeping them instead was tried and caused more pinches on the dragon).
@@ -39,46 +39,39 @@ pub struct Extracted {
     pub dangling_edges_removed: usize,
     /// Vertices removed because a face visited them twice (a pinch).
     pub pinch_vertices_removed: usize,
+    /// What the cancellation of position singularities did (when it ran).
+    pub integer: Option<integer::CancelCounts>,
 }
 
-/// Extract from level 0 with orientation `q`, lattice origins `o` and spacing `s[i]` at vertex i.
-pub fn extract(level: &Level, q: &[V3], o: &[V3], s: &[f64]) -> Extracted {
+/// Extract from level 0 with orientation `q`, lattice origins `o` and spacing `s[i]` at vertex i. With
+/// `cancel` (the triangles level 0 was built from, and a path cost), position singularities are first
+/// cancelled in pairs ([`integer::cancel_pairs`]); the extraction then follows the changed steps, and the
+/// clusters are placed by them ([`place_by_steps`]).
+pub fn extract(level: &Level, q: &[V3], o: &[V3], s: &[f64], cancel: Option<(&[[u32; 3]], f64)>) -> Extracted {
     let n = level.len();
-    // 1. Classify input edges in parallel.
-    let per_vertex: Vec<Vec<(u32, u32, bool)>> = (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let f0 = Frame { p: level.p[i], n: level.n[i], q: q[i], o: o[i], s: s[i] };
-            let mut out = Vec::new();
-            for (j, _) in level.neighbours(i) {
-                if j <= i {
-                    continue;
-                }
-                let f1 = Frame { p: level.p[j], n: level.n[j], q: q[j], o: o[j], s: s[j] };
-                let (c0, c1) = compat_position_index(&f0, &f1);
-                let d = [c0[0] - c1[0], c0[1] - c1[1]];
-                let l1 = d[0].abs() + d[1].abs();
-                if l1 == 0 {
-                    out.push((i as u32, j as u32, true));
-                } else if l1 == 1 {
-                    out.push((i as u32, j as u32, false));
-                }
-            }
-            out
-        })
-        .collect();
+    // 1. Integer steps of every input edge (in parallel), optionally made consistent.
+    let mut off = integer::Offsets::compute(level, q, o, s);
+    let mut out = Extracted::default();
+    if let Some((tris, cost)) = cancel {
+        out.integer = integer::cancel_pairs(&mut off, tris, cost);
+    }
     let mut uf = UnionFind::new(n);
     let mut links = Vec::new();
-    for (i, j, same) in per_vertex.into_iter().flatten() {
-        if same {
-            uf.union(i, j);
-        } else {
-            links.push((i, j));
+    for (&(i, j), d) in off.edges.iter().zip(&off.d) {
+        match d[0].abs() + d[1].abs() {
+            0 => uf.union(i, j),
+            1 => links.push((i, j)),
+            _ => {}
         }
     }
-    let mut out = Extracted::default();
     // 2. Clusters, then snapping of near-coincident clusters (once).
     let mut graph = cluster_graph(level, o, s, &mut uf, &links);
+    // With cancelled singularities the origins no longer agree with the steps along the paths: place the
+    // clusters by the steps instead, so the stretch spreads before snapping and tracing.
+    let steps = out.integer.is_some().then(|| link_vectors(level, q, s, &off));
+    if let Some(steps) = &steps {
+        place_by_steps(&mut graph, steps);
+    }
     let mut snapped = 0;
     for &(a, b) in &graph.edges {
         let local = 0.5 * (graph.s[a as usize] + graph.s[b as usize]);
@@ -92,6 +85,9 @@ pub fn extract(level: &Level, q: &[V3], o: &[V3], s: &[f64]) -> Extracted {
     }
     if snapped > 0 {
         graph = cluster_graph(level, o, s, &mut uf, &links);
+        if let Some(steps) = &steps {
+            place_by_steps(&mut graph, steps);
+        }
     }
     out.snapped = snapped;
     // 3. Prune low valence, trace faces, remove dangling edges, repeat.
@@ -155,6 +151,8 @@ struct ClusterGraph {
     s: Vec<f64>,
     /// One input vertex of each cluster (for re-joining).
     members: Vec<u32>,
+    /// Cluster of every input vertex.
+    cluster: Vec<u32>,
     /// Undirected edges (a < b), sorted, unique.
     edges: Vec<(u32, u32)>,
 }
@@ -199,7 +197,68 @@ fn cluster_graph(level: &Level, o: &[V3], s: &[f64], uf: &mut UnionFind, links: 
         .collect();
     edges.sort_unstable();
     edges.dedup();
-    ClusterGraph { p, n: nn, s: cs, members: roots, edges }
+    ClusterGraph { p, n: nn, s: cs, members: roots, cluster, edges }
+}
+
+/// Weight of a cluster's pull back to its members' mean origin against its unit steps in [`place_by_steps`].
+pub const PLACE_ANCHOR: f64 = 0.05;
+
+/// Jacobi rounds of [`place_by_steps`] (a stretch spreads over about √rounds output edges).
+pub const PLACE_ROUNDS: usize = 20;
+
+/// Every unit-step input edge (i, j) as the 3D lattice vector of its step in i's frame.
+fn link_vectors(level: &Level, q: &[V3], s: &[f64], off: &integer::Offsets) -> Vec<(u32, u32, V3)> {
+    off.edges
+        .iter()
+        .zip(&off.d)
+        .filter(|(_, d)| d[0].abs() + d[1].abs() == 1)
+        .map(|(&(i, j), d)| {
+            let iu = i as usize;
+            let t = cross(level.n[iu], q[iu]);
+            (i, j, scale(add(scale(q[iu], d[0] as f64), scale(t, d[1] as f64)), s[iu]))
+        })
+        .collect()
+}
+
+/// Place the clusters so that linked clusters lie one lattice step apart as their members' steps say
+/// (mean of the steps between two clusters), weakly anchored at their mean origin: least squares by
+/// Jacobi rounds.
+fn place_by_steps(graph: &mut ClusterGraph, steps: &[(u32, u32, V3)]) {
+    use std::collections::BTreeMap;
+    let mut acc: BTreeMap<(u32, u32), (V3, f64)> = BTreeMap::new();
+    for &(i, j, v) in steps {
+        let (a, b) = (graph.cluster[i as usize], graph.cluster[j as usize]);
+        if a == b {
+            continue;
+        }
+        let (key, v) = if a < b { ((a, b), v) } else { ((b, a), scale(v, -1.0)) };
+        let e = acc.entry(key).or_insert(([0.0; 3], 0.0));
+        e.0 = add(e.0, v);
+        e.1 += 1.0;
+    }
+    let m = graph.p.len();
+    let mut adj: Vec<Vec<(u32, V3)>> = vec![Vec::new(); m];
+    for (&(a, b), &(v, w)) in &acc {
+        let v = scale(v, 1.0 / w);
+        adj[a as usize].push((b, v));
+        adj[b as usize].push((a, scale(v, -1.0)));
+    }
+    let anchor = graph.p.clone();
+    for _ in 0..PLACE_ROUNDS {
+        let cur = graph.p.clone();
+        graph.p = (0..m)
+            .into_par_iter()
+            .map(|c| {
+                let mut sum = scale(anchor[c], PLACE_ANCHOR);
+                let mut w = PLACE_ANCHOR;
+                for &(b, v) in &adj[c] {
+                    sum = add(sum, sub(cur[b as usize], v));
+                    w += 1.0;
+                }
+                scale(sum, 1.0 / w)
+            })
+            .collect();
+    }
 }
 
 /// Remove vertices with fewer than 3 edges until none is left. Returns the remaining edges (sorted) and

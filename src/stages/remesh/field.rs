@@ -171,6 +171,22 @@ pub fn compat_position_index(f0: &Frame, f1: &Frame) -> ([i64; 2], [i64; 2]) {
     (best.1, best.2)
 }
 
+/// The integer step from `f0`'s lattice point to `f1`'s in `f0`'s frame, the quarter turns taking `f1`'s
+/// cross to `f0`'s, and the rounding residual (continuous offset minus the step, in spacings of `f0`'s
+/// frame): the data [`super::integer`] works on.
+#[inline]
+pub fn compat_position_offset(f0: &Frame, f1: &Frame) -> ([i64; 2], u32, [f64; 2]) {
+    let (c0, c1) = compat_position_index(f0, f1);
+    let r = best_rotation(f0.q, f1.q, f1.n);
+    let q1 = rotate90(f1.q, f1.n, r);
+    let t0 = cross(f0.n, f0.q);
+    let x0 = lattice_point(f0.o, f0.q, t0, c0, f0.s);
+    let x1 = lattice_point(f1.o, q1, cross(f1.n, q1), c1, f1.s);
+    let g = sub(x1, x0);
+    let inv = 2.0 / (f0.s + f1.s);
+    ([c0[0] - c1[0], c0[1] - c1[1]], r, [dot(g, f0.q) * inv, dot(g, t0) * inv])
+}
+
 #[inline]
 fn compat_position(f0: &Frame, f1: &Frame) -> (V3, V3) {
     let (c0, c1) = compat_position_index(f0, f1);

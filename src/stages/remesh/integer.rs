@@ -1,0 +1,399 @@
+//! Integer edge offsets of the position field, and the cancellation of position singularities in pairs.
+//!
+//! Every working-mesh edge (i, j) carries the integer lattice step `d` from i's lattice point to j's, in
+//! i's frame, and the quarter turns `r` matching j's cross to i's. Around a triangle the steps, turned into
+//! one frame, sum to zero except at a **position singularity** (a dislocation: the lattice gains or loses a
+//! half row there), which the extraction turns into a triangle or pentagon next to a valence-5 or -3
+//! vertex: two irregular vertices for every singular triangle, none of them needed by the surface.
+//!
+//! Dislocations come in pairs of opposite sign. [`cancel_pairs`] joins each to its cheapest partner by a
+//! path in the dual graph and changes the steps of the edges the path crosses by one lattice unit, so both
+//! triangles sum to zero and every triangle in between is unchanged (a greedy, local form of the
+//! minimum-cost flow of QuadriFlow, Huang et al. 2018). A step's cost is how far the change moves it from
+//! the continuous offset of the two origins: `|δ|² − 2 δ·m` with `m` the rounding residual, so a path runs
+//! where the lattice is already strained and cutting or adding the half row costs least. The extraction
+//! then reads the steps directly (0: same output vertex, a unit step: an output edge), so the stretch the
+//! cancellation asks for is spread by the later relaxation instead of being re-rounded away.
+
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap};
+
+use rayon::prelude::*;
+
+use super::field::{Frame, compat_position_offset};
+use super::hierarchy::Level;
+use crate::geometry::vec3::V3;
+
+/// The path costs tried by [`super::remesh`] (in lattice-unit changes, `|δ|² − 2 δ·m`, between 0 and about 2
+/// per crossed edge; a pair farther apart is left as it is). A result is kept only when it is as sound as
+/// without cancellation and about as close to the input. A second, shorter reach (15) was measured on the
+/// shared meshes at 10k and never won the trade, a longer one (200) removes rows until the count is 5–9 %
+/// short, so only one is tried.
+pub const PATH_COSTS: [f64; 1] = [60.0];
+
+/// Cost floor per crossed edge (keeps paths short where many edges cost nothing).
+pub const EDGE_COST_FLOOR: f64 = 0.05;
+
+/// Extra cost of a change that makes an edge's step diagonal (the path then shears the lattice instead of
+/// adding or removing a row).
+pub const SHEAR_COST: f64 = 2.0;
+
+/// Most dual nodes one search may settle (bounds the work per singularity).
+pub const MAX_SETTLED: usize = 20_000;
+
+/// Passes over the singular triangles.
+pub const PASSES: usize = 3;
+
+/// Integer steps of every working-mesh edge.
+#[derive(Clone, Debug, Default)]
+pub struct Offsets {
+    /// Undirected edges (i < j), sorted.
+    pub edges: Vec<(u32, u32)>,
+    /// Lattice step from i's lattice point to j's, in i's frame.
+    pub d: Vec<[i64; 2]>,
+    /// Quarter turns taking j's cross representative to i's.
+    pub r: Vec<u8>,
+    /// Continuous offset minus `d`, in i's frame, in lattice spacings.
+    pub m: Vec<[f64; 2]>,
+}
+
+/// What [`cancel_pairs`] did.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct CancelCounts {
+    /// Triangles with a non-zero step sum (orientation singularities excluded), before.
+    pub singular_before: usize,
+    /// The same, after.
+    pub singular_after: usize,
+    /// Paths applied.
+    pub pairs_cancelled: usize,
+    /// Edge steps changed (an edge on two paths counts twice).
+    pub steps_changed: usize,
+}
+
+/// Coordinates `w` turned by `k` quarter turns counter-clockwise.
+#[inline]
+fn rotc(w: [i64; 2], k: u32) -> [i64; 2] {
+    match k & 3 {
+        0 => w,
+        1 => [-w[1], w[0]],
+        2 => [-w[0], -w[1]],
+        _ => [w[1], -w[0]],
+    }
+}
+
+#[inline]
+fn l1(w: [i64; 2]) -> i64 {
+    w[0].abs() + w[1].abs()
+}
+
+impl Offsets {
+    /// The steps of every edge of `level` from orientation `q`, origins `o` and spacings `s`.
+    pub fn compute(level: &Level, q: &[V3], o: &[V3], s: &[f64]) -> Self {
+        let n = level.len();
+        type Step = ((u32, u32), [i64; 2], u8, [f64; 2]);
+        let per: Vec<Vec<Step>> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let f0 = Frame { p: level.p[i], n: level.n[i], q: q[i], o: o[i], s: s[i] };
+                level
+                    .neighbours(i)
+                    .filter(|&(j, _)| j > i)
+                    .map(|(j, _)| {
+                        let f1 = Frame { p: level.p[j], n: level.n[j], q: q[j], o: o[j], s: s[j] };
+                        let (d, r, m) = compat_position_offset(&f0, &f1);
+                        ((i as u32, j as u32), d, r as u8, m)
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut out = Offsets::default();
+        for (e, d, r, m) in per.into_iter().flatten() {
+            out.edges.push(e);
+            out.d.push(d);
+            out.r.push(r);
+            out.m.push(m);
+        }
+        out
+    }
+
+    fn index(&self, a: u32, b: u32) -> Option<usize> {
+        self.edges.binary_search(&(a.min(b), a.max(b))).ok()
+    }
+}
+
+/// One directed edge of a triangle: the edge, whether it runs i → j, and the quarter turns σ taking the
+/// edge's own frame (i's) to the triangle's frame (its first corner's), so that a change δ of the edge's
+/// step changes the triangle's sum by `±rotc(δ, σ)`.
+#[derive(Copy, Clone, Debug)]
+struct Side {
+    edge: u32,
+    forward: bool,
+    sigma: u32,
+}
+
+/// The triangles' sides, sums and orientation-singular flags.
+struct Dual {
+    sides: Vec<[Side; 3]>,
+    /// Step sum in the triangle's frame.
+    sum: Vec<[i64; 2]>,
+    /// The cross field turns around the triangle (its frames do not close): left alone.
+    turning: Vec<bool>,
+    /// The two triangles of each edge (forward side first).
+    faces_of_edge: Vec<[u32; 2]>,
+}
+
+impl Dual {
+    fn new(off: &Offsets, tris: &[[u32; 3]]) -> Option<Self> {
+        let mut sides = Vec::with_capacity(tris.len());
+        let mut sum = Vec::with_capacity(tris.len());
+        let mut turning = Vec::with_capacity(tris.len());
+        let mut faces_of_edge = vec![[u32::MAX; 2]; off.edges.len()];
+        for (t, tri) in tris.iter().enumerate() {
+            let mut rho = 0u32;
+            let mut s = [0i64; 2];
+            let mut sd = [Side { edge: 0, forward: true, sigma: 0 }; 3];
+            let mut turn_total = 0u32;
+            for k in 0..3 {
+                let (u, v) = (tri[k], tri[(k + 1) % 3]);
+                let e = off.index(u, v)?;
+                let forward = u < v;
+                let re = off.r[e] as u32;
+                // Step and turns of the directed edge u → v in u's frame.
+                let (r_uv, d_uv) = if forward { (re, off.d[e]) } else { ((4 - re) % 4, neg(rotc(off.d[e], re))) };
+                let rho_k = (4 - rho % 4) % 4; // frame of corner k → triangle frame
+                let sigma = if forward { rho_k } else { (re + rho_k) % 4 };
+                sd[k] = Side { edge: e as u32, forward, sigma };
+                let c = rotc(d_uv, rho_k);
+                s = [s[0] + c[0], s[1] + c[1]];
+                let slot = usize::from(!forward);
+                if faces_of_edge[e][slot] != u32::MAX {
+                    return None; // not an oriented 2-manifold
+                }
+                faces_of_edge[e][slot] = t as u32;
+                rho += r_uv;
+                turn_total += r_uv;
+            }
+            sides.push(sd);
+            sum.push(s);
+            turning.push(turn_total % 4 != 0);
+        }
+        if faces_of_edge.iter().any(|f| f[0] == u32::MAX || f[1] == u32::MAX) {
+            return None;
+        }
+        Some(Dual { sides, sum, turning, faces_of_edge })
+    }
+
+    fn singular(&self) -> usize {
+        (0..self.sum.len()).filter(|&t| !self.turning[t] && self.sum[t] != [0, 0]).count()
+    }
+
+    /// The change δ of `side`'s edge step that changes its triangle's sum by `delta_sum`.
+    fn step_for(side: Side, delta_sum: [i64; 2]) -> [i64; 2] {
+        let w = if side.forward { delta_sum } else { neg(delta_sum) };
+        rotc(w, (4 - side.sigma) % 4)
+    }
+
+    /// The change of `side`'s triangle's sum caused by a change δ of its edge step.
+    fn sum_change(side: Side, delta: [i64; 2]) -> [i64; 2] {
+        let c = rotc(delta, side.sigma);
+        if side.forward { c } else { neg(c) }
+    }
+}
+
+#[inline]
+fn neg(w: [i64; 2]) -> [i64; 2] {
+    [-w[0], -w[1]]
+}
+
+/// Fixed-point cost (micro-units) so the search order is exact and deterministic.
+#[inline]
+fn cost_units(delta: [i64; 2], m: [f64; 2]) -> u64 {
+    let dd = (delta[0] * delta[0] + delta[1] * delta[1]) as f64;
+    let c = dd - 2.0 * (delta[0] as f64 * m[0] + delta[1] as f64 * m[1]);
+    (c.max(EDGE_COST_FLOOR) * 1e6) as u64
+}
+
+/// Cancel position singularities of `off` (steps of the working mesh `tris`) in pairs. Deterministic:
+/// sources are taken in triangle order, ties broken by triangle index. Returns `None` (nothing changed)
+/// when `tris` is not an oriented closed 2-manifold over `off`'s edges.
+///
+/// Cost: O(S · K log K) for S singular triangles and K dual nodes settled per search (≤ [`MAX_SETTLED`]).
+pub fn cancel_pairs(off: &mut Offsets, tris: &[[u32; 3]], max_path_cost: f64) -> Option<CancelCounts> {
+    let mut dual = Dual::new(off, tris)?;
+    let mut counts = CancelCounts { singular_before: dual.singular(), ..Default::default() };
+    let max_cost = (max_path_cost * 1e6) as u64;
+    for _ in 0..PASSES {
+        let mut changed = false;
+        for src in 0..tris.len() {
+            if dual.turning[src] || dual.sum[src] == [0, 0] {
+                continue;
+            }
+            // Dijkstra from src carrying the charge to hand on; the first triangle it cancels against wins.
+            let b = dual.sum[src];
+            let mut dist: HashMap<u32, (u64, [i64; 2], u32, u32)> = HashMap::new(); // cost, carried, via edge, from
+            let mut heap = BinaryHeap::new();
+            dist.insert(src as u32, (0, neg(b), u32::MAX, u32::MAX));
+            heap.push(Reverse((0u64, src as u32)));
+            let mut settled = 0usize;
+            let mut done = std::collections::HashSet::new();
+            let mut found = None;
+            while let Some(Reverse((c, t))) = heap.pop() {
+                if !done.insert(t) {
+                    continue;
+                }
+                settled += 1;
+                if settled > MAX_SETTLED {
+                    break;
+                }
+                let (_, carried, _, _) = dist[&t];
+                if t as usize != src {
+                    // `carried` is the sum change this triangle would take if the path ended here.
+                    let s = dual.sum[t as usize];
+                    let after = [s[0] + carried[0], s[1] + carried[1]];
+                    if s != [0, 0] && l1(after) < l1(s) {
+                        found = Some(t);
+                        break;
+                    }
+                }
+                // Hand the charge on: this triangle must end unchanged (src: lose its sum).
+                let to_cancel = if t as usize == src { neg(b) } else { neg(carried) };
+                for side in dual.sides[t as usize] {
+                    let e = side.edge as usize;
+                    let pair = dual.faces_of_edge[e];
+                    let next = if pair[0] == t { pair[1] } else { pair[0] };
+                    if dual.turning[next as usize] || done.contains(&next) {
+                        continue;
+                    }
+                    let delta = Dual::step_for(side, to_cancel);
+                    let nd = [off.d[e][0] + delta[0], off.d[e][1] + delta[1]];
+                    if nd[0].abs() > 1 || nd[1].abs() > 1 {
+                        continue; // a step of two lattice units has no input vertex between: a hole
+                    }
+                    let shear = if nd[0] != 0 && nd[1] != 0 { (SHEAR_COST * 1e6) as u64 } else { 0 };
+                    let c2 = c + cost_units(delta, off.m[e]) + shear;
+                    if c2 > max_cost {
+                        continue;
+                    }
+                    let other = dual.sides[next as usize].iter().copied().find(|s| s.edge == side.edge)?;
+                    let carried_next = Dual::sum_change(other, delta);
+                    let better = dist.get(&next).is_none_or(|&(old, ..)| c2 < old);
+                    if better {
+                        dist.insert(next, (c2, carried_next, side.edge, t));
+                        heap.push(Reverse((c2, next)));
+                    }
+                }
+            }
+            let Some(end) = found else { continue };
+            // Apply along the path end → src.
+            let (_, carried_end, _, _) = dist[&end];
+            let mut t = end;
+            while t as usize != src {
+                let (_, _, via, from) = dist[&t];
+                let e = via as usize;
+                let side_from = dual.sides[from as usize].iter().copied().find(|s| s.edge == via)?;
+                let to_cancel = if from as usize == src { neg(b) } else { neg(dist[&from].1) };
+                let delta = Dual::step_for(side_from, to_cancel);
+                off.d[e] = [off.d[e][0] + delta[0], off.d[e][1] + delta[1]];
+                off.m[e] = [off.m[e][0] - delta[0] as f64, off.m[e][1] - delta[1] as f64];
+                counts.steps_changed += 1;
+                t = from;
+            }
+            let s = dual.sum[end as usize];
+            dual.sum[end as usize] = [s[0] + carried_end[0], s[1] + carried_end[1]];
+            dual.sum[src] = [0, 0];
+            counts.pairs_cancelled += 1;
+            changed = true;
+        }
+        if !changed {
+            break;
+        }
+    }
+    counts.singular_after = dual.singular();
+    debug_assert_eq!(Some(counts.singular_after), Dual::new(off, tris).map(|d| d.singular()));
+    Some(counts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::sampling::Rng;
+
+    /// A flat n×n vertex grid (two triangles per cell, counter-clockwise) glued into a torus, with the
+    /// lattice step of every edge taken from integer vertex coordinates `u` (one lattice point per 2×2
+    /// vertices, so many steps are 0), each vertex's cross turned by a random gauge `g`.
+    fn torus_grid(n: u32, seed: u64) -> (Offsets, Vec<[u32; 3]>) {
+        let id = |i: u32, j: u32| (i % n) * n + (j % n);
+        let mut tris = Vec::new();
+        for i in 0..n {
+            for j in 0..n {
+                let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+                tris.push([a, b, c]);
+                tris.push([a, c, d]);
+            }
+        }
+        let mut rng = Rng::new(seed);
+        let g: Vec<u32> = (0..n * n).map(|_| (rng.next_f64() * 4.0) as u32 % 4).collect();
+        // Lattice coordinates (wrapping consistently: n is a multiple of 2).
+        let u = |v: u32| [(v / n / 2) as i64, (v % n / 2) as i64];
+        let mut edges: Vec<(u32, u32)> = tris
+            .iter()
+            .flat_map(|t| (0..3).map(move |k| (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]))))
+            .collect();
+        edges.sort_unstable();
+        edges.dedup();
+        let mut off = Offsets::default();
+        let half = (n / 2) as i64;
+        for &(i, j) in &edges {
+            let (ui, uj) = (u(i), u(j));
+            // Shortest step on the torus of n/2 × n/2 lattice points.
+            let w = |x: i64| {
+                if x > half / 2 {
+                    x - half
+                } else if x < -half / 2 {
+                    x + half
+                } else {
+                    x
+                }
+            };
+            let world = [w(uj[0] - ui[0]), w(uj[1] - ui[1])];
+            // In i's turned frame; j's cross turned by r matches i's.
+            let (gi, gj) = (g[i as usize], g[j as usize]);
+            off.edges.push((i, j));
+            off.d.push(rotc(world, (4 - gi) % 4));
+            off.r.push(((gi + 4 - gj) % 4) as u8);
+            off.m.push([0.0, 0.0]);
+        }
+        (off, tris)
+    }
+
+    #[test]
+    fn a_planted_dislocation_pair_is_cancelled_through_any_frame_gauge() {
+        for seed in 0..20 {
+            let (mut off, tris) = torus_grid(24, seed);
+            let dual = Dual::new(&off, &tris).expect("closed grid");
+            assert_eq!(dual.singular(), 0, "seed {seed}: the consistent grid has no singularity");
+            assert!(dual.turning.iter().all(|t| !t), "seed {seed}: a consistent gauge does not turn");
+            // Change one interior step by a unit: its two triangles become a ± pair.
+            let e = off.edges.len() / 2;
+            let was = off.d[e];
+            off.d[e] = [was[0] + 1, was[1]];
+            off.m[e] = [-1.0, 0.0];
+            assert_eq!(Dual::new(&off, &tris).unwrap().singular(), 2, "seed {seed}: planted pair");
+            let c = cancel_pairs(&mut off, &tris, PATH_COSTS[0]).expect("manifold");
+            assert_eq!((c.singular_before, c.singular_after), (2, 0), "seed {seed}: {c:?}");
+            assert_eq!((c.pairs_cancelled, c.steps_changed), (1, 1), "seed {seed}: {c:?}");
+            assert_eq!(off.d[e], was, "seed {seed}: the cheapest fix restores the planted step");
+        }
+    }
+
+    #[test]
+    fn a_lone_pair_beyond_the_path_cost_is_left_alone() {
+        let (mut off, tris) = torus_grid(24, 7);
+        let e = off.edges.len() / 2;
+        off.d[e][0] += 1;
+        // The planted step now agrees with the continuous offset: undoing it costs 1 + 2 = 3 > 2.5.
+        off.m[e] = [1.0, 0.0];
+        let c = cancel_pairs(&mut off, &tris, 2.5).expect("manifold");
+        assert_eq!((c.singular_before, c.singular_after, c.pairs_cancelled), (2, 2, 0), "{c:?}");
+    }
+}
