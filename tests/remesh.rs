@@ -318,7 +318,11 @@ fn necked_torus() -> TriMesh {
 fn a_thin_neck_survives_through_the_adaptive_route() {
     let t = necked_torus();
     let target = 1500;
-    let uniform = RemeshOptions { adaptive_spacing: false, try_direct: false, ..opts(target) };
+    // Without the cancellation of position singularities: its re-solve at a finer spacing (to bring back
+    // the rows it removes) keeps this neck on the uniform route too (max 0.57 %), which is not what this
+    // test is about.
+    let base = RemeshOptions { cancel_singularities: false, ..opts(target) };
+    let uniform = RemeshOptions { adaptive_spacing: false, try_direct: false, ..base.clone() };
     let (_, u) = remesh(&t, &uniform, &NoProgress).unwrap();
     let du = u.distance.as_ref().unwrap().reference_to_test.max.pct_of_diagonal;
     println!("uniform split: χ {} input→quad max {du:.3} %", u.output.euler_characteristic);
@@ -327,7 +331,7 @@ fn a_thin_neck_survives_through_the_adaptive_route() {
         "the uniform split kept the neck (χ {}, max {du} %): the test shape no longer tests anything",
         u.output.euler_characteristic
     );
-    let (_, r) = run(&t, target);
+    let (_, r) = remesh(&t, &base, &NoProgress).unwrap();
     let o = &r.output;
     let d = r.distance.as_ref().unwrap();
     println!(

@@ -18,7 +18,8 @@
 //!    triangle along straight strips or bent paths. A later result is kept only when it keeps χ and has no
 //!    flipped face where the earlier does not, or the earlier one is more than [`FIDELITY_RATIO`] times
 //!    farther from the input;
-//! 6½. on the split routes, the kept attempt is extracted again with its position singularities cancelled
+//!
+//!    On the split routes, the kept attempt is extracted again with its position singularities cancelled
 //!    in pairs on the integer edge steps ([`integer`]), the count steered by re-solving the position field
 //!    ([`CANCEL_RESCALES`]); that result replaces the first when it is as sound, within the vertex-count
 //!    tolerance, has fewer irregular vertices and its RMS grows by at most [`CANCEL_TRADE`] times their
