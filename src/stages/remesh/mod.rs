@@ -639,7 +639,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         // The same position field with its singularities cancelled in pairs, far pairs first: kept when it
         // is as sound, about as close to the input and has fewer irregular vertices.
         if cancel {
-            let plain = (kept.class(), kept.rms, kept.sound(diagonal), kept.stats.irregular_vertices);
+            let plain = (kept.class(), kept.rms, kept.sound(diagonal));
             if cancel_thick.is_none() {
                 let t1 = Instant::now();
                 let reach = 1.5 * (area * 4.0 / target).sqrt() / THIN_RATIO;
@@ -702,10 +702,12 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     trial.vertices = f2.stats.vertices;
                     // Fewer irregular vertices must be bought cheaply: the RMS may grow by at most
                     // CANCEL_TRADE times the relative drop of irregular vertices, and never past the slack.
-                    let fewer = 1.0 - f2.stats.irregular_vertices as f64 / plain.3.max(1) as f64;
-                    let allowed = (1.0 + CANCEL_TRADE * fewer.max(0.0)).min(CANCEL_RMS_SLACK);
+                    // Each later try is weighed against the result kept so far; the total growth is capped.
+                    let fewer = 1.0 - f2.stats.irregular_vertices as f64 / kept.stats.irregular_vertices.max(1) as f64;
+                    let allowed = 1.0 + CANCEL_TRADE * fewer.max(0.0);
                     if f2.class() <= plain.0
-                        && f2.rms <= allowed * plain.1
+                        && f2.rms <= allowed * kept.rms
+                        && f2.rms <= CANCEL_RMS_SLACK * plain.1
                         && (f2.sound(diagonal) || !plain.2)
                         && f2.stats.irregular_vertices < kept.stats.irregular_vertices
                     {
