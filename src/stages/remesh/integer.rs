@@ -16,7 +16,7 @@
 //! cancellation asks for is spread by the later relaxation instead of being re-rounded away.
 
 use std::cmp::Reverse;
-use std::collections::{BinaryHeap, HashMap};
+use std::collections::BinaryHeap;
 
 use rayon::prelude::*;
 
@@ -40,8 +40,9 @@ pub const SHEAR_COST: f64 = 2.0;
 /// Most dual nodes one search may settle (bounds the work per singularity).
 pub const MAX_SETTLED: usize = 20_000;
 
-/// Passes over the singular triangles.
-pub const PASSES: usize = 3;
+/// Passes over the singular triangles (a second pass found no further pair on the shared meshes: a
+/// singularity without a partner in reach keeps none when others are cancelled; it only doubled the time).
+pub const PASSES: usize = 1;
 
 /// What [`super::extract::extract`] needs to cancel singularities.
 #[derive(Copy, Clone, Debug)]
@@ -219,6 +220,18 @@ fn neg(w: [i64; 2]) -> [i64; 2] {
     [-w[0], -w[1]]
 }
 
+/// One triangle's state in a search.
+#[derive(Copy, Clone, Debug, Default)]
+struct Node {
+    stamp: u32,
+    done: bool,
+    cost: u64,
+    /// Sum change handed to this triangle by the path reaching it.
+    carried: [i64; 2],
+    via: u32,
+    from: u32,
+}
+
 /// Fixed-point cost (micro-units) so the search order is exact and deterministic.
 #[inline]
 fn cost_units(delta: [i64; 2], m: [f64; 2]) -> u64 {
@@ -248,6 +261,9 @@ pub fn cancel_pairs(
     }
     let mut counts = CancelCounts { singular_before: dual.singular(), ..Default::default() };
     let max_cost = (max_path_cost * 1e6) as u64;
+    // Search state per triangle, valid when `stamp` is the current search.
+    let mut nodes = vec![Node::default(); tris.len()];
+    let mut search = 0u32;
     for _ in 0..PASSES {
         let mut changed = false;
         for src in 0..tris.len() {
@@ -255,26 +271,30 @@ pub fn cancel_pairs(
                 continue;
             }
             // Dijkstra from src carrying the charge to hand on; the first triangle it cancels against wins.
+            search += 1;
             let b = dual.sum[src];
-            let mut dist: HashMap<u32, (u64, [i64; 2], u32, u32)> = HashMap::new(); // cost, carried, via edge, from
             let mut heap = BinaryHeap::new();
-            dist.insert(src as u32, (0, neg(b), u32::MAX, u32::MAX));
+            let touch = |t: usize, nodes: &mut [Node], c: u64, carried: [i64; 2], via: u32, from: u32| {
+                nodes[t] = Node { stamp: search, done: false, cost: c, carried, via, from };
+            };
+            touch(src, &mut nodes, 0, neg(b), u32::MAX, u32::MAX);
             heap.push(Reverse((0u64, src as u32)));
             let mut settled = 0usize;
-            let mut done = std::collections::HashSet::new();
             let mut found = None;
             while let Some(Reverse((c, t))) = heap.pop() {
-                if !done.insert(t) {
+                let tu = t as usize;
+                if nodes[tu].done || nodes[tu].cost != c {
                     continue;
                 }
+                nodes[tu].done = true;
                 settled += 1;
                 if settled > MAX_SETTLED {
                     break;
                 }
-                let (_, carried, _, _) = dist[&t];
-                if t as usize != src {
+                let carried = nodes[tu].carried;
+                if tu != src {
                     // `carried` is the sum change this triangle would take if the path ended here.
-                    let s = dual.sum[t as usize];
+                    let s = dual.sum[tu];
                     let after = [s[0] + carried[0], s[1] + carried[1]];
                     if s != [0, 0] && l1(after) < l1(s) {
                         found = Some(t);
@@ -282,12 +302,13 @@ pub fn cancel_pairs(
                     }
                 }
                 // Hand the charge on: this triangle must end unchanged (src: lose its sum).
-                let to_cancel = if t as usize == src { neg(b) } else { neg(carried) };
-                for side in dual.sides[t as usize] {
+                let to_cancel = if tu == src { neg(b) } else { neg(carried) };
+                for side in dual.sides[tu] {
                     let e = side.edge as usize;
                     let pair = dual.faces_of_edge[e];
-                    let next = if pair[0] == t { pair[1] } else { pair[0] };
-                    if dual.turning[next as usize] || !open[next as usize] || done.contains(&next) {
+                    let next = if pair[0] == t { pair[1] } else { pair[0] } as usize;
+                    let seen = nodes[next].stamp == search;
+                    if dual.turning[next] || !open[next] || (seen && nodes[next].done) {
                         continue;
                     }
                     let delta = Dual::step_for(side, to_cancel);
@@ -297,27 +318,24 @@ pub fn cancel_pairs(
                     }
                     let shear = if nd[0] != 0 && nd[1] != 0 { (SHEAR_COST * 1e6) as u64 } else { 0 };
                     let c2 = c + cost_units(delta, off.m[e]) + shear;
-                    if c2 > max_cost {
+                    if c2 > max_cost || (seen && c2 >= nodes[next].cost) {
                         continue;
                     }
-                    let other = dual.sides[next as usize].iter().copied().find(|s| s.edge == side.edge)?;
+                    let other = dual.sides[next].iter().copied().find(|s| s.edge == side.edge)?;
                     let carried_next = Dual::sum_change(other, delta);
-                    let better = dist.get(&next).is_none_or(|&(old, ..)| c2 < old);
-                    if better {
-                        dist.insert(next, (c2, carried_next, side.edge, t));
-                        heap.push(Reverse((c2, next)));
-                    }
+                    touch(next, &mut nodes, c2, carried_next, side.edge, t);
+                    heap.push(Reverse((c2, next as u32)));
                 }
             }
             let Some(end) = found else { continue };
             // Apply along the path end → src.
-            let (_, carried_end, _, _) = dist[&end];
-            let mut t = end;
-            while t as usize != src {
-                let (_, _, via, from) = dist[&t];
-                let e = via as usize;
-                let side_from = dual.sides[from as usize].iter().copied().find(|s| s.edge == via)?;
-                let to_cancel = if from as usize == src { neg(b) } else { neg(dist[&from].1) };
+            let carried_end = nodes[end as usize].carried;
+            let mut t = end as usize;
+            while t != src {
+                let Node { via, from, .. } = nodes[t];
+                let (e, from) = (via as usize, from as usize);
+                let side_from = dual.sides[from].iter().copied().find(|s| s.edge == via)?;
+                let to_cancel = if from == src { neg(b) } else { neg(nodes[from].carried) };
                 let delta = Dual::step_for(side_from, to_cancel);
                 off.d[e] = [off.d[e][0] + delta[0], off.d[e][1] + delta[1]];
                 off.m[e] = [off.m[e][0] - delta[0] as f64, off.m[e][1] - delta[1] as f64];

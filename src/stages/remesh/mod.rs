@@ -638,7 +638,10 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         let mut kept = Finished { index, c, changed, out, extra, rms, valence, stats };
         // The same position field with its singularities cancelled in pairs, far pairs first: kept when it
         // is as sound, about as close to the input and has fewer irregular vertices.
-        if cancel {
+        // Only where this route's result is sound, so the cascade ends with it. An unsound one sends the
+        // cascade on, and its cancelled form (at most CANCEL_RMS_SLACK farther from the input) would rarely
+        // be picked over a later route: on the dragon the four tries cost 11 s and none was.
+        if cancel && kept.sound(diagonal) {
             let plain = (kept.class(), kept.rms, kept.sound(diagonal));
             if cancel_thick.is_none() {
                 let t1 = Instant::now();
@@ -647,16 +650,21 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 *report.seconds.entry("thickness".into()).or_insert(0.0) += t1.elapsed().as_secs_f64();
             }
             let thick_c = cancel_thick.as_deref().expect("measured above");
-            for &cost in &integer::PATH_COSTS {
+            // Both reaches in parallel (each search is sequential), then weighed in order.
+            let input_components = report.input_components;
+            let input_chi = report.input_euler_characteristic;
+            let try_cost = |cost: f64| -> Result<(CancelTrial, Option<Finished>, f64, f64)> {
                 // Cancelling removes more rows than it adds: steer the count by re-solving the position
                 // field at a finer spacing (at most CANCEL_RESCALES times).
                 let (mut o2, mut s2) = (o.clone(), s0.clone());
-                let mut rescales = 0;
+                let (mut rescales, mut t_cancel, mut t_resolve) = (0, 0.0, 0.0);
                 let mut c2 = loop {
                     let blocked: Vec<bool> =
                         thick_c.iter().zip(&s2).map(|(&t, &sp)| t < integer::CANCEL_THIN * sp).collect();
                     let how = integer::Cancel { tris: &tris, max_path_cost: cost, blocked: &blocked };
-                    let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some(how), mode, report.input_components);
+                    let t1 = Instant::now();
+                    let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some(how), mode, input_components);
+                    t_cancel += t1.elapsed().as_secs_f64();
                     let off = c2.predicted as f64 / target;
                     if (off - 1.0).abs() <= CANCEL_COUNT_TOLERANCE || rescales == CANCEL_RESCALES || off == 0.0 {
                         break c2;
@@ -668,41 +676,51 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     }
                     let sl2 = field::level_spacings(&levels, s2.clone());
                     o2 = field::solve_position(&levels, &qs, &sl2, opts.iterations, opts.seed);
-                    t_pos += t1.elapsed().as_secs_f64();
+                    t_resolve += t1.elapsed().as_secs_f64();
                 };
                 let (chi, manifold) = quadify::polygon_check(&c2.faces);
-                c2.topology_ok = manifold && chi == report.input_euler_characteristic;
+                c2.topology_ok = manifold && chi == input_chi;
                 let mut trial = CancelTrial {
                     mode: Some(mode),
                     path_cost: cost,
                     counts: c2.ex.integer.unwrap_or_default(),
                     rescales,
-                    kept: false,
+                    vertices: c2.predicted,
                     ..Default::default()
                 };
                 let count_ok = (c2.predicted as f64 / target - 1.0).abs() <= CANCEL_COUNT_TOLERANCE;
-                trial.vertices = c2.predicted;
-                if count_ok && manifold && c2.counts.triangles_unpaired == 0 && (c2.topology_ok || changed) {
-                    let (out2, extra2, valence2) = finish(&c2, mesh, &input_p, &bvh, opts.relax_iterations)?;
-                    let rms2 = measure(&out2)?;
-                    let stats2 = quad_stats(&out2, Some((mesh, &bvh)));
-                    let changed2 = !c2.topology_ok;
-                    let f2 = Finished {
-                        index,
-                        c: c2,
-                        changed: changed2,
-                        out: out2,
-                        extra: extra2,
-                        rms: rms2,
-                        valence: valence2,
-                        stats: stats2,
-                    };
-                    trial.rms_pct_of_diagonal = 100.0 * f2.rms / diagonal;
-                    trial.irregular_fraction = f2.stats.irregular_fraction;
-                    trial.vertices = f2.stats.vertices;
+                if !(count_ok && manifold && c2.counts.triangles_unpaired == 0 && (c2.topology_ok || changed)) {
+                    return Ok((trial, None, t_cancel, t_resolve));
+                }
+                let (out2, extra2, valence2) = finish(&c2, mesh, &input_p, &bvh, opts.relax_iterations)?;
+                let rms2 = measure(&out2)?;
+                let stats2 = quad_stats(&out2, Some((mesh, &bvh)));
+                trial.rms_pct_of_diagonal = 100.0 * rms2 / diagonal;
+                trial.irregular_fraction = stats2.irregular_fraction;
+                trial.vertices = stats2.vertices;
+                let changed2 = !c2.topology_ok;
+                let f2 = Finished {
+                    index,
+                    c: c2,
+                    changed: changed2,
+                    out: out2,
+                    extra: extra2,
+                    rms: rms2,
+                    valence: valence2,
+                    stats: stats2,
+                };
+                Ok((trial, Some(f2), t_cancel, t_resolve))
+            };
+            let tries: Vec<Result<(CancelTrial, Option<Finished>, f64, f64)>> =
+                integer::PATH_COSTS.par_iter().map(|&cost| try_cost(cost)).collect();
+            for t in tries {
+                let (mut trial, f2, t_cancel, t_resolve) = t?;
+                *report.seconds.entry("cancellation".into()).or_insert(0.0) += t_cancel;
+                t_pos += t_resolve;
+                if let Some(f2) = f2 {
                     // Fewer irregular vertices must be bought cheaply: the RMS may grow by at most
-                    // CANCEL_TRADE times the relative drop of irregular vertices, and never past the slack.
-                    // Each later try is weighed against the result kept so far; the total growth is capped.
+                    // CANCEL_TRADE times the relative drop of irregular vertices. Each later try is weighed
+                    // against the result kept so far; the total growth is capped at CANCEL_RMS_SLACK.
                     let fewer = 1.0 - f2.stats.irregular_vertices as f64 / kept.stats.irregular_vertices.max(1) as f64;
                     let allowed = 1.0 + CANCEL_TRADE * fewer.max(0.0);
                     if f2.class() <= plain.0
