@@ -653,7 +653,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             // Both reaches in parallel (each search is sequential), then weighed in order.
             let input_components = report.input_components;
             let input_chi = report.input_euler_characteristic;
-            let try_cost = |cost: f64| -> Result<(CancelTrial, Option<Finished>, f64, f64)> {
+            // (the try, its finished result when it was finished, seconds cancelling, seconds re-solving)
+            type Try = (CancelTrial, Option<Finished>, f64, f64);
+            let try_cost = |cost: f64| -> Result<Try> {
                 // Cancelling removes more rows than it adds: steer the count by re-solving the position
                 // field at a finer spacing (at most CANCEL_RESCALES times).
                 let (mut o2, mut s2) = (o.clone(), s0.clone());
@@ -711,8 +713,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 };
                 Ok((trial, Some(f2), t_cancel, t_resolve))
             };
-            let tries: Vec<Result<(CancelTrial, Option<Finished>, f64, f64)>> =
-                integer::PATH_COSTS.par_iter().map(|&cost| try_cost(cost)).collect();
+            let tries: Vec<Result<Try>> = integer::PATH_COSTS.par_iter().map(|&cost| try_cost(cost)).collect();
             for t in tries {
                 let (mut trial, f2, t_cancel, t_resolve) = t?;
                 *report.seconds.entry("cancellation".into()).or_insert(0.0) += t_cancel;
