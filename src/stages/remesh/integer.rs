@@ -430,6 +430,45 @@ mod tests {
         }
     }
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(48))]
+        /// Random unit changes on random edges, random residuals, random gauges: the cancellation never adds a
+        /// singularity, its count is what the steps say, no edge gets a step of two units, and it is
+        /// deterministic.
+        #[test]
+        fn cancellation_only_removes_singularities(seed in 0u64..10_000, changes in 1usize..12, cost in 1.0f64..80.0) {
+            let (mut off, tris) = torus_grid(16, seed);
+            let mut rng = Rng::new(seed ^ 0x5eed);
+            for m in &mut off.m {
+                *m = [rng.next_f64() - 0.5, rng.next_f64() - 0.5];
+            }
+            for _ in 0..changes {
+                let e = (rng.next_f64() * off.edges.len() as f64) as usize % off.edges.len();
+                let k = (rng.next_f64() * 4.0) as u32;
+                let u = rotc([1, 0], k);
+                let nd = [off.d[e][0] + u[0], off.d[e][1] + u[1]];
+                if nd[0].abs() <= 1 && nd[1].abs() <= 1 {
+                    off.d[e] = nd;
+                }
+            }
+            let before = off.d.clone();
+            let mut again = off.clone();
+            let c = cancel_pairs(&mut off, &tris, cost, None).expect("manifold");
+            let c2 = cancel_pairs(&mut again, &tris, cost, None).expect("manifold");
+            proptest::prop_assert_eq!(&off.d, &again.d, "not deterministic");
+            proptest::prop_assert_eq!(c.pairs_cancelled, c2.pairs_cancelled);
+            proptest::prop_assert!(c.singular_after <= c.singular_before, "{:?}", c);
+            proptest::prop_assert_eq!(c.singular_after, Dual::new(&off, &tris).unwrap().singular(), "{:?}", c);
+            // Each path zeroes its source and lowers its target.
+            proptest::prop_assert!(c.singular_before - c.singular_after >= c.pairs_cancelled, "{:?}", c);
+            for (d, b) in off.d.iter().zip(&before) {
+                if d != b {
+                    proptest::prop_assert!(d[0].abs() <= 1 && d[1].abs() <= 1, "a two-unit step {:?}", d);
+                }
+            }
+        }
+    }
+
     #[test]
     fn a_lone_pair_beyond_the_path_cost_is_left_alone() {
         let (mut off, tris) = torus_grid(24, 7);
