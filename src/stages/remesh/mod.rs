@@ -535,8 +535,11 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     // measured.
     let mut finished: Vec<Finished> = Vec::new();
     let mut t_finish = 0.0;
-    // Thickness for the cancellation's thin-part guard (measured once, when first needed).
-    let mut cancel_thick: Option<Vec<f64>> = None;
+    // Local thickness of the working mesh (far side of thin parts and narrow gaps), for the adaptive route
+    // and the cancellation's thin-part guard: measured once, when first needed, only as far as the coarsest
+    // spacing tried could need.
+    let mut thick_all: Option<Vec<f64>> = None;
+    let reach = 1.5 * (area * 4.0 / target).sqrt() / THIN_RATIO;
     for (mi, &mode) in modes.iter().enumerate() {
         // A later route runs only when the earlier ones all lost something: RMS above FALLBACK_TRIGGER_PCT,
         // χ changed or a face left flipped.
@@ -544,17 +547,11 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             break;
         }
         let per_vertex = if mode == Mode::Direct { 1.0 } else { 4.0 };
-        // Local thickness of the working mesh (far side of thin parts and narrow gaps), for the adaptive route
-        // only, searched only as far as the coarsest spacing tried could need.
-        let thick: Option<Vec<f64>> = (mode == Mode::AdaptiveSplit).then(|| {
-            let t0 = Instant::now();
-            let reach = 1.5 * (area * 4.0 / target).sqrt() / THIN_RATIO;
-            let t = thickness(&levels[0], &p, &tris, reach);
+        if mode == Mode::AdaptiveSplit {
+            let t = thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report));
             report.thin_vertices = t.iter().filter(|x| x.is_finite()).count();
-            report.seconds.insert("thickness".into(), t0.elapsed().as_secs_f64());
-            t
-        });
-        let thick = thick.as_deref();
+        }
+        let thick = if mode == Mode::AdaptiveSplit { thick_all.as_deref() } else { None };
         let max_attempts = if mode == Mode::Direct { MAX_DIRECT_ATTEMPTS } else { MAX_ATTEMPTS };
         let mut s = START_SCALE * (area * per_vertex / target).sqrt();
         if let Some(t) = thick {
@@ -644,13 +641,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         // be picked over a later route: on the dragon the four tries cost 11 s and none was.
         if cancel && kept.sound(diagonal) {
             let plain = (kept.class(), kept.rms, kept.sound(diagonal));
-            if cancel_thick.is_none() {
-                let t1 = Instant::now();
-                let reach = 1.5 * (area * 4.0 / target).sqrt() / THIN_RATIO;
-                cancel_thick = Some(thickness(&levels[0], &p, &tris, reach));
-                *report.seconds.entry("thickness".into()).or_insert(0.0) += t1.elapsed().as_secs_f64();
-            }
-            let thick_c = cancel_thick.as_deref().expect("measured above");
+            let thick_c: &[f64] =
+                thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report));
             // Both reaches in parallel (each search is sequential), then weighed in order.
             let input_components = report.input_components;
             let input_chi = report.input_euler_characteristic;
@@ -915,6 +907,20 @@ pub const SPACING_PER_WORK_EDGE: f64 = 2.5;
 /// Largest change of the local spacing per unit distance (keeps the density graded, so the lattice bends
 /// gently and few extra singularities appear).
 pub const GRADATION: f64 = 0.3;
+
+/// [`thickness`], its time added to the report's `thickness` seconds.
+fn timed_thickness(
+    level: &hierarchy::Level,
+    p: &[V3],
+    tris: &[[u32; 3]],
+    reach: f64,
+    report: &mut RemeshReport,
+) -> Vec<f64> {
+    let t0 = Instant::now();
+    let t = thickness(level, p, tris, reach);
+    *report.seconds.entry("thickness".into()).or_insert(0.0) += t0.elapsed().as_secs_f64();
+    t
+}
 
 /// Thickness at each vertex of `level` (the working mesh `p`, `tris`): the shorter of the ray along −n to
 /// the far side of the part and the ray along n across a gap to the surface facing back; infinite beyond
