@@ -40,10 +40,6 @@ pub const SHEAR_COST: f64 = 2.0;
 /// Most dual nodes one search may settle (bounds the work per singularity).
 pub const MAX_SETTLED: usize = 20_000;
 
-/// Passes over the singular triangles (a second pass found no further pair on the shared meshes: a
-/// singularity without a partner in reach keeps none when others are cancelled; it only doubled the time).
-pub const PASSES: usize = 1;
-
 /// What [`super::extract::extract`] needs to cancel singularities.
 #[derive(Copy, Clone, Debug)]
 pub struct Cancel<'a> {
@@ -264,93 +260,88 @@ pub fn cancel_pairs(
     // Search state per triangle, valid when `stamp` is the current search.
     let mut nodes = vec![Node::default(); tris.len()];
     let mut search = 0u32;
-    for _ in 0..PASSES {
-        let mut changed = false;
-        for src in 0..tris.len() {
-            if dual.turning[src] || !open[src] || dual.sum[src] == [0, 0] {
+    // One pass: a second found no further pair on the shared meshes (a singularity without a partner in
+    // reach gains none when others are cancelled) and only doubled the time.
+    for src in 0..tris.len() {
+        if dual.turning[src] || !open[src] || dual.sum[src] == [0, 0] {
+            continue;
+        }
+        // Dijkstra from src carrying the charge to hand on; the first triangle it cancels against wins.
+        search += 1;
+        let b = dual.sum[src];
+        let mut heap = BinaryHeap::new();
+        let touch = |t: usize, nodes: &mut [Node], c: u64, carried: [i64; 2], via: u32, from: u32| {
+            nodes[t] = Node { stamp: search, done: false, cost: c, carried, via, from };
+        };
+        touch(src, &mut nodes, 0, neg(b), u32::MAX, u32::MAX);
+        heap.push(Reverse((0u64, src as u32)));
+        let mut settled = 0usize;
+        let mut found = None;
+        while let Some(Reverse((c, t))) = heap.pop() {
+            let tu = t as usize;
+            if nodes[tu].done || nodes[tu].cost != c {
                 continue;
             }
-            // Dijkstra from src carrying the charge to hand on; the first triangle it cancels against wins.
-            search += 1;
-            let b = dual.sum[src];
-            let mut heap = BinaryHeap::new();
-            let touch = |t: usize, nodes: &mut [Node], c: u64, carried: [i64; 2], via: u32, from: u32| {
-                nodes[t] = Node { stamp: search, done: false, cost: c, carried, via, from };
-            };
-            touch(src, &mut nodes, 0, neg(b), u32::MAX, u32::MAX);
-            heap.push(Reverse((0u64, src as u32)));
-            let mut settled = 0usize;
-            let mut found = None;
-            while let Some(Reverse((c, t))) = heap.pop() {
-                let tu = t as usize;
-                if nodes[tu].done || nodes[tu].cost != c {
-                    continue;
-                }
-                nodes[tu].done = true;
-                settled += 1;
-                if settled > MAX_SETTLED {
+            nodes[tu].done = true;
+            settled += 1;
+            if settled > MAX_SETTLED {
+                break;
+            }
+            let carried = nodes[tu].carried;
+            if tu != src {
+                // `carried` is the sum change this triangle would take if the path ended here.
+                let s = dual.sum[tu];
+                let after = [s[0] + carried[0], s[1] + carried[1]];
+                if s != [0, 0] && l1(after) < l1(s) {
+                    found = Some(t);
                     break;
                 }
-                let carried = nodes[tu].carried;
-                if tu != src {
-                    // `carried` is the sum change this triangle would take if the path ended here.
-                    let s = dual.sum[tu];
-                    let after = [s[0] + carried[0], s[1] + carried[1]];
-                    if s != [0, 0] && l1(after) < l1(s) {
-                        found = Some(t);
-                        break;
-                    }
-                }
-                // Hand the charge on: this triangle must end unchanged (src: lose its sum).
-                let to_cancel = if tu == src { neg(b) } else { neg(carried) };
-                for side in dual.sides[tu] {
-                    let e = side.edge as usize;
-                    let pair = dual.faces_of_edge[e];
-                    let next = if pair[0] == t { pair[1] } else { pair[0] } as usize;
-                    let seen = nodes[next].stamp == search;
-                    if dual.turning[next] || !open[next] || (seen && nodes[next].done) {
-                        continue;
-                    }
-                    let delta = Dual::step_for(side, to_cancel);
-                    let nd = [off.d[e][0] + delta[0], off.d[e][1] + delta[1]];
-                    if nd[0].abs() > 1 || nd[1].abs() > 1 {
-                        continue; // a step of two lattice units has no input vertex between: a hole
-                    }
-                    let shear = if nd[0] != 0 && nd[1] != 0 { (SHEAR_COST * 1e6) as u64 } else { 0 };
-                    let c2 = c + cost_units(delta, off.m[e]) + shear;
-                    if c2 > max_cost || (seen && c2 >= nodes[next].cost) {
-                        continue;
-                    }
-                    let other = dual.sides[next].iter().copied().find(|s| s.edge == side.edge)?;
-                    let carried_next = Dual::sum_change(other, delta);
-                    touch(next, &mut nodes, c2, carried_next, side.edge, t);
-                    heap.push(Reverse((c2, next as u32)));
-                }
             }
-            let Some(end) = found else { continue };
-            // Apply along the path end → src.
-            let carried_end = nodes[end as usize].carried;
-            let mut t = end as usize;
-            while t != src {
-                let Node { via, from, .. } = nodes[t];
-                let (e, from) = (via as usize, from as usize);
-                let side_from = dual.sides[from].iter().copied().find(|s| s.edge == via)?;
-                let to_cancel = if from == src { neg(b) } else { neg(nodes[from].carried) };
-                let delta = Dual::step_for(side_from, to_cancel);
-                off.d[e] = [off.d[e][0] + delta[0], off.d[e][1] + delta[1]];
-                off.m[e] = [off.m[e][0] - delta[0] as f64, off.m[e][1] - delta[1] as f64];
-                counts.steps_changed += 1;
-                t = from;
+            // Hand the charge on: this triangle must end unchanged (src: lose its sum).
+            let to_cancel = if tu == src { neg(b) } else { neg(carried) };
+            for side in dual.sides[tu] {
+                let e = side.edge as usize;
+                let pair = dual.faces_of_edge[e];
+                let next = if pair[0] == t { pair[1] } else { pair[0] } as usize;
+                let seen = nodes[next].stamp == search;
+                if dual.turning[next] || !open[next] || (seen && nodes[next].done) {
+                    continue;
+                }
+                let delta = Dual::step_for(side, to_cancel);
+                let nd = [off.d[e][0] + delta[0], off.d[e][1] + delta[1]];
+                if nd[0].abs() > 1 || nd[1].abs() > 1 {
+                    continue; // a step of two lattice units has no input vertex between: a hole
+                }
+                let shear = if nd[0] != 0 && nd[1] != 0 { (SHEAR_COST * 1e6) as u64 } else { 0 };
+                let c2 = c + cost_units(delta, off.m[e]) + shear;
+                if c2 > max_cost || (seen && c2 >= nodes[next].cost) {
+                    continue;
+                }
+                let other = dual.sides[next].iter().copied().find(|s| s.edge == side.edge)?;
+                let carried_next = Dual::sum_change(other, delta);
+                touch(next, &mut nodes, c2, carried_next, side.edge, t);
+                heap.push(Reverse((c2, next as u32)));
             }
-            let s = dual.sum[end as usize];
-            dual.sum[end as usize] = [s[0] + carried_end[0], s[1] + carried_end[1]];
-            dual.sum[src] = [0, 0];
-            counts.pairs_cancelled += 1;
-            changed = true;
         }
-        if !changed {
-            break;
+        let Some(end) = found else { continue };
+        // Apply along the path end → src.
+        let carried_end = nodes[end as usize].carried;
+        let mut t = end as usize;
+        while t != src {
+            let Node { via, from, .. } = nodes[t];
+            let (e, from) = (via as usize, from as usize);
+            let side_from = dual.sides[from].iter().copied().find(|s| s.edge == via)?;
+            let to_cancel = if from == src { neg(b) } else { neg(nodes[from].carried) };
+            let delta = Dual::step_for(side_from, to_cancel);
+            off.d[e] = [off.d[e][0] + delta[0], off.d[e][1] + delta[1]];
+            off.m[e] = [off.m[e][0] - delta[0] as f64, off.m[e][1] - delta[1] as f64];
+            counts.steps_changed += 1;
+            t = from;
         }
+        let s = dual.sum[end as usize];
+        dual.sum[end as usize] = [s[0] + carried_end[0], s[1] + carried_end[1]];
+        dual.sum[src] = [0, 0];
+        counts.pairs_cancelled += 1;
     }
     counts.singular_after = dual.singular();
     debug_assert_eq!(Some(counts.singular_after), Dual::new(off, tris).map(|d| d.singular()));

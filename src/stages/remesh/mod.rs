@@ -634,13 +634,13 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         let rms = measure(&out)?;
         let stats = quad_stats(&out, Some((mesh, &bvh)));
         let mut kept = Finished { index, c, changed, out, extra, rms, valence, stats };
-        // The same position field with its singularities cancelled in pairs, far pairs first: kept when it
-        // is as sound, about as close to the input and has fewer irregular vertices.
-        // Only where this route's result is sound, so the cascade ends with it. An unsound one sends the
-        // cascade on, and its cancelled form (at most CANCEL_RMS_SLACK farther from the input) would rarely
-        // be picked over a later route: on the dragon the four tries cost 11 s and none was.
+        // The same position field with its singularities cancelled in pairs: kept when it is sound too,
+        // about as close to the input and has fewer irregular vertices. Only where this route's result is
+        // sound, so the cascade ends with it. An unsound one sends the cascade on, and its cancelled form (at
+        // most CANCEL_RMS_SLACK farther from the input) would rarely be picked over a later route: on the
+        // dragon the four tries cost 11 s and none was. (Sound implies χ kept: `changed` is false here.)
         if cancel && kept.sound(diagonal) {
-            let plain = (kept.class(), kept.rms, kept.sound(diagonal));
+            let plain_rms = kept.rms;
             let thick_c: &[f64] =
                 thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report));
             // Both reaches in parallel (each search is sequential), then weighed in order.
@@ -684,7 +684,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     ..Default::default()
                 };
                 let count_ok = (c2.predicted as f64 / target - 1.0).abs() <= CANCEL_COUNT_TOLERANCE;
-                if !(count_ok && manifold && c2.counts.triangles_unpaired == 0 && (c2.topology_ok || changed)) {
+                if !(count_ok && manifold && c2.counts.triangles_unpaired == 0 && c2.topology_ok) {
                     return Ok((trial, None, t_cancel, t_resolve));
                 }
                 let (out2, extra2, valence2) = finish(&c2, mesh, &input_p, &bvh, opts.relax_iterations)?;
@@ -693,11 +693,10 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 trial.rms_pct_of_diagonal = 100.0 * rms2 / diagonal;
                 trial.irregular_fraction = stats2.irregular_fraction;
                 trial.vertices = stats2.vertices;
-                let changed2 = !c2.topology_ok;
                 let f2 = Finished {
                     index,
                     c: c2,
-                    changed: changed2,
+                    changed: false,
                     out: out2,
                     extra: extra2,
                     rms: rms2,
@@ -717,10 +716,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     // against the result kept so far; the total growth is capped at CANCEL_RMS_SLACK.
                     let fewer = 1.0 - f2.stats.irregular_vertices as f64 / kept.stats.irregular_vertices.max(1) as f64;
                     let allowed = 1.0 + CANCEL_TRADE * fewer.max(0.0);
-                    if f2.class() <= plain.0
+                    if f2.sound(diagonal)
                         && f2.rms <= allowed * kept.rms
-                        && f2.rms <= CANCEL_RMS_SLACK * plain.1
-                        && (f2.sound(diagonal) || !plain.2)
+                        && f2.rms <= CANCEL_RMS_SLACK * plain_rms
                         && f2.stats.irregular_vertices < kept.stats.irregular_vertices
                     {
                         trial.kept = true;
