@@ -92,6 +92,10 @@ enum Command {
         /// Weight of the pull toward principal curvature directions (0 = off).
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight)]
         curvature_weight: f64,
+        /// Extra pull, relative to the curvature weight, where the principal directions agree over the
+        /// whole surface (tori, surfaces of revolution); 0 = off.
+        #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().coherent_pull)]
+        coherent_pull: f64,
     },
     /// The whole chain to a CAD solid: repair → quad remesh → fitted Catmull–Clark surface → B-spline B-rep
     /// → STEP (AP214), with a quality check, time and peak memory after every stage.
@@ -238,6 +242,7 @@ fn main() -> ExitCode {
             seed,
             iterations,
             curvature_weight,
+            coherent_pull,
             work_per_vertex,
             split_only,
             uniform_spacing,
@@ -247,6 +252,7 @@ fn main() -> ExitCode {
                 seed: *seed,
                 iterations: *iterations,
                 curvature_weight: *curvature_weight,
+                coherent_pull: *coherent_pull,
                 work_per_vertex: *work_per_vertex,
                 try_direct: !*split_only,
                 adaptive_spacing: !*uniform_spacing,

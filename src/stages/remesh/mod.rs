@@ -88,6 +88,9 @@ pub struct RemeshOptions {
     pub relax_iterations: usize,
     /// Weight of the principal-curvature pull (0 disables it).
     pub curvature_weight: f64,
+    /// Extra pull, relative to `curvature_weight`, where the principal directions are coherent over the
+    /// whole surface (tori, surfaces of revolution; [`COHERENCE_TRUST_MIN`]); 0 disables it.
+    pub coherent_pull: f64,
     /// Samples per side for the distance to the input (0 skips it).
     pub compare_samples: usize,
     /// Finer spacing on parts thinner than the spacing allows ([`THIN_RATIO`]), so they are not lost.
@@ -109,6 +112,7 @@ impl Default for RemeshOptions {
             iterations: 6,
             relax_iterations: 10,
             curvature_weight: 1.0,
+            coherent_pull: COHERENT_PULL,
             compare_samples: 200_000,
             adaptive_spacing: true,
             cancel_singularities: true,
@@ -199,6 +203,14 @@ pub struct Attempt {
 
 /// Below this curvature anisotropy ((|k1| − |k2|) / (|k1| + |k2|)) no principal direction is imposed.
 pub const ANISOTROPY_MIN: f64 = 0.3;
+/// Coherence of the principal directions (area-weighted mean of cos 4Δθ over rings) above which they are
+/// trusted more than the smoothness ([`COHERENT_PULL`]). Measured: torus 0.999, fandisk 0.79, spot 0.53,
+/// bunny 0.59, armadillo 0.47, igea 0.45.
+pub const COHERENCE_TRUST_MIN: f64 = 0.9;
+/// Default extra pull toward the principal directions (`RemeshOptions::coherent_pull`), relative to the
+/// curvature weight, on a fully coherent surface. On the torus test (minor/major 0.4) the extrinsic smoothness alone keeps 16 orientation
+/// singularities for any number of sweeps; this pull removes them.
+pub const COHERENT_PULL: f64 = 10.0;
 
 /// A later route's result replaces an earlier one of the same class (χ kept, no flipped face) when the
 /// earlier one's two-sided RMS to the input is more than this many times the later one's (on the dragon the
@@ -399,6 +411,9 @@ pub struct RemeshReport {
     pub thin_vertices: usize,
     /// Working-mesh triangles around which the orientation field turns by a non-zero multiple of 90°.
     pub orientation_singularities: usize,
+    /// Coherence of the working mesh's principal directions (0 random … 1 everywhere consistent; above
+    /// [`COHERENCE_TRUST_MIN`] the field follows them more closely); absent without the curvature pull.
+    pub curvature_coherence: Option<f64>,
     /// True when no attempt kept the input's Euler characteristic and a closed 2-manifold quad mesh with
     /// another one was returned (handles or gaps thinner than the quad spacing closed or opened); a
     /// warning is logged too.
@@ -507,8 +522,10 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.hierarchy_levels = levels.len();
     lap(&mut clock, "hierarchy", &mut report);
     progress.report(0.2, "orientation field");
-    let bias: Option<Vec<Vec<(V3, f64)>>> = (opts.curvature_weight > 0.0)
-        .then(|| levels.iter().map(|l| curvature_directions(l, opts.curvature_weight)).collect());
+    let pulls: Option<Vec<(Vec<(V3, f64)>, f64)>> = (opts.curvature_weight > 0.0)
+        .then(|| levels.iter().map(|l| curvature_directions(l, opts.curvature_weight, opts.coherent_pull)).collect());
+    report.curvature_coherence = pulls.as_ref().map(|b| b[0].1);
+    let bias: Option<Vec<Vec<(V3, f64)>>> = pulls.map(|b| b.into_iter().map(|(d, _)| d).collect());
     let qs = field::solve_orientation(&levels, opts.iterations, opts.seed, bias.as_deref());
     report.orientation_singularities = orientation_singularities(&levels[0], &qs[0], &tris);
     lap(&mut clock, "orientation", &mut report);
@@ -999,8 +1016,20 @@ fn subdivide_midpoints(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) {
 
 /// Principal direction of largest |curvature| per vertex with a weight for how anisotropic the curvature
 /// is (0 where it is umbilic or flat). Estimated from normal variation along the 1-ring edges.
-fn curvature_directions(level: &hierarchy::Level, weight: f64) -> Vec<(V3, f64)> {
-    (0..level.len())
+/// The principal-curvature pull of every vertex of `level`: direction and weight, plus the level's
+/// coherence (see [`COHERENT_PULL`]).
+///
+/// The weight is `weight · a²` where the curvature is clearly anisotropic (`a` = (|k1| − |k2|) / (|k1| + |k2|)
+/// above [`ANISOTROPY_MIN`]). Where the principal directions agree almost everywhere (coherence above
+/// [`COHERENCE_TRUST_MIN`]: tori, cylinders, surfaces of revolution) they are trusted more: the weight gains
+/// `weight · coherent_pull · trust · b²`, with `b` = |k1 − k2| / (|k1| + |k2|) (saddles count too) and
+/// `trust` rising from 0 at [`COHERENCE_TRUST_MIN`] to 1 at full coherence. Scans, whose principal directions
+/// are coherent only in patches (0.45–0.79 on the shared meshes), get exactly the first term.
+///
+/// Cost: O(E) for the shape operators, O(E) for the coherence.
+fn curvature_directions(level: &hierarchy::Level, weight: f64, coherent_pull: f64) -> (Vec<(V3, f64)>, f64) {
+    // (direction, weight a², saddle-aware b²)
+    let dirs: Vec<(V3, f64, f64)> = (0..level.len())
         .map(|i| {
             let (pi, ni) = (level.p[i], level.n[i]);
             let x = field::tangent_unit([1.0, 0.3, 0.2], ni);
@@ -1028,9 +1057,9 @@ fn curvature_directions(level: &hierarchy::Level, weight: f64) -> Vec<(V3, f64)>
                 count += 1;
             }
             if count < 3 {
-                return (x, 0.0);
+                return (x, 0.0, 0.0);
             }
-            let Some([a, b, c]) = solve3(m, r) else { return (x, 0.0) };
+            let Some([a, b, c]) = solve3(m, r) else { return (x, 0.0, 0.0) };
             // Eigen-decomposition of [a b; b c].
             let half_diff = 0.5 * (a - c);
             let disc = (half_diff * half_diff + b * b).sqrt();
@@ -1039,10 +1068,33 @@ fn curvature_directions(level: &hierarchy::Level, weight: f64) -> Vec<(V3, f64)>
             let theta = 0.5 * (2.0 * b).atan2(a - c);
             let dir = vec3::add(vec3::scale(x, theta.cos()), vec3::scale(y, theta.sin()));
             // Scale-free: how much one principal curvature dominates (0 umbilic/flat … 1 cylinder-like).
-            let aniso = (k1.abs() - k2.abs()).abs() / (k1.abs() + k2.abs() + 1e-30);
-            (dir, if aniso > ANISOTROPY_MIN { weight * aniso * aniso } else { 0.0 })
+            let scale = k1.abs() + k2.abs() + 1e-30;
+            let aniso = (k1.abs() - k2.abs()).abs() / scale;
+            let split = (k1 - k2).abs() / scale;
+            (dir, if aniso > ANISOTROPY_MIN { aniso * aniso } else { 0.0 }, split * split)
         })
-        .collect()
+        .collect();
+    // Coherence of the principal directions as a cross field: the mean of cos 4Δθ over each ring (1 where
+    // neighbours agree up to quarter turns, 0 for random directions), weighted by area and b².
+    let (mut num, mut den) = (0.0, 0.0);
+    for (i, &(di, _, bi)) in dirs.iter().enumerate() {
+        let ni = level.n[i];
+        let (mut sum, mut ws) = (0.0, 0.0);
+        for (j, w) in level.neighbours(i) {
+            let dj = field::tangent_unit(dirs[j].0, ni);
+            let c = dot(di, dj).abs().max(dot(di, cross(ni, dj)).abs());
+            sum += w * (8.0 * c.powi(4) - 8.0 * c * c + 1.0);
+            ws += w;
+        }
+        if ws > 0.0 {
+            num += level.area[i] * bi * (sum / ws).max(0.0);
+            den += level.area[i] * bi;
+        }
+    }
+    let coherence = if den > 0.0 { num / den } else { 0.0 };
+    let trust = ((coherence - COHERENCE_TRUST_MIN) / (1.0 - COHERENCE_TRUST_MIN)).clamp(0.0, 1.0);
+    let out = dirs.into_iter().map(|(d, a2, b2)| (d, weight * (a2 + coherent_pull * trust * b2))).collect();
+    (out, coherence)
 }
 
 fn solve3(m: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
@@ -1159,4 +1211,45 @@ pub fn quad_stats(mesh: &PolyMesh, input: Option<(&TriMesh, &TriangleBvh)>) -> Q
         }
     }
     st
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::shapes::{icosphere, torus};
+
+    fn finest(m: &TriMesh) -> hierarchy::Level {
+        let p: Vec<V3> = m.positions.iter().map(|&x| wide(x)).collect();
+        hierarchy::finest_level(&p, &m.triangles)
+    }
+
+    /// Analytic oracle: on a torus the principal directions are the ring and tube directions, so they are
+    /// coherent (close to 1) and the coherent pull is on; on a sphere (umbilic everywhere) the estimated
+    /// directions are noise, the coherence is low and the weights are exactly the plain ones.
+    #[test]
+    fn principal_directions_are_coherent_on_a_torus_and_not_on_a_sphere() {
+        let t = finest(&torus(1.0, 0.4, 120, 48));
+        let (pull, coherence) = curvature_directions(&t, 1.0, COHERENT_PULL);
+        assert!(coherence > 0.99, "torus coherence {coherence}");
+        // On the tube's top circle the ring direction (about ±z × radial) is a principal direction.
+        let mut top = 0;
+        for (i, &(d, w)) in pull.iter().enumerate() {
+            let p = t.p[i];
+            if p[2] > 0.399 {
+                top += 1;
+                let ring = field::tangent_unit([-p[1], p[0], 0.0], t.n[i]);
+                let c = dot(d, ring).abs().max(dot(d, cross(t.n[i], ring)).abs());
+                assert!(c > 0.99, "vertex {i} at {p:?}: direction {d:?} is {c} from the ring");
+                assert!(w > 5.0, "vertex {i}: pull {w}, the coherent term missing");
+            }
+        }
+        assert_eq!(top, 120, "one top-circle vertex per ring step");
+        let (off, _) = curvature_directions(&t, 1.0, 0.0);
+        assert!(off.iter().all(|&(_, w)| w <= 1.0), "without the coherent pull every weight is a² ≤ 1");
+        let s = finest(&icosphere(1.0, 4, [0.0; 3]));
+        let (pull, coherence) = curvature_directions(&s, 1.0, COHERENT_PULL);
+        let (plain, _) = curvature_directions(&s, 1.0, 0.0);
+        assert!(coherence < COHERENCE_TRUST_MIN, "sphere coherence {coherence}");
+        assert!(pull.iter().zip(&plain).all(|(a, b)| a.1 == b.1), "sphere: weights changed by the coherent pull");
+    }
 }
