@@ -548,6 +548,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     let input_p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
     let input_geometry = Geometry::Mesh(poly);
     let diagonal = mesh.bbox().diagonal();
+    // The two-sided RMS that weighs the routes and the cancellation's tries (samples on the input drawn once).
+    let meter = TradeMeter::new(mesh, &bvh, TRADE_SAMPLES, opts.seed);
     // Per mode: the best attempt with the input's χ (else the best closed manifold one), finished and
     // measured.
     let mut finished: Vec<Finished> = Vec::new();
@@ -643,9 +645,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             if modes.len() == 1 && !cancel {
                 return Ok(0.0);
             }
-            let copts = CompareOptions { samples: 50_000, seed: opts.seed, ..Default::default() };
-            let d = compare(&Geometry::Mesh(out.clone()), &input_geometry, &copts, &crate::stages::NoProgress)?;
-            Ok(d.symmetric.rms.value)
+            Ok(meter.rms(out))
         };
         let (out, extra, valence) = finish(&c, mesh, &input_p, &bvh, opts.relax_iterations)?;
         let rms = measure(&out)?;
@@ -889,6 +889,53 @@ fn finish(
     }
     let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
     Ok((PolyMesh::new(positions, &quads)?, extra, valence))
+}
+
+/// Samples per side of [`TradeMeter`].
+pub const TRADE_SAMPLES: usize = 50_000;
+
+/// The two-sided RMS distance between a candidate quad mesh and the input, as `quality::compare` estimates it
+/// (stratified area samples on both sides, closest-point distances, RMS of the pooled distances) but without
+/// its vertex and maximum passes, with the input's samples drawn once and its BVH shared with the projection.
+/// It only weighs results against each other; the report's distance comes from `compare`.
+struct TradeMeter<'a> {
+    input_samples: Vec<V3>,
+    input_bvh: &'a TriangleBvh,
+    samples: usize,
+    seed: u64,
+}
+
+impl<'a> TradeMeter<'a> {
+    /// Cost: O(F_in + samples).
+    fn new(input: &TriMesh, input_bvh: &'a TriangleBvh, samples: usize, seed: u64) -> Self {
+        let mut rng = crate::geometry::sampling::Rng::new(seed ^ 0x7ade);
+        let input_samples = crate::geometry::sampling::sample_area_uniform(input, samples, &mut rng)
+            .into_iter()
+            .map(|s| s.point)
+            .collect();
+        TradeMeter { input_samples, input_bvh, samples, seed }
+    }
+
+    /// Cost: O(F log F) for the candidate's BVH, O(samples · log) for the queries; deterministic for any
+    /// thread count (the squared distances are summed in order).
+    fn rms(&self, out: &PolyMesh) -> f64 {
+        let (t, _) = out.triangulate();
+        let out_bvh = TriangleBvh::new(&t);
+        let mut rng = crate::geometry::sampling::Rng::new(self.seed ^ 0x7adf);
+        let on_out: Vec<V3> = crate::geometry::sampling::sample_area_uniform(&t, self.samples, &mut rng)
+            .into_iter()
+            .map(|s| s.point)
+            .collect();
+        let d2 =
+            |bvh: &TriangleBvh, pts: &[V3]| -> Vec<f64> { pts.par_iter().map(|&p| bvh.distance(p).powi(2)).collect() };
+        let a = d2(self.input_bvh, &on_out);
+        let b = d2(&out_bvh, &self.input_samples);
+        let n = a.len() + b.len();
+        if n == 0 {
+            return f64::INFINITY;
+        }
+        (a.iter().chain(&b).sum::<f64>() / n as f64).sqrt()
+    }
 }
 
 fn lap(clock: &mut Instant, name: &str, report: &mut RemeshReport) {
