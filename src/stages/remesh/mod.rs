@@ -1305,4 +1305,35 @@ mod tests {
         assert!(coherence < COHERENCE_TRUST_MIN, "sphere coherence {coherence}");
         assert!(pull.iter().zip(&plain).all(|(a, b)| a.1 == b.1), "sphere: weights changed by the coherent pull");
     }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
+        /// Invariants: the coherence lies in [0, 1] and does not depend on where the torus sits or how it
+        /// is turned (the shape operator is fitted in each vertex's own tangent frame); the weights are
+        /// never negative and never below the plain ones.
+        #[test]
+        fn coherence_is_a_rigid_motion_invariant(
+            minor in 0.2f64..0.6,
+            angle in 0.0f64..std::f64::consts::TAU,
+            shift in -5.0f64..5.0,
+        ) {
+            let base = torus(1.0, minor, 90, 36);
+            let (c, s) = (angle.cos(), angle.sin());
+            let mut moved = base.clone();
+            for p in &mut moved.positions {
+                let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
+                // A turn about the x axis, then a shift.
+                *p = [(x + shift) as f32, (c * y - s * z) as f32, (s * y + c * z + shift) as f32];
+            }
+            let (w0, c0) = curvature_directions(&finest(&base), 1.0, COHERENT_PULL);
+            let (w1, c1) = curvature_directions(&finest(&moved), 1.0, COHERENT_PULL);
+            proptest::prop_assert!((0.0..=1.0).contains(&c0), "coherence {}", c0);
+            proptest::prop_assert!((c0 - c1).abs() < 1e-3, "coherence {} moved {}", c0, c1);
+            let (plain, _) = curvature_directions(&finest(&base), 1.0, 0.0);
+            for ((a, b), p) in w0.iter().zip(&w1).zip(&plain) {
+                proptest::prop_assert!(a.1 >= p.1 && p.1 >= 0.0, "weight {} below plain {}", a.1, p.1);
+                proptest::prop_assert!((a.1 - b.1).abs() < 1e-2 * (1.0 + a.1), "weight {} moved {}", a.1, b.1);
+            }
+        }
+    }
 }
