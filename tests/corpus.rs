@@ -299,8 +299,8 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         // Irregular vertices, measured 2026-12-01: 1.8–2.9 % on the meshes the uniform split keeps whole,
         // 5.7 % on the armadillo (adaptive split; the direct route gave 9.5 %), 10.7 % on the dragon (direct;
         // target ≤ 3 %, open).
-        // Where position singularities are cancelled in pairs and that result is kept (igea 1.73 %, fandisk
-        // 1.09 %, measured 2026-12-02), the bound is tighter.
+        // Where position singularities are cancelled in pairs and that result is kept (igea 1.73 %, 1.63 % since
+        // paths may end in cones; fandisk 1.09 %, measured 2026-12-02), the bound is tighter.
         let cancelled = r.cancellation.iter().any(|t| t.kept);
         if f.contains("igea") || f.contains("fandisk") {
             assert!(cancelled, "{f}: the cancelled extraction should be kept: {:?}", r.cancellation);
@@ -310,7 +310,7 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         } else if f.contains("armadillo") {
             0.065
         } else if f.contains("igea") {
-            0.021
+            0.019
         } else if f.contains("fandisk") {
             0.014
         } else {

@@ -79,11 +79,13 @@ fn sphere_field_has_eight_valence_deficits() {
     assert_eq!(deficit, 8, "sphere: valences {:?}", o.valence_histogram);
     println!("sphere: irregular {} valences {:?}", o.irregular_vertices, o.valence_histogram);
     // Position singularities come in 3–5 pairs: 61 of 2000 as extracted; 22 once pairs are cancelled
-    // (integer::cancel_pairs with the longer reach, kept by the trade rule). The target is 8 ± a few.
-    assert!(o.irregular_fraction <= 0.016, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
+    // (integer::cancel_pairs with the longer reach); 14 (11 of valence 3, 3 of valence 5) when paths may end
+    // in the 8 cones (kept by the trade rule). Seeds 1–5: 20–23. The target is 8 ± a few.
+    assert!(o.irregular_vertices <= 16, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
     let kept: Vec<_> = r.cancellation.iter().filter(|t| t.kept).collect();
     assert_eq!(kept.len(), 1, "sphere: the cancelled extraction should win: {:?}", r.cancellation);
     assert!(kept[0].counts.singular_after * 2 < kept[0].counts.singular_before, "sphere: {:?}", kept[0].counts);
+    assert!(kept[0].into_cones, "sphere: the try ending in cones should win: {:?}", r.cancellation);
     // Analytic oracle: every vertex lies on the unit sphere up to the icosphere's chordal error.
     let worst = q.positions.iter().map(|p| (p.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt() - 1.0).abs());
     let worst = worst.fold(0.0, f64::max);

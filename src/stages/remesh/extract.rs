@@ -44,7 +44,7 @@ pub struct Extracted {
 }
 
 /// Extract from level 0 with orientation `q`, lattice origins `o` and spacing `s[i]` at vertex i. With
-/// `cancel` (the triangles level 0 was built from, a path cost, blocked vertices), position singularities are first
+/// `cancel` (the triangles level 0 was built from, a reach, blocked vertices), position singularities are first
 /// cancelled in pairs ([`integer::cancel_pairs`]); the extraction then follows the changed steps, and the
 /// clusters are placed by them ([`place_by_steps`]).
 pub fn extract(level: &Level, q: &[V3], o: &[V3], s: &[f64], cancel: Option<integer::Cancel>) -> Extracted {
@@ -53,7 +53,7 @@ pub fn extract(level: &Level, q: &[V3], o: &[V3], s: &[f64], cancel: Option<inte
     let mut off = integer::Offsets::compute(level, q, o, s);
     let mut out = Extracted::default();
     if let Some(c) = cancel {
-        out.integer = integer::cancel_pairs(&mut off, c.tris, c.max_path_cost, Some(c.blocked));
+        out.integer = integer::cancel_pairs(&mut off, c.tris, c.reach, Some(c.blocked));
     }
     let mut uf = UnionFind::new(n);
     let mut links = Vec::new();

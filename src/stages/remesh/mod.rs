@@ -362,8 +362,10 @@ fn candidate(
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct CancelTrial {
     pub mode: Option<Mode>,
-    /// Largest path cost allowed ([`integer::PATH_COSTS`]).
+    /// Largest path cost allowed ([`integer::TRIES`]).
     pub path_cost: f64,
+    /// Paths could end in a cone (a triangle where the cross field turns).
+    pub into_cones: bool,
     pub counts: integer::CancelCounts,
     /// Position fields re-solved at a finer spacing to bring the count back.
     pub rescales: usize,
@@ -671,7 +673,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             let input_chi = report.input_euler_characteristic;
             // (the try, its finished result when it was finished, seconds cancelling, seconds re-solving)
             type Try = (CancelTrial, Option<Finished>, f64, f64);
-            let try_cost = |cost: f64| -> Result<Try> {
+            let try_cost = |reach: integer::Reach| -> Result<Try> {
                 // Cancelling removes more rows than it adds: steer the count by re-solving the position
                 // field at a finer spacing (at most CANCEL_RESCALES times).
                 let (mut o2, mut s2) = (o.clone(), s0.clone());
@@ -679,7 +681,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 let mut c2 = loop {
                     let blocked: Vec<bool> =
                         thick_c.iter().zip(&s2).map(|(&t, &sp)| t < integer::CANCEL_THIN * sp).collect();
-                    let how = integer::Cancel { tris: &tris, max_path_cost: cost, blocked: &blocked };
+                    let how = integer::Cancel { tris: &tris, reach, blocked: &blocked };
                     let t1 = Instant::now();
                     let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some(how), mode, input_components);
                     t_cancel += t1.elapsed().as_secs_f64();
@@ -700,7 +702,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 c2.topology_ok = manifold && chi == input_chi;
                 let mut trial = CancelTrial {
                     mode: Some(mode),
-                    path_cost: cost,
+                    path_cost: reach.max_path_cost,
+                    into_cones: reach.into_cones,
                     counts: c2.ex.integer.unwrap_or_default(),
                     rescales,
                     vertices: c2.predicted,
@@ -728,7 +731,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 };
                 Ok((trial, Some(f2), t_cancel, t_resolve))
             };
-            let tries: Vec<Result<Try>> = integer::PATH_COSTS.par_iter().map(|&cost| try_cost(cost)).collect();
+            let tries: Vec<Result<Try>> = integer::TRIES.par_iter().map(|&reach| try_cost(reach)).collect();
             for t in tries {
                 let (mut trial, f2, t_cancel, t_resolve) = t?;
                 *report.seconds.entry("cancellation".into()).or_insert(0.0) += t_cancel;
