@@ -32,8 +32,8 @@
 //! therefore extracts at a quarter of the target; both routes repeat the extraction with the spacing
 //! scaled by √(predicted / target) until the count is within [`COUNT_TOLERANCE`] (at most [`MAX_ATTEMPTS`] /
 //! [`MAX_DIRECT_ATTEMPTS`] extractions). Attempts must be closed, edge-manifold and keep the input's Euler
-//! characteristic; after [`PATIENCE`] attempts (at once when it is off by more than [`CHI_RETRY_MAX`]), or
-//! when none does, one that changes it is accepted and flagged (`euler_characteristic_changed`).
+//! characteristic; after [`PATIENCE`] attempts, or when none does, one that changes it is accepted and
+//! flagged (`euler_characteristic_changed`).
 //!
 //! The stage needs a closed 2-manifold triangle mesh (`remesh.input-not-closed` otherwise: run `repair`
 //! first). It is deterministic for a fixed seed, whatever the number of threads: the fields are updated by
@@ -219,10 +219,6 @@ pub const FIDELITY_RATIO: f64 = 1.25;
 
 /// Attempts per mode after which a closed manifold attempt that changes χ is accepted.
 pub const PATIENCE: usize = 3;
-/// An attempt within the count whose χ is off by more than this is not retried for χ: a slightly different
-/// spacing restores a handle or two, not many. The repaired dragon's 20 sub-millimetre tunnels (χ −40 → 0)
-/// are lost at every spacing near the 10k target; retrying them cost two field solves.
-pub const CHI_RETRY_MAX: i64 = 8;
 
 /// A later route (adaptive split, then direct) runs only when every earlier one's two-sided RMS exceeds this
 /// percentage of the bounding-box diagonal, or it changed χ or left a face flipped: on the shared meshes the
@@ -627,12 +623,10 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 fallback = Some((err, index, c, o, sl.swap_remove(0)));
             }
             let tried = report.attempts.iter().filter(|a| a.mode == mode).count();
-            // Stop when the count is met; after PATIENCE attempts, a usable one without χ will do, and at once
-            // when it lost more than CHI_RETRY_MAX / 2 handles.
+            // Stop when the count is met; after PATIENCE attempts, a usable one without χ will do.
             if predicted == 0
                 || (valid && err <= COUNT_TOLERANCE)
                 || (tried >= PATIENCE && usable && err <= COUNT_TOLERANCE)
-                || (usable && err <= COUNT_TOLERANCE && (chi - report.input_euler_characteristic).abs() > CHI_RETRY_MAX)
             {
                 break;
             }
