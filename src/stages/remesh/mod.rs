@@ -54,6 +54,7 @@ use serde::Serialize;
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
+use crate::geometry::sampling::{Rng, sample_area_uniform};
 use crate::geometry::topology::TopologyReport;
 use crate::geometry::vec3::{self, V3, cross, dot, sub, wide};
 use crate::stages::Progress;
@@ -208,8 +209,8 @@ pub const ANISOTROPY_MIN: f64 = 0.3;
 /// bunny 0.59, armadillo 0.47, igea 0.45.
 pub const COHERENCE_TRUST_MIN: f64 = 0.9;
 /// Default extra pull toward the principal directions (`RemeshOptions::coherent_pull`), relative to the
-/// curvature weight, on a fully coherent surface. On the torus test (minor/major 0.4) the extrinsic smoothness alone keeps 16 orientation
-/// singularities for any number of sweeps; this pull removes them.
+/// curvature weight, on a fully coherent surface. On the torus test (minor/major 0.4) the extrinsic
+/// smoothness alone keeps 16 orientation singularities for any number of sweeps; this pull removes them.
 pub const COHERENT_PULL: f64 = 10.0;
 
 /// A later route's result replaces an earlier one of the same class (χ kept, no flipped face) when the
@@ -524,7 +525,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.hierarchy_levels = levels.len();
     lap(&mut clock, "hierarchy", &mut report);
     progress.report(0.2, "orientation field");
-    let pulls: Option<Vec<(Vec<(V3, f64)>, f64)>> = (opts.curvature_weight > 0.0)
+    let pulls: Option<Vec<_>> = (opts.curvature_weight > 0.0)
         .then(|| levels.iter().map(|l| curvature_directions(l, opts.curvature_weight, opts.coherent_pull)).collect());
     report.curvature_coherence = pulls.as_ref().map(|b| b[0].1);
     let bias: Option<Vec<Vec<(V3, f64)>>> = pulls.map(|b| b.into_iter().map(|(d, _)| d).collect());
@@ -911,11 +912,8 @@ struct TradeMeter<'a> {
 impl<'a> TradeMeter<'a> {
     /// Cost: O(F_in + samples).
     fn new(input: &TriMesh, input_bvh: &'a TriangleBvh, samples: usize, seed: u64) -> Self {
-        let mut rng = crate::geometry::sampling::Rng::new(seed ^ 0x7ade);
-        let input_samples = crate::geometry::sampling::sample_area_uniform(input, samples, &mut rng)
-            .into_iter()
-            .map(|s| s.point)
-            .collect();
+        let mut rng = Rng::new(seed ^ 0x7ade);
+        let input_samples = sample_area_uniform(input, samples, &mut rng).into_iter().map(|s| s.point).collect();
         TradeMeter { input_samples, input_bvh, samples, seed }
     }
 
@@ -924,11 +922,8 @@ impl<'a> TradeMeter<'a> {
     fn rms(&self, out: &PolyMesh) -> f64 {
         let (t, _) = out.triangulate();
         let out_bvh = TriangleBvh::new(&t);
-        let mut rng = crate::geometry::sampling::Rng::new(self.seed ^ 0x7adf);
-        let on_out: Vec<V3> = crate::geometry::sampling::sample_area_uniform(&t, self.samples, &mut rng)
-            .into_iter()
-            .map(|s| s.point)
-            .collect();
+        let mut rng = Rng::new(self.seed ^ 0x7adf);
+        let on_out: Vec<V3> = sample_area_uniform(&t, self.samples, &mut rng).into_iter().map(|s| s.point).collect();
         let d2 =
             |bvh: &TriangleBvh, pts: &[V3]| -> Vec<f64> { pts.par_iter().map(|&p| bvh.distance(p).powi(2)).collect() };
         let a = d2(self.input_bvh, &on_out);
