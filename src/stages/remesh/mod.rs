@@ -6,7 +6,8 @@
 //!    (QEM) to about [`WORK_PER_VERTEX`] vertices per output vertex, coarse ones are subdivided;
 //! 2. a multi-resolution hierarchy ([`hierarchy`]);
 //! 3. the extrinsic 4-RoSy orientation field, coarse to fine, pulled toward principal curvature directions
-//!    where the curvature is clearly anisotropic ([`field`]);
+//!    where the curvature is clearly anisotropic, and harder where those directions agree over the whole
+//!    surface ([`COHERENT_PULL`]; [`field`]);
 //! 4. the 4-PoSy position field at lattice spacing `scale`;
 //! 5. extraction of a quad-dominant mesh ([`extract`]), closed by construction;
 //! 6. clean-up to a pure-quad mesh ([`quadify`]) by up to three routes, each tried only when every earlier
@@ -20,8 +21,9 @@
 //!    farther from the input;
 //!
 //!    On the split routes, the kept attempt is extracted again with its position singularities cancelled
-//!    in pairs on the integer edge steps ([`integer`]), the count steered by re-solving the position field
-//!    ([`CANCEL_RESCALES`]); that result replaces the first when it is as sound, within the vertex-count
+//!    in pairs, or into cones, on the integer edge steps ([`integer::TRIES`]), the count steered by
+//!    re-solving the position field ([`CANCEL_RESCALES`]); that result replaces the first when it is as
+//!    sound, within the vertex-count
 //!    tolerance, has fewer irregular vertices and its RMS grows by at most [`CANCEL_TRADE`] times their
 //!    relative drop ([`CANCEL_RMS_SLACK`] at most). Every try is reported (`cancellation`);
 //! 7. a valence pass (diagonal collapses and edge rotations that lower Σ|valence − 4|), then projection
@@ -663,7 +665,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             let plain_rms = kept.rms;
             let thick_c: &[f64] =
                 thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report));
-            // Both reaches in parallel (each search is sequential), then weighed in order.
+            // The tries of integer::TRIES in parallel (each search is sequential), then weighed in order.
             let input_components = report.input_components;
             let input_chi = report.input_euler_characteristic;
             // (the try, its finished result when it was finished, seconds cancelling, seconds re-solving)
