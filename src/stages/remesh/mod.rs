@@ -897,7 +897,7 @@ fn finish(
     Ok((PolyMesh::new(positions, &quads)?, extra, valence))
 }
 
-/// Samples per side of [`TradeMeter`].
+/// Samples per side of the RMS estimate that weighs routes and cancellation tries (`TradeMeter`).
 pub const TRADE_SAMPLES: usize = 50_000;
 
 /// The two-sided RMS distance between a candidate quad mesh and the input, as `quality::compare` estimates it
