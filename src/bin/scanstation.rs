@@ -55,6 +55,10 @@ enum Command {
         /// Decimate the repaired mesh to this many vertices (quadric error metric).
         #[arg(long)]
         target_vertices: Option<usize>,
+        /// Cut handles (tunnels, bridges) whose shortest loop around them is shorter than this percentage of
+        /// the bounding-box diagonal and fill both sides: topological noise of fused range scans (0: keep all).
+        #[arg(long, default_value_t = 0.0)]
+        max_handle_loop_pct: f64,
     },
     /// Field-aligned pure-quad remeshing of a closed mesh (run `repair` first): orientation and position
     /// fields, extraction, clean-up to all quads at the requested vertex count, projection onto the input.
@@ -128,6 +132,10 @@ enum Command {
         /// and larger faces, but features thinner than twice the spacing can be lost.
         #[arg(long)]
         split_only: bool,
+        /// Keep handles (tunnels, bridges) too narrow for the quad net; by default repair cuts those whose
+        /// loop is shorter than two quad spacings (π × the tolerance with --tolerance) and fills both sides.
+        #[arg(long)]
+        keep_small_handles: bool,
     },
     /// Immersed (meshless) linear statics on a solid: a closed mesh, or a STEP file `convert` wrote (through
     /// the NAME.solid.ply it writes beside it). Writes result.json and surface.vtu into OUTPUT.
@@ -222,12 +230,13 @@ fn main() -> ExitCode {
         Command::Inspect { file } => {
             pipeline::inspect_file(file, &read).map(|r| if cli.json { print_json(&r) } else { print_inspect(&r) })
         }
-        Command::Repair { input, output, keep_share, keep_spikes, smooth, target_vertices } => {
+        Command::Repair { input, output, keep_share, keep_spikes, smooth, target_vertices, max_handle_loop_pct } => {
             let opts = scanstation::stages::repair::RepairOptions {
                 keep_share: *keep_share,
                 remove_spikes: !keep_spikes,
                 smooth_iterations: *smooth,
                 target_vertices: *target_vertices,
+                max_handle_loop_rel: max_handle_loop_pct / 100.0,
                 memory_budget: cli.memory_budget,
                 ..Default::default()
             };
@@ -263,7 +272,18 @@ fn main() -> ExitCode {
             remesh(input, output, *vertices, *edge_length, opts, &read)
                 .map(|r| if cli.json { print_json(&r) } else { print_remesh(&r) })
         }
-        Command::Convert { input, output, vertices, tolerance, report, quads, unit, seed, split_only } => convert(
+        Command::Convert {
+            input,
+            output,
+            vertices,
+            tolerance,
+            report,
+            quads,
+            unit,
+            seed,
+            split_only,
+            keep_small_handles,
+        } => convert(
             input,
             output,
             *vertices,
@@ -273,6 +293,7 @@ fn main() -> ExitCode {
             unit,
             *seed,
             !*split_only,
+            !*keep_small_handles,
             &cli,
             &read,
         )
@@ -336,6 +357,7 @@ fn convert(
     unit: &str,
     seed: u64,
     direct: bool,
+    remove_small_handles: bool,
     cli: &Cli,
     read: &ReadOptions,
 ) -> Result<pipeline::ConvertReport, Error> {
@@ -366,6 +388,7 @@ fn convert(
         seed,
         unit,
         quads_output: quads.clone(),
+        remove_small_handles,
         memory_budget: cli.memory_budget,
         remesh: scanstation::stages::remesh::RemeshOptions {
             try_direct: direct,
@@ -725,6 +748,21 @@ fn print_repair(r: &pipeline::RepairFileReport) {
         "holes:   {} filled (largest {} edges), {} triangles and {} vertices added",
         h.holes_filled, h.largest_hole_edges, h.triangles_added, h.vertices_added
     );
+    let hd = &rep.handles;
+    if hd.max_loop > 0.0 {
+        println!(
+            "handles: {} cut (genus −{}; loops under {:.4e}), {} faces removed, {} triangles added; {} seeds, {} \
+             balls searched, {} searches given up",
+            hd.cuts,
+            hd.genus_removed,
+            hd.max_loop,
+            hd.faces_removed,
+            hd.triangles_added,
+            hd.seeds,
+            hd.balls_searched,
+            hd.searches_given_up
+        );
+    }
     let o = &rep.output;
     println!(
         "output:  {} ({} vertices, {} faces, closed {}, genus {:?}, volume {:.6e})",

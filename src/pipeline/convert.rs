@@ -45,7 +45,25 @@ pub struct ConvertOptions {
     pub unit: LengthUnit,
     /// Also write the quad control net here (OBJ or PLY).
     pub quads_output: Option<PathBuf>,
+    /// Let repair cut handles too narrow for the quad net ([`small_handle_loop`]) unless
+    /// `repair.max_handle_loop_rel` is set already.
+    pub remove_small_handles: bool,
     pub memory_budget: u64,
+}
+
+/// Handle loops shorter than this many quad spacings √(area / n) are topological noise to `convert`: the
+/// split route's lattice spacing is two quad spacings, and a tube needs about four quads around to be
+/// carried; narrower tunnels are lost by remeshing anyway, only by accident instead of on purpose.
+pub const HANDLE_LOOP_SPACINGS: f64 = 2.0;
+
+/// The longest handle loop `convert` removes before remeshing a surface of `area` at `resolution`:
+/// [`HANDLE_LOOP_SPACINGS`] · √(area / n) for a vertex count n; π · t for a tolerance t (a tunnel narrower
+/// than the tolerance, whose filling moves the surface by less than about t).
+pub fn small_handle_loop(resolution: Resolution, area: f64) -> f64 {
+    match resolution {
+        Resolution::Vertices(n) => HANDLE_LOOP_SPACINGS * (area / n.max(1) as f64).sqrt(),
+        Resolution::Tolerance(t) => std::f64::consts::PI * t,
+    }
 }
 
 impl Default for ConvertOptions {
@@ -59,6 +77,7 @@ impl Default for ConvertOptions {
             seed: 0,
             unit: LengthUnit::Millimetre,
             quads_output: None,
+            remove_small_handles: true,
             memory_budget: 8 << 30,
         }
     }
@@ -272,7 +291,13 @@ pub fn convert_file(
     let clock = Clock::start();
     let span = ProgressSpan::new(progress, 0.02, 0.1, "repair");
     // Every stage gets the chain's budget (each estimates its need before allocating).
-    let repair_opts = RepairOptions { memory_budget: opts.memory_budget, ..opts.repair };
+    let mut repair_opts = RepairOptions { memory_budget: opts.memory_budget, ..opts.repair };
+    if opts.remove_small_handles && repair_opts.max_handle_loop_rel == 0.0 && diag > 0.0 {
+        let loop_len = small_handle_loop(opts.resolution, mesh.triangulate().0.area());
+        if loop_len.is_finite() && loop_len > 0.0 {
+            repair_opts.max_handle_loop_rel = loop_len / diag;
+        }
+    }
     let (repaired, repair_report) = repair(mesh, &repair_opts, &span).map_err(|e| e.in_file(input))?;
     let d = compare(&Geometry::Mesh(PolyMesh::from(repaired.clone())), &input_geom, &cmp_opts, &span)?;
     stages.push(clock.stop("repair", Some(d)));

@@ -7,6 +7,9 @@
 //! 2. [`manifold`]: make non-manifold edges and vertices manifold, orient faces consistently, keep the
 //!    components that matter (largest by area, plus any of at least `keep_share` of the area);
 //! 3. [`holes`]: fill every hole (Liepa: minimum-weight triangulation, refinement, thin-plate fairing);
+//! 3b. [`handles`] (optional, `max_handle_loop_rel` > 0): cut handles whose shortest non-separating loop is
+//!    shorter than `max_handle_loop_rel × diagonal` (topological noise of range-scan fusion) and fill both
+//!    sides;
 //! 4. [`intersections`]: delete intersecting triangles with a growing neighbourhood and refill, until none
 //!    remain (after the first filling, so that fills are checked too);
 //! 5. [`smooth`]: move spike vertices to their ring centroid; optional Taubin λ|μ smoothing;
@@ -18,6 +21,7 @@
 //! `compare`.
 
 pub mod decimate;
+pub mod handles;
 pub mod holes;
 pub mod intersections;
 pub mod manifold;
@@ -49,6 +53,11 @@ pub struct RepairOptions {
     pub smooth_iterations: usize,
     /// Decimate to this many vertices at the end (None: keep all).
     pub target_vertices: Option<usize>,
+    /// Cut handles whose shortest non-separating loop is shorter than this fraction of the bounding-box
+    /// diagonal, filling both sides ([`handles`]); 0: keep every handle. Off by default: a closed manifold
+    /// keeps its topology unless asked. `convert` sets it from the quad spacing (a quad mesh cannot carry a
+    /// tunnel narrower than a few quads anyway).
+    pub max_handle_loop_rel: f64,
     /// Most bytes the stage may allocate (checked against an estimate before starting).
     pub memory_budget: u64,
 }
@@ -66,6 +75,7 @@ impl Default for RepairOptions {
             remove_spikes: true,
             smooth_iterations: 0,
             target_vertices: None,
+            max_handle_loop_rel: 0.0,
             memory_budget: 8 << 30,
         }
     }
@@ -82,6 +92,8 @@ pub struct RepairReport {
     pub manifold: manifold::ManifoldReport,
     /// Step 5.
     pub holes: holes::HoleReport,
+    /// Step 3b: topological noise removed (when `max_handle_loop_rel` > 0).
+    pub handles: handles::HandleReport,
     /// Step 4 (run after the first filling, as MeshFix does, so refills are checked too).
     pub intersections: intersections::IntersectionReport,
     /// Step 6.
@@ -159,6 +171,14 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
     progress.report(0.4, "holes");
     let holes = holes::fill_holes(&mut pos, &mut tris, true);
     tracing::debug!(seconds = t0.elapsed().as_secs_f64(), "holes done");
+    let mut handles = handles::HandleReport::default();
+    if opts.max_handle_loop_rel > 0.0 {
+        progress.report(0.5, "handles");
+        handles = handles::remove_small_handles(&mut pos, &mut tris, opts.max_handle_loop_rel * input.bbox_diagonal);
+        let (p2, t2, _) = weld::compact(&pos, &tris);
+        (pos, tris) = (p2, t2);
+        tracing::debug!(seconds = t0.elapsed().as_secs_f64(), cuts = handles.cuts, "handles done");
+    }
     progress.report(0.6, "intersections");
     let intersections = intersections::remove_self_intersections(&mut pos, &mut tris, opts.keep_share);
     if intersections.pairs_remaining > 0 {
@@ -249,6 +269,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         weld,
         manifold,
         holes,
+        handles,
         intersections,
         smooth,
         decimate: decimated,
