@@ -54,7 +54,16 @@ fn main() {
     for (name, file, needs_repair) in cases {
         let mesh = read_mesh(&data.join(file), &ReadOptions::default()).expect("read");
         let tri: TriMesh = if needs_repair {
-            let o = RepairOptions { compare_samples: 1_000, ..Default::default() };
+            // Repaired as `convert` does at this target: handles under two quad spacings are cut.
+            let loop_len = scanstation::pipeline::small_handle_loop(
+                scanstation::pipeline::Resolution::Vertices(TARGET),
+                mesh.triangulate().0.area(),
+            );
+            let o = RepairOptions {
+                compare_samples: 1_000,
+                max_handle_loop_rel: loop_len / mesh.bbox().diagonal(),
+                ..Default::default()
+            };
             repair(&mesh, &o, &NoProgress).expect("repair").0
         } else {
             mesh.triangulate().0

@@ -247,8 +247,9 @@ fn every_shared_mesh_repairs_to_a_closed_manifold() {
 
 /// Every closed shared mesh, plus the repaired bunny and dragon, remeshes at a 10k-vertex target into a
 /// closed, 2-manifold, pure-quad mesh with valences ≥ 3 and a count within 10 %, keeping the Euler
-/// characteristic. Known limitation, asserted as such: the dragon loses handles thinner than the quad
-/// spacing (χ −40 → 0 or 2).
+/// characteristic. The repaired meshes are repaired as `convert` does at this target: handles whose loop is
+/// shorter than two quad spacings are cut first (the dragon's 20 sub-millimetre tunnels, which no quad mesh
+/// at 10k carries; its real handle stays, χ 0).
 #[test]
 fn every_closed_shared_mesh_remeshes_to_pure_quads() {
     use scanstation::stages::remesh::{COHERENCE_TRUST_MIN, RemeshOptions, remesh};
@@ -263,8 +264,22 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         let mesh = if !wanted(f) {
             read.triangulate().0
         } else {
-            let opts = RepairOptions { compare_samples: 1_000, ..Default::default() };
-            repair(&read, &opts, &NoProgress).unwrap_or_else(|e| panic!("{f}: repair: {e}")).0
+            let area = read.triangulate().0.area();
+            let loop_len =
+                scanstation::pipeline::small_handle_loop(scanstation::pipeline::Resolution::Vertices(10_000), area);
+            let diagonal = read.bbox().diagonal();
+            let opts = RepairOptions {
+                compare_samples: 1_000,
+                max_handle_loop_rel: loop_len / diagonal,
+                ..Default::default()
+            };
+            let (m, rr) = repair(&read, &opts, &NoProgress).unwrap_or_else(|e| panic!("{f}: repair: {e}"));
+            eprintln!("{f}: handles {:?}, genus {:?}", rr.handles, rr.output.genus);
+            if f.contains("dragon") {
+                assert_eq!(rr.output.genus, Some(1), "{f}: the body–tail handle stays, the noise goes");
+                assert!(rr.handles.cuts >= 20, "{f}: {:?}", rr.handles);
+            }
+            m
         };
         let opts = RemeshOptions { target_vertices: 10_000, compare_samples: 100_000, ..Default::default() };
         let (_, r) = remesh(&mesh, &opts, &NoProgress).unwrap_or_else(|e| panic!("{f}: {e}"));
@@ -275,13 +290,8 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         assert!(o.min_valence >= 3, "{f}: valences {:?}", o.valence_histogram);
         assert_eq!(o.components, r.input_components, "{f}: pieces (dropped {:?})", r.cleanup.components_dropped);
         assert!(r.vertex_count_error.abs() <= 0.10, "{f}: {} vertices", o.vertices);
-        if f.contains("dragon") {
-            assert!(r.euler_characteristic_changed, "{f}: a χ change must be flagged");
-            assert!(o.euler_characteristic >= r.input_euler_characteristic, "{f}: χ {}", o.euler_characteristic);
-        } else {
-            assert!(!r.euler_characteristic_changed, "{f}: χ flagged as changed");
-            assert_eq!(o.euler_characteristic, r.input_euler_characteristic, "{f}: Euler characteristic");
-        }
+        assert!(!r.euler_characteristic_changed, "{f}: χ flagged as changed");
+        assert_eq!(o.euler_characteristic, r.input_euler_characteristic, "{f}: Euler characteristic");
         // Scans' principal directions agree only in patches (measured 0.45–0.79), so the coherent pull of
         // tori and surfaces of revolution stays off and their fields are the plain curvature-pulled ones.
         let coherence = r.curvature_coherence.expect("the curvature pull is on by default");

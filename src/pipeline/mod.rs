@@ -8,7 +8,7 @@ pub mod convert;
 pub mod fea;
 pub mod memory;
 
-pub use convert::{ConvertOptions, ConvertReport, Resolution, convert_file};
+pub use convert::{ConvertOptions, ConvertReport, Resolution, convert_file, small_handle_loop};
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
