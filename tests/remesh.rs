@@ -334,7 +334,8 @@ fn a_thin_neck_survives_through_the_adaptive_route() {
     // test is about. Nor the stronger curvature pull of coherent surfaces (this one is a surface of
     // revolution): with it the lattice follows the tube's rings and the uniform route keeps the neck too
     // (input→quad max 0.55 %).
-    let base = RemeshOptions { cancel_singularities: false, coherent_pull: 0.0, ..opts(target) };
+    // Nor the refined direct route, which the next test is about.
+    let base = RemeshOptions { cancel_singularities: false, coherent_pull: 0.0, refine_missed: false, ..opts(target) };
     let uniform = RemeshOptions { adaptive_spacing: false, try_direct: false, ..base.clone() };
     let (_, u) = remesh(&t, &uniform, &NoProgress).unwrap();
     let du = u.distance.as_ref().unwrap().reference_to_test.max.pct_of_diagonal;
@@ -364,4 +365,37 @@ fn a_thin_neck_survives_through_the_adaptive_route() {
     // Measured: max 0.76 % and RMS 0.144 % (the uniform split: max 10 %, RMS 0.81 %; direct: RMS 0.235 %).
     assert!(d.reference_to_test.max.pct_of_diagonal < 1.0, "a part of the neck is missing: {d:?}");
     assert!(d.symmetric.rms.pct_of_diagonal < 0.2, "RMS {} %", d.symmetric.rms.pct_of_diagonal);
+}
+
+/// Where the direct route's lattice cannot follow a thin part, the refined direct route solves again with a
+/// finer spacing there ([`scanstation::stages::remesh::REFINE_TRIES`]) and is kept when it is
+/// `FIDELITY_RATIO` times closer to the input. On the necked torus without the adaptive split route: the
+/// uniform split loses the neck, the direct route keeps it coarsely, the refined route is closer.
+#[test]
+fn the_refined_direct_route_recovers_what_the_direct_route_missed() {
+    let t = necked_torus();
+    let o = RemeshOptions { cancel_singularities: false, coherent_pull: 0.0, adaptive_spacing: false, ..opts(1500) };
+    let (_, r) = remesh(&t, &o, &NoProgress).unwrap();
+    let d = r.distance.as_ref().unwrap();
+    println!(
+        "{:?}: missed {} working vertices, RMS {:.4} %, input→quad max {:.3} %, irregular {:.2} %, attempts {:?}, alternatives {:?}",
+        r.mode,
+        r.missed_vertices,
+        d.symmetric.rms.pct_of_diagonal,
+        d.reference_to_test.max.pct_of_diagonal,
+        100.0 * r.output.irregular_fraction,
+        r.attempts.iter().map(|a| (a.mode, a.refine)).collect::<Vec<_>>(),
+        r.alternatives
+    );
+    assert_valid(&r.output, &r, "necked torus, refined");
+    assert_eq!(r.mode, Some(Mode::RefinedDirect), "alternatives {:?}", r.alternatives);
+    assert!(r.missed_vertices > 0, "nothing was missed");
+    let direct = r.alternatives.iter().find(|a| a.mode == Mode::Direct).expect("the direct route ran");
+    assert!(
+        1.25 * d.symmetric.rms.pct_of_diagonal < direct.rms_pct_of_diagonal,
+        "refined RMS {} % against direct {} %",
+        d.symmetric.rms.pct_of_diagonal,
+        direct.rms_pct_of_diagonal
+    );
+    assert!(d.reference_to_test.max.pct_of_diagonal < 1.0, "a part of the neck is missing: {d:?}");
 }

@@ -918,18 +918,17 @@ pub fn flipped_faces(
     bvh: &TriangleBvh,
     surface_normal: &(impl Fn(u32) -> V3 + Sync),
 ) -> Vec<usize> {
-    (0..faces.len())
-        .into_par_iter()
-        .filter(|&fi| {
-            let f = &faces[fi];
-            let mut c = [0.0; 3];
-            for &v in f {
-                c = add(c, p[v as usize]);
-            }
-            c = scale(c, 1.0 / f.len() as f64);
-            bvh.closest(c).is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
-        })
-        .collect()
+    (0..faces.len()).into_par_iter().filter(|&fi| face_flipped(p, &faces[fi], bvh, surface_normal)).collect()
+}
+
+/// Face `f`'s normal points against `surface_normal` of the nearest input triangle to its centre.
+fn face_flipped(p: &[V3], f: &[u32], bvh: &TriangleBvh, surface_normal: &(impl Fn(u32) -> V3 + Sync)) -> bool {
+    let mut c = [0.0; 3];
+    for &v in f {
+        c = add(c, p[v as usize]);
+    }
+    c = scale(c, 1.0 / f.len() as f64);
+    bvh.closest(c).is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
 }
 
 /// Collapse each of the quads `which` (of a closed pure-quad mesh) along a diagonal: its two opposite
@@ -982,8 +981,29 @@ pub fn untangle(
     rounds: usize,
 ) -> usize {
     let (off, adj) = adjacency(p.len(), faces);
-    let flipped = |p: &[V3]| flipped_faces(p, faces, bvh, &surface_normal);
-    let mut bad = flipped(p);
+    // Faces around each vertex, so that a round re-checks only the faces its moves touched.
+    let mut vf_off = vec![0u32; p.len() + 1];
+    for f in faces {
+        for &v in f {
+            vf_off[v as usize + 1] += 1;
+        }
+    }
+    for k in 0..p.len() {
+        vf_off[k + 1] += vf_off[k];
+    }
+    let mut vf = vec![0u32; vf_off[p.len()] as usize];
+    let mut fill = vf_off.clone();
+    for (fi, f) in faces.iter().enumerate() {
+        for &v in f {
+            vf[fill[v as usize] as usize] = fi as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    let mut flag = vec![false; faces.len()];
+    for fi in flipped_faces(p, faces, bvh, &surface_normal) {
+        flag[fi] = true;
+    }
+    let mut bad: Vec<usize> = (0..faces.len()).filter(|&f| flag[f]).collect();
     // Keep the positions with the fewest flipped faces seen (the start included): never worse.
     let mut best = (bad.len(), p.to_vec());
     for _ in 0..rounds {
@@ -1013,7 +1033,19 @@ pub fn untangle(
         for (&v, x) in verts.iter().zip(moved) {
             p[v as usize] = x;
         }
-        bad = flipped(p);
+        let mut touched: Vec<u32> = verts
+            .iter()
+            .flat_map(|&v| vf[vf_off[v as usize] as usize..vf_off[v as usize + 1] as usize].iter().copied())
+            .collect();
+        touched.sort_unstable();
+        touched.dedup();
+        let p_now: &[V3] = p;
+        let now: Vec<bool> =
+            touched.par_iter().map(|&fi| face_flipped(p_now, &faces[fi as usize], bvh, &surface_normal)).collect();
+        for (&fi, b) in touched.iter().zip(now) {
+            flag[fi as usize] = b;
+        }
+        bad = (0..faces.len()).filter(|&f| flag[f]).collect();
         if bad.len() < best.0 {
             best = (bad.len(), p.to_vec());
         }
