@@ -93,6 +93,12 @@ enum Command {
         /// Working-mesh vertices per output vertex.
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex)]
         work_per_vertex: f64,
+        /// Working-mesh vertices per output vertex for the direct routes (which extract at the full count).
+        #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex_direct)]
+        work_per_vertex_direct: f64,
+        /// No refined direct route (a finer spacing where the direct result missed thin parts).
+        #[arg(long)]
+        no_refine: bool,
         /// Weight of the pull toward principal curvature directions (0 = off).
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight)]
         curvature_weight: f64,
@@ -253,6 +259,8 @@ fn main() -> ExitCode {
             curvature_weight,
             coherent_pull,
             work_per_vertex,
+            work_per_vertex_direct,
+            no_refine,
             split_only,
             uniform_spacing,
             keep_singularities,
@@ -263,6 +271,8 @@ fn main() -> ExitCode {
                 curvature_weight: *curvature_weight,
                 coherent_pull: *coherent_pull,
                 work_per_vertex: *work_per_vertex,
+                work_per_vertex_direct: *work_per_vertex_direct,
+                refine_missed: !*no_refine,
                 try_direct: !*split_only,
                 adaptive_spacing: !*uniform_spacing,
                 cancel_singularities: !*keep_singularities,
