@@ -302,13 +302,17 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         // Faces still flipped after unfolding are collapsed (spot: 2, dragon: 2), so none is left.
         assert_eq!(o.flipped_faces, 0, "{f}: flipped faces ({} collapsed)", r.cleanup.flipped_quads_collapsed);
         let d = r.distance.as_ref().expect("measured");
-        // Measured ≤ 0.087 % except the dragon (0.16 %, whose narrow slot is capped; target 0.07 %, open).
-        // The armadillo needs the adaptive split route: the uniform split loses its thin parts (0.24 %).
-        let bound = if f.contains("dragon") { 0.25 } else { 0.1 };
+        // Measured ≤ 0.087 % on every mesh. The armadillo needs the adaptive split route: the uniform split
+        // loses its thin parts (0.24 %). The dragon needs the refined direct route: the direct one lost two
+        // thin struts under its hind foot (RMS 0.153 %; refined 0.074 %, target 0.07 %, open).
+        let bound = if f.contains("dragon") { 0.09 } else { 0.1 };
+        if f.contains("dragon") {
+            assert_eq!(r.mode, Some(scanstation::stages::remesh::Mode::RefinedDirect), "{f}: {:?}", r.alternatives);
+        }
         assert!(d.symmetric.rms.pct_of_diagonal <= bound, "{f}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
         // Irregular vertices, measured 2026-12-01: 1.8–2.9 % on the meshes the uniform split keeps whole,
-        // 5.7 % on the armadillo (adaptive split; the direct route gave 9.5 %), 10.7 % on the dragon (direct;
-        // target ≤ 3 %, open).
+        // 5.7 % on the armadillo (adaptive split; the direct route gave 9.5 %), 12.0 % on the dragon (refined
+        // direct, 2026-12-02; the plain direct route 10.2 % at twice the RMS; target ≤ 3 %, open).
         // Where position singularities are cancelled in pairs and that result is kept (igea 1.73 %, 1.63 % since
         // paths may end in cones; fandisk 1.09 %, measured 2026-12-02), the bound is tighter.
         let cancelled = r.cancellation.iter().any(|t| t.kept);
@@ -316,7 +320,7 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             assert!(cancelled, "{f}: the cancelled extraction should be kept: {:?}", r.cancellation);
         }
         let irregular = if f.contains("dragon") {
-            0.115
+            0.125
         } else if f.contains("armadillo") {
             0.065
         } else if f.contains("igea") {
