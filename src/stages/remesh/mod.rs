@@ -1219,14 +1219,7 @@ fn thickness(level: &hierarchy::Level, p: &[V3], tris: &[[u32; 3]], reach: f64) 
 /// and s, then limited to grow by at most [`GRADATION`] per unit distance from any vertex (Gauss–Seidel
 /// sweeps of `s_i ≤ s_j + GRADATION·|p_i − p_j|`, alternately forward and backward, until none changes, at most 100).
 fn spacing_field(level: &hierarchy::Level, thick: &[f64], s: f64) -> Vec<f64> {
-    let floor = |i: usize| {
-        let (mut sum, mut k) = (0.0, 0.0);
-        for (j, _) in level.neighbours(i) {
-            sum += vec3::norm(sub(level.p[i], level.p[j]));
-            k += 1.0;
-        }
-        (MIN_SPACING_FACTOR * s).max(SPACING_PER_WORK_EDGE * sum / f64::max(k, 1.0)).min(s)
-    };
+    let floor = |i: usize| (MIN_SPACING_FACTOR * s).max(SPACING_PER_WORK_EDGE * mean_edge(level, i)).min(s);
     let sp: Vec<f64> = thick.iter().enumerate().map(|(i, &t)| (THIN_RATIO * t).clamp(floor(i), s)).collect();
     grade(level, sp, s)
 }
@@ -1242,15 +1235,20 @@ fn refined_spacing(level: &hierarchy::Level, missed: &[bool], s: f64) -> Vec<f64
             if !m {
                 return s;
             }
-            let (mut sum, mut k) = (0.0, 0.0);
-            for (j, _) in level.neighbours(i) {
-                sum += vec3::norm(sub(level.p[i], level.p[j]));
-                k += 1.0;
-            }
-            (REFINE_FACTOR * s).max(SPACING_PER_WORK_EDGE * sum / f64::max(k, 1.0)).min(s)
+            (REFINE_FACTOR * s).max(SPACING_PER_WORK_EDGE * mean_edge(level, i)).min(s)
         })
         .collect();
     grade(level, sp, s)
+}
+
+/// Mean length of the edges at vertex `i` of `level` (0 for an isolated vertex).
+fn mean_edge(level: &hierarchy::Level, i: usize) -> f64 {
+    let (mut sum, mut k) = (0.0, 0.0);
+    for (j, _) in level.neighbours(i) {
+        sum += vec3::norm(sub(level.p[i], level.p[j]));
+        k += 1.0;
+    }
+    sum / f64::max(k, 1.0)
 }
 
 /// Limit `sp` to grow by at most [`GRADATION`] per unit distance from any vertex.
