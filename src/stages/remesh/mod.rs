@@ -1565,5 +1565,31 @@ mod tests {
                 proptest::prop_assert!((a.1 - b.1).abs() < 1e-2 * (1.0 + a.1), "weight {} moved {}", a.1, b.1);
             }
         }
+
+        /// Invariants of the refined direct route's spacing, for any set of missed vertices: never above
+        /// the global spacing, graded (across every edge it changes by at most GRADATION times the edge's
+        /// length), and, on this sphere of nearly even edges where every vertex has about the same floor
+        /// (REFINE_FACTOR · s or SPACING_PER_WORK_EDGE local edges), never below it and at it on every
+        /// missed vertex.
+        #[test]
+        fn refined_spacing_is_bounded_and_graded(every in 2usize..40, offset in 0usize..40, s in 0.05f64..0.5) {
+            let l = finest(&icosphere(1.0, 3, [0.0; 3]));
+            let missed: Vec<bool> = (0..l.len()).map(|i| (i + offset) % every == 0).collect();
+            let sp = refined_spacing(&l, &missed, s);
+            for i in 0..l.len() {
+                let floor = (REFINE_FACTOR * s).max(SPACING_PER_WORK_EDGE * mean_edge(&l, i)).min(s);
+                proptest::prop_assert!(sp[i] <= s + 1e-12 && sp[i] >= floor.min(s) - 1e-12, "vertex {}: {} (s {}, floor {})", i, sp[i], s, floor);
+                if missed[i] {
+                    proptest::prop_assert!((sp[i] - floor).abs() < 1e-12, "missed vertex {}: {} not its floor {}", i, sp[i], floor);
+                }
+                for (j, _) in l.neighbours(i) {
+                    let d = vec3::norm(sub(l.p[i], l.p[j]));
+                    proptest::prop_assert!(sp[i] <= sp[j] + GRADATION * d + 1e-12, "edge {}–{}: {} vs {} over {}", i, j, sp[i], sp[j], d);
+                }
+            }
+            // Nothing missed: the uniform spacing.
+            let none = refined_spacing(&l, &vec![false; l.len()], s);
+            proptest::prop_assert!(none.iter().all(|&x| x == s));
+        }
     }
 }
