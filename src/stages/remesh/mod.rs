@@ -557,7 +557,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     let area = topo.area;
 
     // 1–3. Working mesh, hierarchy and orientation field.
-    progress.report(0.0, "working mesh");
+    progress.report(0.0, "working mesh, hierarchy, orientation field");
     let t_work = Instant::now();
     let mut work_p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
     let mut work_t = mesh.triangles.clone();
@@ -583,6 +583,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     report.hierarchy_levels = main.levels.len();
     report.curvature_coherence = main.coherence;
     report.orientation_singularities = main.orientation_singularities;
+    progress.report(0.25, "position field");
     for (k, v) in &main.seconds {
         report.seconds.insert(k.to_string(), *v);
     }
@@ -644,20 +645,21 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         if mode == Mode::RefinedDirect && missed.as_ref().is_none_or(|m| !m.contains(&true)) {
             continue;
         }
-        if mode.is_direct() && fine.is_none() {
+        if mode.is_direct() && report.direct_working_vertices == 0 {
             let t0 = Instant::now();
             let (pf, tf, lf) = staged.take().unwrap_or_else(|| {
                 working_mesh(std::mem::take(&mut work_p), std::mem::take(&mut work_t), want_direct, opts.seed)
             });
-            let w = Work::build(pf, tf, lf, opts);
-            report.direct_working_vertices = w.p.len();
+            report.direct_working_vertices = pf.len();
+            // Of the same size (an input too small to decimate either way): the split routes' one serves.
+            if pf.len() != main.p.len() {
+                fine = Some(Work::build(pf, tf, lf, opts));
+            }
             *report.seconds.entry("direct_working_mesh".into()).or_insert(0.0) += t0.elapsed().as_secs_f64();
-            fine = Some(w);
         }
-        // The direct routes work on the finer working mesh (the same one when both have the same size).
-        let fine_ref = fine.as_ref().filter(|w| mode.is_direct() && w.p.len() != main.p.len());
-        let wi = usize::from(fine_ref.is_some());
-        let w = fine_ref.unwrap_or(&main);
+        // The direct routes work on the finer working mesh where there is one.
+        let w = if mode.is_direct() { fine.as_ref().unwrap_or(&main) } else { &main };
+        let wi = usize::from(mode.is_direct() && fine.is_some());
         let (p, tris, levels, qs) = (&w.p, &w.tris, &w.levels, &w.qs);
         let thick_all = &mut thick_by[wi];
         if mode == Mode::AdaptiveSplit {
@@ -875,14 +877,6 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             let s_direct = report.attempts[kept.index].scale;
             let m: Vec<bool> =
                 levels[0].p.par_iter().map(|&x| out_bvh.distance(x) > MISS_SPACINGS * s_direct).collect();
-            debug_assert_eq!(
-                m.len(),
-                fine.as_ref().map_or(main.p.len(), |f| if f.p.len() != main.p.len() {
-                    f.p.len()
-                } else {
-                    main.p.len()
-                })
-            );
             report.missed_vertices = m.iter().filter(|&&b| b).count();
             missed = Some(m);
             *report.seconds.entry("missed".into()).or_insert(0.0) += t1.elapsed().as_secs_f64();
