@@ -99,6 +99,9 @@ enum Command {
         /// No refined direct route (a finer spacing where the direct result missed thin parts).
         #[arg(long)]
         no_refine: bool,
+        /// Rounds of the least-squares fit of the quad mesh to the input (0 = vertices stay on the input).
+        #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().fit_rounds)]
+        fit_rounds: usize,
         /// Weight of the pull toward principal curvature directions (0 = off).
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight)]
         curvature_weight: f64,
@@ -261,6 +264,7 @@ fn main() -> ExitCode {
             work_per_vertex,
             work_per_vertex_direct,
             no_refine,
+            fit_rounds,
             split_only,
             uniform_spacing,
             keep_singularities,
@@ -273,6 +277,7 @@ fn main() -> ExitCode {
                 work_per_vertex: *work_per_vertex,
                 work_per_vertex_direct: *work_per_vertex_direct,
                 refine_missed: !*no_refine,
+                fit_rounds: *fit_rounds,
                 try_direct: !*split_only,
                 adaptive_spacing: !*uniform_spacing,
                 cancel_singularities: !*keep_singularities,

@@ -1,0 +1,196 @@
+//! Least-squares fit of the finished quad mesh to the input surface.
+//!
+//! Projection puts every quad vertex *on* the input, so each bilinear face cuts through the surface as a
+//! chord: inside on convex parts, outside on concave ones, and across the middle of features narrower than
+//! a face. The fit moves the vertices to lower the pooled squared distance of both sides — input samples to
+//! the quad mesh and quad samples (vertices, face centres) to the input — the distance energy of Hoppe et
+//! al. 1993 ("Mesh optimization"), with the closest-point correspondences refreshed every round. A round
+//! moves each vertex by the weighted mean of the residuals of the samples it carries (weights: its
+//! barycentric share of each sample's closest point), which is a gradient step preconditioned by the
+//! vertex's total weight: stable (a uniformly offset surface is matched in one step) and zero exactly where
+//! the least-squares gradient is. A tangential umbrella term keeps the quads even.
+//!
+//! Vertices end off the input surface by a fraction of the chord height; the quad mesh is the piecewise
+//! bilinear surface closest to the input, which is what the surface stage fits from. A round never leaves
+//! a face flipped: vertices of faces that the move turned over return to where they were.
+
+use rayon::prelude::*;
+
+use crate::geometry::bvh::TriangleBvh;
+use crate::geometry::mesh::TriMesh;
+use crate::geometry::vec3::{V3, add, cross, dot, norm2, scale, sub};
+
+use super::quadify::{adjacency, flipped_faces, vertex_normals};
+
+/// Fit rounds after the clean-up (each refreshes the correspondences).
+pub const FIT_ROUNDS: usize = 4;
+
+/// Input samples per quad vertex that the fit draws (area-uniform).
+pub const FIT_SAMPLES_PER_VERTEX: usize = 8;
+
+/// Weight of the tangential umbrella term against a vertex's own residual weight.
+pub const FIT_SMOOTH: f64 = 0.5;
+
+/// What the fit did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct FitCounts {
+    /// Rounds run.
+    pub rounds: usize,
+    /// Vertex moves undone because they flipped a face.
+    pub moves_undone: usize,
+    /// Mean squared residual over both sides' samples at the start of the first round (length², the
+    /// input's units; both sides weigh half).
+    pub mean_square_first: f64,
+    /// The same at the start of the last round (the last move is not measured again, to save its
+    /// queries).
+    pub mean_square_last: f64,
+    /// Wall time of the fit.
+    pub seconds: f64,
+}
+
+/// Fit the closed quad mesh (`p`, `quads`) to the input surface of `bvh`, sampled by `samples` (points on
+/// it, area-uniform), for `rounds` rounds; `surface_normal(t)` is input triangle t's normal (any length),
+/// which decides whether a face is flipped.
+///
+/// Cost per round: a BVH over the quad mesh's 2F triangles, one closest-point query per sample into it
+/// and one per vertex and face into the input's BVH. Deterministic: the residuals are summed in sample
+/// order.
+pub fn fit_to_surface(
+    p: &mut [V3],
+    quads: &[Vec<u32>],
+    samples: &[V3],
+    bvh: &TriangleBvh,
+    surface_normal: impl Fn(u32) -> V3 + Sync,
+    rounds: usize,
+) -> FitCounts {
+    let mut counts = FitCounts::default();
+    let nv = p.len();
+    if rounds == 0 || nv == 0 || quads.is_empty() || samples.is_empty() {
+        return counts;
+    }
+    let clock = std::time::Instant::now();
+    let (off, adj) = adjacency(nv, quads);
+    // The quad mesh as the measurement triangulates it (a fan from each face's first corner).
+    let triangles: Vec<[u32; 3]> =
+        quads.iter().flat_map(|f| (1..f.len() - 1).map(move |k| [f[0], f[k], f[k + 1]])).collect();
+    for round in 0..rounds {
+        let positions: Vec<[f32; 3]> = p.iter().map(|x| x.map(|c| c as f32)).collect();
+        let tri = TriMesh { positions, triangles: triangles.clone() };
+        let quad_bvh = TriangleBvh::new(&tri);
+        // Input → quad: (vertex, weight, residual) triples, three per sample.
+        let p_now: &[V3] = p;
+        let hits: Vec<Option<([u32; 3], [f64; 3], V3)>> = samples
+            .par_iter()
+            .map(|&x| {
+                let c = quad_bvh.closest(x)?;
+                let t = triangles[c.index as usize];
+                let w = barycentric(c.point, p_now[t[0] as usize], p_now[t[1] as usize], p_now[t[2] as usize]);
+                Some((t, w, sub(x, c.point)))
+            })
+            .collect();
+        // Quad → input: every vertex, and every face centre (a quarter to each corner).
+        let at_vertex: Vec<V3> =
+            p_now.par_iter().map(|&x| bvh.closest(x).map_or([0.0; 3], |c| sub(c.point, x))).collect();
+        let at_centre: Vec<V3> = quads
+            .par_iter()
+            .map(|f| {
+                let mut c = [0.0; 3];
+                for &v in f {
+                    c = add(c, p_now[v as usize]);
+                }
+                let c = scale(c, 1.0 / f.len() as f64);
+                bvh.closest(c).map_or([0.0; 3], |h| sub(h.point, c))
+            })
+            .collect();
+        // Both sides weigh the same in total, as in the two-sided RMS.
+        let n_in = hits.len().max(1) as f64;
+        let n_q = (nv + quads.len()) as f64;
+        let ms = 0.5 * hits.iter().flatten().map(|h| norm2(h.2)).sum::<f64>() / n_in
+            + 0.5 * (at_vertex.iter().chain(&at_centre).map(|&r| norm2(r)).sum::<f64>()) / n_q;
+        if round == 0 {
+            counts.mean_square_first = ms;
+        }
+        counts.mean_square_last = ms;
+        let (a_in, a_q) = (0.5 / n_in, 0.5 / n_q);
+        let mut weight = vec![0.0f64; nv];
+        let mut pull = vec![[0.0f64; 3]; nv];
+        for (t, w, r) in hits.iter().flatten() {
+            for k in 0..3 {
+                let v = t[k] as usize;
+                weight[v] += a_in * w[k];
+                pull[v] = add(pull[v], scale(*r, a_in * w[k]));
+            }
+        }
+        for (v, r) in at_vertex.iter().enumerate() {
+            weight[v] += a_q;
+            pull[v] = add(pull[v], scale(*r, a_q));
+        }
+        for (f, r) in quads.iter().zip(&at_centre) {
+            let share = a_q / f.len() as f64;
+            for &v in f {
+                weight[v as usize] += share;
+                pull[v as usize] = add(pull[v as usize], scale(*r, share));
+            }
+        }
+        let mean_weight = weight.iter().sum::<f64>() / nv as f64;
+        let nrm = vertex_normals(p_now, quads);
+        let next: Vec<V3> = (0..nv)
+            .into_par_iter()
+            .map(|v| {
+                let x = p_now[v];
+                let nb = &adj[off[v] as usize..off[v + 1] as usize];
+                let mut lap = [0.0; 3];
+                if !nb.is_empty() {
+                    for &u in nb {
+                        lap = add(lap, p_now[u as usize]);
+                    }
+                    lap = sub(scale(lap, 1.0 / nb.len() as f64), x);
+                    let n = nrm[v];
+                    lap = sub(lap, scale(n, dot(lap, n)));
+                }
+                let mu = FIT_SMOOTH * mean_weight;
+                let total = weight[v] + mu;
+                if total <= 0.0 {
+                    return x;
+                }
+                add(x, scale(add(pull[v], scale(lap, mu)), 1.0 / total))
+            })
+            .collect();
+        let before = p.to_vec();
+        p.copy_from_slice(&next);
+        // Undo the moves of the corners of faces the round turned over (a few times: an undone corner can
+        // turn a neighbouring face over). Faces flipped before the round stay as they were.
+        for _ in 0..4 {
+            let bad = flipped_faces(p, quads, bvh, &surface_normal);
+            if bad.is_empty() {
+                break;
+            }
+            for fi in bad {
+                for &v in &quads[fi] {
+                    if p[v as usize] != before[v as usize] {
+                        p[v as usize] = before[v as usize];
+                        counts.moves_undone += 1;
+                    }
+                }
+            }
+        }
+        counts.rounds += 1;
+    }
+    counts.seconds = clock.elapsed().as_secs_f64();
+    counts
+}
+
+/// Barycentric coordinates of `x` (on or near triangle a, b, c), clamped to the triangle; equal thirds for a
+/// degenerate triangle.
+fn barycentric(x: V3, a: V3, b: V3, c: V3) -> [f64; 3] {
+    let n = cross(sub(b, a), sub(c, a));
+    let nn = norm2(n);
+    if !(nn > 0.0) {
+        return [1.0 / 3.0; 3];
+    }
+    let wa = dot(cross(sub(b, x), sub(c, x)), n) / nn;
+    let wb = dot(cross(sub(c, x), sub(a, x)), n) / nn;
+    let w = [wa.max(0.0), wb.max(0.0), (1.0 - wa - wb).max(0.0)];
+    let s = w[0] + w[1] + w[2];
+    if s > 0.0 { [w[0] / s, w[1] / s, w[2] / s] } else { [1.0 / 3.0; 3] }
+}
