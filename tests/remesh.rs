@@ -433,6 +433,13 @@ fn sphere_quads() -> &'static (Vec<[f64; 3]>, Vec<Vec<u32>>, TriMesh, Vec<[f64; 
     })
 }
 
+/// Triangle t's normal (its edge cross product) on mesh `s`.
+fn triangle_normal(s: &TriMesh, t: u32) -> [f64; 3] {
+    let [a, b, c] = s.triangles[t as usize].map(|i| s.positions[i as usize].map(f64::from));
+    let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [c[0] - a[0], c[1] - a[1], c[2] - a[2]]);
+    [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+}
+
 /// RMS of (|x| − 1) over area samples of the quad mesh (its quads split as the measurement splits them):
 /// the distance to the exact unit sphere.
 fn radial_rms(p: &[[f64; 3]], faces: &[Vec<u32>]) -> f64 {
@@ -467,11 +474,7 @@ fn the_fit_moves_a_sphere_s_chords_outward_to_straddle_it() {
         c
     };
     let h_max = faces.iter().map(|f| 1.0 - r(centre(p0, f))).fold(0.0, f64::max);
-    let normal = |t: u32| {
-        let [a, b, c] = s.triangles[t as usize].map(|i| s.positions[i as usize].map(f64::from));
-        let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [c[0] - a[0], c[1] - a[1], c[2] - a[2]]);
-        [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
-    };
+    let normal = |t: u32| triangle_normal(s, t);
     let mut p = p0.clone();
     let counts = fit_to_surface(&mut p, faces, samples, &bvh, normal, 4);
     let (before, after) = (radial_rms(p0, faces), radial_rms(&p, faces));
@@ -502,11 +505,7 @@ proptest! {
         use scanstation::stages::remesh::fit::fit_to_surface;
         let (p0, faces, s, samples) = sphere_quads();
         let bvh = TriangleBvh::new(s);
-        let normal = |t: u32| {
-            let [a, b, c] = s.triangles[t as usize].map(|i| s.positions[i as usize].map(f64::from));
-            let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [c[0] - a[0], c[1] - a[1], c[2] - a[2]]);
-            [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
-        };
+        let normal = |t: u32| triangle_normal(s, t);
         let mut p: Vec<[f64; 3]> = p0.iter().map(|x| x.map(|c| c * k)).collect();
         let counts = fit_to_surface(&mut p, faces, samples, &bvh, normal, 4);
         let r = |x: &[f64; 3]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
