@@ -31,6 +31,9 @@ pub const FIT_SAMPLES_PER_VERTEX: usize = 8;
 /// Weight of the tangential umbrella term against a vertex's own residual weight.
 pub const FIT_SMOOTH: f64 = 0.5;
 
+/// Passes that undo the moves around faces a fit round turned over, before the whole round is undone.
+pub const UNDO_PASSES: usize = 4;
+
 /// What the fit did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct FitCounts {
@@ -73,11 +76,20 @@ pub fn fit_to_surface(
     // The quad mesh as the measurement triangulates it (a fan from each face's first corner).
     let triangles: Vec<[u32; 3]> =
         quads.iter().flat_map(|f| (1..f.len() - 1).map(move |k| [f[0], f[k], f[k + 1]])).collect();
+    // Faces flipped before the fit (the clean-up could not unfold them) keep their corners where they are.
+    let mut frozen = vec![false; nv];
+    let mut was_flipped = vec![false; quads.len()];
+    for fi in flipped_faces(p, quads, bvh, &surface_normal) {
+        was_flipped[fi] = true;
+        for &v in &quads[fi] {
+            frozen[v as usize] = true;
+        }
+    }
     for round in 0..rounds {
         let positions: Vec<[f32; 3]> = p.iter().map(|x| x.map(|c| c as f32)).collect();
         let tri = TriMesh { positions, triangles: triangles.clone() };
         let quad_bvh = TriangleBvh::new(&tri);
-        // Input → quad: (vertex, weight, residual) triples, three per sample.
+        // Input → quad, per sample: the closest quad triangle's corners, barycentric weights and residual.
         let p_now: &[V3] = p;
         let hits: Vec<Option<([u32; 3], [f64; 3], V3)>> = samples
             .par_iter()
@@ -138,6 +150,9 @@ pub fn fit_to_surface(
             .into_par_iter()
             .map(|v| {
                 let x = p_now[v];
+                if frozen[v] {
+                    return x;
+                }
                 let nb = &adj[off[v] as usize..off[v + 1] as usize];
                 let mut lap = [0.0; 3];
                 if !nb.is_empty() {
@@ -159,10 +174,16 @@ pub fn fit_to_surface(
         let before = p.to_vec();
         p.copy_from_slice(&next);
         // Undo the moves of the corners of faces the round turned over (a few times: an undone corner can
-        // turn a neighbouring face over). Faces flipped before the round stay as they were.
-        for _ in 0..4 {
-            let bad = flipped_faces(p, quads, bvh, &surface_normal);
+        // turn a neighbouring face over; the whole round is undone if faces are still turned after that).
+        for undo in 0..=UNDO_PASSES {
+            let bad: Vec<usize> =
+                flipped_faces(p, quads, bvh, &surface_normal).into_iter().filter(|&f| !was_flipped[f]).collect();
             if bad.is_empty() {
+                break;
+            }
+            if undo == UNDO_PASSES {
+                counts.moves_undone += (0..nv).filter(|&v| p[v] != before[v]).count();
+                p.copy_from_slice(&before);
                 break;
             }
             for fi in bad {
