@@ -72,6 +72,10 @@ pub fn fit_to_surface(
         return counts;
     }
     let clock = std::time::Instant::now();
+    // Work at the precision the mesh is stored in (f32), so that the flip checks see the faces as written.
+    for x in p.iter_mut() {
+        *x = stored(*x);
+    }
     let (off, adj) = adjacency(nv, quads);
     // The quad mesh as the measurement triangulates it (a fan from each face's first corner).
     let triangles: Vec<[u32; 3]> =
@@ -168,7 +172,7 @@ pub fn fit_to_surface(
                 if total <= 0.0 {
                     return x;
                 }
-                add(x, scale(add(pull[v], scale(lap, mu)), 1.0 / total))
+                stored(add(x, scale(add(pull[v], scale(lap, mu)), 1.0 / total)))
             })
             .collect();
         let before = p.to_vec();
@@ -199,6 +203,11 @@ pub fn fit_to_surface(
     }
     counts.seconds = clock.elapsed().as_secs_f64();
     counts
+}
+
+/// `x` rounded to the f32 precision the quad mesh is stored in.
+fn stored(x: V3) -> V3 {
+    x.map(|c| f64::from(c as f32))
 }
 
 /// Barycentric coordinates of `x` (on or near triangle a, b, c), clamped to the triangle; equal thirds for a
