@@ -25,8 +25,10 @@ use super::quadify::{adjacency, flipped_faces, vertex_normals};
 /// Fit rounds after the clean-up (each refreshes the correspondences).
 pub const FIT_ROUNDS: usize = 4;
 
-/// Input samples per quad vertex that the fit draws (area-uniform).
-pub const FIT_SAMPLES_PER_VERTEX: usize = 8;
+/// Input samples per quad vertex that the fit draws (area-uniform). 4 since 2026-12-03 (was 8): the same
+/// route and result on the five shared meshes and the dragon (seeds 0–2) and the armadillo (seeds 1, 2), RMS
+/// within 1.5 %, for a third fewer closest-point queries a round.
+pub const FIT_SAMPLES_PER_VERTEX: usize = 4;
 
 /// Weight of the tangential umbrella term against a vertex's own residual weight.
 pub const FIT_SMOOTH: f64 = 0.5;
