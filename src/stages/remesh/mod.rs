@@ -1151,7 +1151,7 @@ fn finish(
 }
 
 /// Which of `points` (a working mesh's vertices) lie farther than `reach` from the quad mesh `out`. Cost: a
-/// BVH over `out`'s triangles and one bounded query per point.
+/// BVH over `out`'s triangles and one closest-point query per point.
 fn missed_mask(out: &PolyMesh, points: &[V3], reach: f64) -> Vec<bool> {
     let (tri, _) = out.triangulate();
     let out_bvh = TriangleBvh::new(&tri);
