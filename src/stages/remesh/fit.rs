@@ -33,6 +33,10 @@ pub const FIT_SAMPLES_PER_VERTEX: usize = 4;
 /// Weight of the tangential umbrella term against a vertex's own residual weight.
 pub const FIT_SMOOTH: f64 = 0.5;
 
+/// An input sample's closest point on the quad mesh: its triangle's corners, barycentric weights and the
+/// residual (sample − closest point).
+type Hit = ([u32; 3], [f64; 3], V3);
+
 /// Passes that undo the moves around faces a fit round turned over, before the whole round is undone. An
 /// undone corner can turn the next face of a sliver strip over: on the dragon's uniform split such a chain
 /// needed 5 passes, and with 4 every round was undone whole (RMS 0.228 % instead of 0.139 %).
@@ -99,7 +103,7 @@ pub fn fit_to_surface(
         let quad_bvh = TriangleBvh::new(&tri);
         // Input → quad, per sample: the closest quad triangle's corners, barycentric weights and residual.
         let p_now: &[V3] = p;
-        let hits: Vec<Option<([u32; 3], [f64; 3], V3)>> = samples
+        let hits: Vec<Option<Hit>> = samples
             .par_iter()
             .map(|&x| {
                 let c = quad_bvh.closest(x)?;
