@@ -440,6 +440,11 @@ fn triangle_normal(s: &TriMesh, t: u32) -> [f64; 3] {
     [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
 }
 
+/// |x|, the distance from the sphere's centre.
+fn radius(x: [f64; 3]) -> f64 {
+    (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt()
+}
+
 /// RMS of (|x| − 1) over area samples of the quad mesh (its quads split as the measurement splits them):
 /// the distance to the exact unit sphere.
 fn radial_rms(p: &[[f64; 3]], faces: &[Vec<u32>]) -> f64 {
@@ -448,8 +453,7 @@ fn radial_rms(p: &[[f64; 3]], faces: &[Vec<u32>]) -> f64 {
     let q = PolyMesh::new(positions, faces).unwrap();
     let (t, _) = q.triangulate();
     let s = sample_area_uniform(&t, 100_000, &mut Rng::new(9));
-    let r = |x: [f64; 3]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
-    (s.iter().map(|x| (r(x.point) - 1.0).powi(2)).sum::<f64>() / s.len() as f64).sqrt()
+    (s.iter().map(|x| (radius(x.point) - 1.0).powi(2)).sum::<f64>() / s.len() as f64).sqrt()
 }
 
 /// Analytic oracle of the least-squares fit: a quad mesh with its corners on the unit sphere lies inside
@@ -461,24 +465,15 @@ fn the_fit_moves_a_sphere_s_chords_outward_to_straddle_it() {
     use scanstation::geometry::bvh::TriangleBvh;
     use scanstation::stages::remesh::fit::fit_to_surface;
     use scanstation::stages::remesh::quad_stats;
+    use scanstation::stages::remesh::quadify::polygon_centre;
     let (p0, faces, s, samples) = sphere_quads();
     let bvh = TriangleBvh::new(s);
-    let r = |x: [f64; 3]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
-    let centre = |p: &[[f64; 3]], f: &[u32]| -> [f64; 3] {
-        let mut c = [0.0; 3];
-        for &v in f {
-            for k in 0..3 {
-                c[k] += p[v as usize][k] / f.len() as f64;
-            }
-        }
-        c
-    };
-    let h_max = faces.iter().map(|f| 1.0 - r(centre(p0, f))).fold(0.0, f64::max);
+    let h_max = faces.iter().map(|f| 1.0 - radius(polygon_centre(p0, f))).fold(0.0, f64::max);
     let normal = |t: u32| triangle_normal(s, t);
     let mut p = p0.clone();
     let counts = fit_to_surface(&mut p, faces, samples, &bvh, normal, 4);
     let (before, after) = (radial_rms(p0, faces), radial_rms(&p, faces));
-    let radii: Vec<f64> = p.iter().map(|&x| r(x)).collect();
+    let radii: Vec<f64> = p.iter().map(|&x| radius(x)).collect();
     let (lo, hi) = radii.iter().fold((f64::MAX, 0.0f64), |(l, h), &x| (l.min(x), h.max(x)));
     let msg = format!(
         "radial RMS {before:.3e} → {after:.3e}, vertex radii {lo:.6} … {hi:.6}, largest chord height {h_max:.3e}, {counts:?}"
@@ -508,8 +503,7 @@ proptest! {
         let normal = |t: u32| triangle_normal(s, t);
         let mut p: Vec<[f64; 3]> = p0.iter().map(|x| x.map(|c| c * k)).collect();
         let counts = fit_to_surface(&mut p, faces, samples, &bvh, normal, 4);
-        let r = |x: &[f64; 3]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
-        let offset = p.iter().map(|x| r(x) - 1.0).sum::<f64>() / p.len() as f64;
+        let offset = p.iter().map(|&x| radius(x) - 1.0).sum::<f64>() / p.len() as f64;
         // The fitted sphere's own offset (outward, about half a chord height): measured below 1e-3.
         prop_assert!(offset.abs() < (k - 1.0).abs() / 10.0 + 1e-3, "k {}: mean offset {} ({:?})", k, offset, counts);
         prop_assert!(counts.mean_square_last < counts.mean_square_first, "k {}: {:?}", k, counts);

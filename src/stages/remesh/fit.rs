@@ -20,7 +20,7 @@ use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::vec3::{V3, add, cross, dot, norm2, scale, sub};
 
-use super::quadify::{adjacency, flipped_faces, vertex_normals};
+use super::quadify::{adjacency, flipped_faces, polygon_centre, vertex_normals};
 
 /// Fit rounds after the clean-up (each refreshes the correspondences).
 pub const FIT_ROUNDS: usize = 4;
@@ -118,11 +118,7 @@ pub fn fit_to_surface(
         let at_centre: Vec<V3> = quads
             .par_iter()
             .map(|f| {
-                let mut c = [0.0; 3];
-                for &v in f {
-                    c = add(c, p_now[v as usize]);
-                }
-                let c = scale(c, 1.0 / f.len() as f64);
+                let c = polygon_centre(p_now, f);
                 bvh.closest(c).map_or([0.0; 3], |h| sub(h.point, c))
             })
             .collect();

@@ -923,12 +923,16 @@ pub fn flipped_faces(
 
 /// Face `f`'s normal points against `surface_normal` of the nearest input triangle to its centre.
 fn face_flipped(p: &[V3], f: &[u32], bvh: &TriangleBvh, surface_normal: &(impl Fn(u32) -> V3 + Sync)) -> bool {
+    bvh.closest(polygon_centre(p, f)).is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
+}
+
+/// Mean of face `f`'s corners.
+pub fn polygon_centre(p: &[V3], f: &[u32]) -> V3 {
     let mut c = [0.0; 3];
     for &v in f {
         c = add(c, p[v as usize]);
     }
-    c = scale(c, 1.0 / f.len() as f64);
-    bvh.closest(c).is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
+    scale(c, 1.0 / f.len() as f64)
 }
 
 /// Collapse each of the quads `which` (of a closed pure-quad mesh) along a diagonal: its two opposite
