@@ -177,6 +177,31 @@ proptest! {
         prop_assert_eq!(bvh.distance(p), brute);
     }
 
+    /// A query started from any triangle (a hint) gives the unhinted answer bit for bit: the same triangle,
+    /// point and distance, facing filter or not, ties included (the icosphere's vertices are shared by five
+    /// triangles, so points off a vertex tie).
+    #[test]
+    fn hinted_queries_match_unhinted_ones(
+        m in random_mesh(),
+        p in prop::array::uniform3(-6.0f64..6.0),
+        f in prop::array::uniform3(-1.0f64..1.0),
+        hint in 0u32..400,
+        at_vertex in any::<bool>(),
+    ) {
+        let bvh = TriangleBvh::new(&m);
+        // Half the cases sit just off a vertex, where the nearest triangles tie.
+        let p = if at_vertex {
+            let v = m.positions[hint as usize % m.positions.len()].map(f64::from);
+            [v[0] + 1e-3 * p[0], v[1] + 1e-3 * p[1], v[2] + 1e-3 * p[2]]
+        } else {
+            p
+        };
+        let h = Some(hint % (m.triangles.len() as u32 + 3));
+        prop_assert_eq!(bvh.closest_hinted(p, h), bvh.closest(p));
+        prop_assert_eq!(bvh.closest_hinted(p, None), bvh.closest(p));
+        prop_assert_eq!(bvh.closest_facing_hinted(p, f, h), bvh.closest_facing(p, f));
+    }
+
     /// The ray cast finds the same first hit as testing every triangle (Möller–Trumbore in f64 on the
     /// same f32 corners), for both facing signs.
     #[test]

@@ -130,6 +130,20 @@ fn absurd_targets_and_budgets_are_refused() {
 }
 
 proptest! {
+    /// The field's inline floor and round are `f64::floor` / `f64::round` then `as i64`, bit for bit,
+    /// from tiny to saturating magnitudes, halves and NaN included.
+    #[test]
+    fn inline_floor_and_round_match_std(m in -1.0e6f64..1.0e6, e in -30i32..70, half in any::<bool>()) {
+        use scanstation::stages::remesh::field::{floor_i64, round_i64};
+        let x = if half { (m.trunc() + 0.5).copysign(m) } else { m * 2f64.powi(e) };
+        for y in [x, -x, f64::NAN, f64::INFINITY, -f64::INFINITY, 0.49999999999999994, -0.5, -0.0] {
+            prop_assert_eq!(floor_i64(y), y.floor() as i64, "floor {}", y);
+            prop_assert_eq!(round_i64(y), y.round() as i64, "round {}", y);
+        }
+    }
+}
+
+proptest! {
     #![proptest_config(ProptestConfig { cases: 6, ..ProptestConfig::default() })]
     /// Tori of any proportions and targets give valid pure-quad meshes.
     #[test]

@@ -244,6 +244,8 @@ pub struct TriangleBvh {
     tree: Tree,
     /// Triangle corners in leaf order.
     tris: Vec<[[f32; 3]; 3]>,
+    /// Leaf-order slot of each source triangle (the inverse of `tree.order`), for hinted queries.
+    slot_of: Vec<u32>,
 }
 
 impl TriangleBvh {
@@ -268,12 +270,16 @@ impl TriangleBvh {
             .collect();
         let tree = Tree::build(&boxes);
         let tris = tree.order.iter().map(|&t| corners(&mesh.triangles[t as usize])).collect();
-        TriangleBvh { tree, tris }
+        let mut slot_of = vec![0u32; tree.order.len()];
+        for (slot, &t) in tree.order.iter().enumerate() {
+            slot_of[t as usize] = slot as u32;
+        }
+        TriangleBvh { tree, tris, slot_of }
     }
 
     /// Approximate heap bytes used.
     pub fn memory_bytes(&self) -> usize {
-        self.tree.nodes.len() * std::mem::size_of::<Node>() + self.tree.order.len() * 4 + self.tris.len() * 36
+        self.tree.nodes.len() * std::mem::size_of::<Node>() + self.tree.order.len() * 8 + self.tris.len() * 36
     }
 
     /// The closest point on the mesh to `p`, or `None` for a mesh without triangles.
@@ -284,18 +290,52 @@ impl TriangleBvh {
         Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
     }
 
+    /// [`TriangleBvh::closest`], bit for bit, started from the distance to triangle `hint` (a source index,
+    /// e.g. the previous answer for a point that moved a little): the search then prunes every box farther
+    /// than that triangle at once. The bound is the next float above the hint's squared distance, so the
+    /// answer (the first nearest triangle in the tree's order) is the unhinted one even on ties. A hint out
+    /// of range is ignored. Cost: as `closest`, less the boxes the bound prunes.
+    pub fn closest_hinted(&self, p: V3, hint: Option<u32>) -> Option<Closest> {
+        let slot = hint.and_then(|h| self.slot_of.get(h as usize)).map(|&s| s as usize);
+        let bound = slot.map_or(f64::INFINITY, |s| self.dist2(s, p).next_up());
+        let dist2 = |slot: usize| self.dist2(slot, p);
+        let (slot, d2) = self.tree.nearest(p, bound, dist2).or_else(|| self.tree.nearest(p, f64::INFINITY, dist2))?;
+        let [a, b, c] = self.tris[slot].map(wide);
+        let point = closest_point_on_triangle(p, a, b, c);
+        Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
+    }
+
+    /// The squared distance from `p` to leaf slot `slot` when that triangle faces along `facing`, else ∞.
+    #[inline]
+    fn facing_dist2(&self, slot: usize, p: V3, facing: V3) -> f64 {
+        let [a, b, c] = self.tris[slot].map(wide);
+        if vec3::dot(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)), facing) <= 0.0 {
+            return f64::INFINITY;
+        }
+        vec3::norm2(vec3::sub(p, closest_point_on_triangle(p, a, b, c)))
+    }
+
+    /// [`TriangleBvh::closest_facing`], bit for bit, started from the distance to triangle `hint` (ignored
+    /// when it faces away or is out of range), as [`TriangleBvh::closest_hinted`].
+    pub fn closest_facing_hinted(&self, p: V3, facing: V3, hint: Option<u32>) -> Option<Closest> {
+        let slot = hint.and_then(|h| self.slot_of.get(h as usize)).map(|&s| s as usize);
+        let bound = slot.map_or(f64::INFINITY, |s| self.facing_dist2(s, p, facing).next_up());
+        let dist2 = |slot: usize| self.facing_dist2(slot, p, facing);
+        let (slot, d2) = self
+            .tree
+            .nearest(p, bound, dist2)
+            .or_else(|| if bound == f64::INFINITY { None } else { self.tree.nearest(p, f64::INFINITY, dist2) })?;
+        let [a, b, c] = self.tris[slot].map(wide);
+        let point = closest_point_on_triangle(p, a, b, c);
+        Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
+    }
+
     /// The closest point to `p` on a triangle whose (unnormalised, corner-order) normal `n_t` satisfies
     /// `n_t · facing > 0`, i.e. a triangle facing the same way as `facing`; `None` when there is none.
     /// Used to project onto the right sheet of a thin part. Cost: as [`TriangleBvh::closest`], more when
     /// many near triangles face away.
     pub fn closest_facing(&self, p: V3, facing: V3) -> Option<Closest> {
-        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |slot| {
-            let [a, b, c] = self.tris[slot].map(wide);
-            if vec3::dot(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)), facing) <= 0.0 {
-                return f64::INFINITY;
-            }
-            vec3::norm2(vec3::sub(p, closest_point_on_triangle(p, a, b, c)))
-        })?;
+        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |slot| self.facing_dist2(slot, p, facing))?;
         let [a, b, c] = self.tris[slot].map(wide);
         let point = closest_point_on_triangle(p, a, b, c);
         Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })

@@ -97,31 +97,42 @@ pub fn fit_to_surface(
             frozen[v as usize] = true;
         }
     }
+    let (mut sample_tri, mut vertex_tri, mut centre_tri) =
+        (vec![None; samples.len()], vec![None; nv], vec![None; quads.len()]);
     for round in 0..rounds {
         let positions: Vec<[f32; 3]> = p.iter().map(|x| x.map(|c| c as f32)).collect();
         let tri = TriMesh { positions, triangles: triangles.clone() };
         let quad_bvh = TriangleBvh::new(&tri);
         // Input → quad, per sample: the closest quad triangle's corners, barycentric weights and residual.
         let p_now: &[V3] = p;
-        let hits: Vec<Option<Hit>> = samples
+        // Each query starts from the previous round's answer (same answers, fewer boxes searched).
+        let (hits, st): (Vec<Option<Hit>>, Vec<Option<u32>>) = samples
             .par_iter()
-            .map(|&x| {
-                let c = quad_bvh.closest(x)?;
+            .zip(&sample_tri)
+            .map(|(&x, &hint)| {
+                let Some(c) = quad_bvh.closest_hinted(x, hint) else { return (None, hint) };
                 let t = triangles[c.index as usize];
                 let w = barycentric(c.point, p_now[t[0] as usize], p_now[t[1] as usize], p_now[t[2] as usize]);
-                Some((t, w, sub(x, c.point)))
+                (Some((t, w, sub(x, c.point))), Some(c.index))
             })
-            .collect();
+            .unzip();
         // Quad → input: every vertex, and every face centre (a quarter to each corner).
-        let at_vertex: Vec<V3> =
-            p_now.par_iter().map(|&x| bvh.closest(x).map_or([0.0; 3], |c| sub(c.point, x))).collect();
-        let at_centre: Vec<V3> = quads
+        let (at_vertex, vt): (Vec<V3>, Vec<Option<u32>>) = p_now
             .par_iter()
-            .map(|f| {
-                let c = polygon_centre(p_now, f);
-                bvh.closest(c).map_or([0.0; 3], |h| sub(h.point, c))
+            .zip(&vertex_tri)
+            .map(|(&x, &hint)| {
+                bvh.closest_hinted(x, hint).map_or(([0.0; 3], hint), |c| (sub(c.point, x), Some(c.index)))
             })
-            .collect();
+            .unzip();
+        let (at_centre, ct): (Vec<V3>, Vec<Option<u32>>) = quads
+            .par_iter()
+            .zip(&centre_tri)
+            .map(|(f, &hint)| {
+                let c = polygon_centre(p_now, f);
+                bvh.closest_hinted(c, hint).map_or(([0.0; 3], hint), |h| (sub(h.point, c), Some(h.index)))
+            })
+            .unzip();
+        (sample_tri, vertex_tri, centre_tri) = (st, vt, ct);
         // Both sides weigh the same in total, as in the two-sided RMS.
         let n_in = hits.len().max(1) as f64;
         let n_q = (nv + quads.len()) as f64;

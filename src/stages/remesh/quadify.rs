@@ -278,16 +278,20 @@ pub fn adjacency(nv: usize, faces: &[Vec<u32>]) -> (Vec<u32>, Vec<u32>) {
 /// projected onto the nearest input triangle that faces the same way as the mesh at that vertex, so that
 /// vertices on thin parts do not jump to the opposite sheet (which would flip faces).
 pub fn relax_and_project(p: &mut [V3], faces: &[Vec<u32>], bvh: &TriangleBvh, iterations: usize, lambda: f64) {
-    p.par_iter_mut().for_each(|x| {
-        if let Some(c) = bvh.closest(*x) {
+    // Each vertex's last input triangle: the next query starts from it (same answers, fewer boxes).
+    let mut hint: Vec<Option<u32>> = p
+        .par_iter_mut()
+        .map(|x| {
+            let c = bvh.closest(*x)?;
             *x = c.point;
-        }
-    });
+            Some(c.index)
+        })
+        .collect();
     let (off, adj) = adjacency(p.len(), faces);
     for _ in 0..iterations {
         let nrm = vertex_normals(p, faces);
         let cur: &[V3] = p;
-        let next: Vec<V3> = (0..cur.len())
+        let next: Vec<(V3, Option<u32>)> = (0..cur.len())
             .into_par_iter()
             .map(|v| {
                 let (lo, hi) = (off[v] as usize, off[v + 1] as usize);
@@ -302,11 +306,14 @@ pub fn relax_and_project(p: &mut [V3], faces: &[Vec<u32>], bvh: &TriangleBvh, it
                     let d = sub(avg, x);
                     x = add(x, scale(sub(d, scale(n, dot(d, n))), lambda));
                 }
-                let hit = if vec3::norm2(n) > 0.0 { bvh.closest_facing(x, n) } else { None };
-                hit.or_else(|| bvh.closest(x)).map_or(x, |c| c.point)
+                let hit = if vec3::norm2(n) > 0.0 { bvh.closest_facing_hinted(x, n, hint[v]) } else { None };
+                hit.or_else(|| bvh.closest_hinted(x, hint[v])).map_or((x, hint[v]), |c| (c.point, Some(c.index)))
             })
             .collect();
-        p.copy_from_slice(&next);
+        for (v, (x, h)) in next.into_iter().enumerate() {
+            p[v] = x;
+            hint[v] = h;
+        }
     }
 }
 
