@@ -86,6 +86,13 @@ fn sphere_field_has_eight_valence_deficits() {
     assert_eq!(kept.len(), 1, "sphere: the cancelled extraction should win: {:?}", r.cancellation);
     assert!(kept[0].counts.singular_after * 2 < kept[0].counts.singular_before, "sphere: {:?}", kept[0].counts);
     assert!(kept[0].into_cones, "sphere: the try ending in cones should win: {:?}", r.cancellation);
+    // Only tries with fewer irregular vertices are fitted, fewest first, until one is kept: none fitted has
+    // more than the kept one, each fitted one was measured, and the kept one is the report's output.
+    for t in &r.cancellation {
+        assert!(!t.fitted || t.irregular_fraction <= kept[0].irregular_fraction, "sphere: {:?}", r.cancellation);
+        assert_eq!(t.fitted, t.rms_pct_of_diagonal > 0.0, "sphere: {t:?}");
+    }
+    assert_eq!(kept[0].irregular_fraction, o.irregular_fraction, "sphere: the kept try is the output");
     // Analytic oracle: every vertex lies on the unit sphere up to the icosphere's chordal error.
     let worst = q.positions.iter().map(|p| (p.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt() - 1.0).abs());
     let worst = worst.fold(0.0, f64::max);

@@ -468,9 +468,14 @@ pub struct CancelTrial {
     /// Vertices of the finished result (predicted when it was not finished: count off by more than
     /// [`CANCEL_COUNT_TOLERANCE`], not closed and manifold, or χ lost).
     pub vertices: usize,
-    /// Figures of the finished result (0 when it was not finished).
+    /// Irregular vertices of the cleaned-up result (0 when it was not cleaned up: count, χ or manifold
+    /// lost).
     pub irregular_fraction: f64,
+    /// Two-sided RMS of the fitted result (0 when it was not fitted).
     pub rms_pct_of_diagonal: f64,
+    /// The result was fitted and weighed: it had fewer irregular vertices than the extraction as it was,
+    /// and every try with fewer still was refused.
+    pub fitted: bool,
     /// This result replaced the one extracted as it was.
     pub kept: bool,
 }
@@ -841,7 +846,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             }
             Ok(meter.rms(out))
         };
-        let (out, extra, valence, fitted) = finish(&c, mesh, &input_p, &bvh, &fit_samples, opts)?;
+        let (Unfitted { extra, valence, .. }, out, fitted) = finish(&c, mesh, &input_p, &bvh, &fit_samples, opts)?;
         let rms = measure(&out)?;
         let stats = quad_stats(&out, Some((mesh, &bvh)));
         // Missed working vertices: farther than MISS_SPACINGS final spacings from the result.
@@ -857,15 +862,19 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         // sound, so the cascade ends with it. An unsound one sends the cascade on, and its cancelled form (at
         // most CANCEL_RMS_SLACK farther from the input) would rarely be picked over a later route: on the
         // dragon the four tries cost 11 s and none was. (Sound implies χ kept: `changed` is false here.)
+        //
+        // Only the tries with fewer irregular vertices are fitted and weighed, fewest first, until one is
+        // kept: fitting every try cost a fifth of igea's time.
         if cancel && kept.sound(diagonal) {
-            let plain_rms = kept.rms;
             let thick_c: &[f64] =
                 thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report));
             // The tries of integer::TRIES in parallel (each search is sequential), then weighed in order.
             let input_components = report.input_components;
             let input_chi = report.input_euler_characteristic;
-            // (the try, its finished result when it was finished, seconds cancelling, seconds re-solving)
-            type Try = (CancelTrial, Option<Finished>, f64, f64);
+            // (the try, its candidate, prepared mesh and its figures when it was prepared, seconds cancelling,
+            // seconds re-solving)
+            type Prepared = (Candidate, Unfitted, QuadStats);
+            type Try = (CancelTrial, Option<Prepared>, f64, f64);
             let try_cost = |reach: integer::Reach| -> Result<Try> {
                 // Cancelling removes more rows than it adds: steer the count by re-solving the position
                 // field at a finer spacing (at most CANCEL_RESCALES times).
@@ -906,51 +915,61 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 if !(count_ok && manifold && c2.counts.triangles_unpaired == 0 && c2.topology_ok) {
                     return Ok((trial, None, t_cancel, t_resolve));
                 }
-                let (out2, extra2, valence2, fit2) = finish(&c2, mesh, &input_p, &bvh, &fit_samples, opts)?;
+                let u2 = prepare(&c2, &input_p, mesh, &bvh, opts)?;
+                let stats2 = quad_stats(&u2.mesh()?, None);
+                trial.irregular_fraction = stats2.irregular_fraction;
+                trial.vertices = stats2.vertices;
+                Ok((trial, Some((c2, u2, stats2)), t_cancel, t_resolve))
+            };
+            let tries: Vec<Result<Try>> = integer::TRIES.par_iter().map(|&reach| try_cost(reach)).collect();
+            // The tries with fewer irregular vertices than this result, fewest first (TRIES order on ties).
+            let mut order: Vec<(usize, usize)> = Vec::new();
+            let mut prepared: Vec<Option<Prepared>> = Vec::new();
+            for t in tries {
+                let (trial, pr, t_cancel, t_resolve) = t?;
+                *report.seconds.entry("cancellation".into()).or_insert(0.0) += t_cancel;
+                t_pos += t_resolve;
+                if let Some(pr) = &pr
+                    && pr.2.irregular_vertices < kept.stats.irregular_vertices
+                {
+                    order.push((pr.2.irregular_vertices, report.cancellation.len()));
+                }
+                report.cancellation.push(trial);
+                prepared.push(pr);
+            }
+            order.sort_unstable();
+            // The first of them that, fitted, is sound and whose RMS grew by at most CANCEL_TRADE times its
+            // relative drop of irregular vertices (CANCEL_RMS_SLACK at most) replaces this result.
+            let first = report.cancellation.len() - prepared.len();
+            for (irregular, slot) in order {
+                let Some((c2, u2, _)) = prepared[slot - first].take() else { continue };
+                let (out2, fit2) = fit_pack(&u2, mesh, &input_p, &bvh, &fit_samples, opts)?;
                 let rms2 = measure(&out2)?;
                 let stats2 = quad_stats(&out2, Some((mesh, &bvh)));
                 let missed2 = missed_of(&missed_mask(&out2, &levels[0].p, miss_reach));
+                let trial = &mut report.cancellation[slot];
+                trial.fitted = true;
                 trial.rms_pct_of_diagonal = 100.0 * rms2 / diagonal;
                 trial.irregular_fraction = stats2.irregular_fraction;
-                trial.vertices = stats2.vertices;
                 let f2 = Finished {
                     index,
                     c: c2,
                     changed: false,
                     out: out2,
-                    extra: extra2,
+                    extra: u2.extra,
                     rms: rms2,
-                    valence: valence2,
+                    valence: u2.valence,
                     fit: fit2,
                     stats: stats2,
                     missed: missed2,
                 };
-                Ok((trial, Some(f2), t_cancel, t_resolve))
-            };
-            let tries: Vec<Result<Try>> = integer::TRIES.par_iter().map(|&reach| try_cost(reach)).collect();
-            for t in tries {
-                let (mut trial, f2, t_cancel, t_resolve) = t?;
-                *report.seconds.entry("cancellation".into()).or_insert(0.0) += t_cancel;
-                t_pos += t_resolve;
-                if let Some(f2) = f2 {
-                    // Fewer irregular vertices must be bought cheaply: the RMS may grow by at most
-                    // CANCEL_TRADE times the relative drop of irregular vertices. Each later try is weighed
-                    // against the result kept so far; the total growth is capped at CANCEL_RMS_SLACK.
-                    let fewer = 1.0 - f2.stats.irregular_vertices as f64 / kept.stats.irregular_vertices.max(1) as f64;
-                    let allowed = 1.0 + CANCEL_TRADE * fewer.max(0.0);
-                    if f2.sound(diagonal)
-                        && f2.rms <= allowed * kept.rms
-                        && f2.rms <= CANCEL_RMS_SLACK * plain_rms
-                        && f2.stats.irregular_vertices < kept.stats.irregular_vertices
-                    {
-                        trial.kept = true;
-                        for t in &mut report.cancellation {
-                            t.kept = false;
-                        }
-                        kept = f2;
-                    }
+                let fewer = 1.0 - irregular as f64 / kept.stats.irregular_vertices.max(1) as f64;
+                let allowed = (1.0 + CANCEL_TRADE * fewer).min(CANCEL_RMS_SLACK);
+                if f2.sound(diagonal) && f2.rms <= allowed * kept.rms {
+                    trial.kept = true;
+                    kept = f2;
+                    break;
                 }
-                report.cancellation.push(trial);
             }
         }
         if mode == Mode::Direct && opts.refine_missed {
@@ -1128,10 +1147,23 @@ impl Work {
     }
 }
 
-/// Relax the candidate's polygon mesh on the input, split it to quads (split mode), remove doublets and
-/// relax again, unfold flipped faces (collapsing those that stay flipped). Returns the quad mesh and the
-/// doublets removed and flipped quads collapsed. Then fits it to the input ([`fit`], `opts.fit_rounds`
-/// rounds, on `fit_samples`).
+/// A route's quad mesh before the fit: positions on the input, faces and what the clean-up counted.
+struct Unfitted {
+    qp: Vec<V3>,
+    quads: Vec<Vec<u32>>,
+    extra: quadify::CleanupCounts,
+    valence: quadify::ValenceCounts,
+}
+
+impl Unfitted {
+    /// The mesh as stored (f32), unfitted.
+    fn mesh(&self) -> Result<PolyMesh> {
+        let positions: Vec<[f32; 3]> = self.qp.iter().map(|x| x.map(|c| c as f32)).collect();
+        PolyMesh::new(positions, &self.quads)
+    }
+}
+
+/// [`prepare`], then [`fit_pack`].
 fn finish(
     c: &Candidate,
     input: &TriMesh,
@@ -1139,7 +1171,21 @@ fn finish(
     bvh: &TriangleBvh,
     fit_samples: &[V3],
     opts: &RemeshOptions,
-) -> Result<(PolyMesh, quadify::CleanupCounts, quadify::ValenceCounts, fit::FitCounts)> {
+) -> Result<(Unfitted, PolyMesh, fit::FitCounts)> {
+    let u = prepare(c, input_p, input, bvh, opts)?;
+    let (out, fitted) = fit_pack(&u, input, input_p, bvh, fit_samples, opts)?;
+    Ok((u, out, fitted))
+}
+
+/// Relax the candidate's polygon mesh on the input, split it to quads (split mode), remove doublets and
+/// relax again, unfold flipped faces (collapsing those that stay flipped).
+fn prepare(
+    c: &Candidate,
+    input_p: &[V3],
+    input: &TriMesh,
+    bvh: &TriangleBvh,
+    opts: &RemeshOptions,
+) -> Result<Unfitted> {
     let relax = opts.relax_iterations;
     if c.faces.is_empty() {
         return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no face was extracted")
@@ -1176,9 +1222,23 @@ fn finish(
         qp.par_iter_mut().for_each(|x| *x = bvh.closest(*x).map_or(*x, |c| c.point));
         left = quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
     }
-    let fitted = fit::fit_to_surface(&mut qp, &quads, fit_samples, bvh, normal, opts.fit_rounds);
+    Ok(Unfitted { qp, quads, extra, valence })
+}
+
+/// The prepared mesh fitted to the input ([`fit`], `opts.fit_rounds` rounds, on `fit_samples`).
+fn fit_pack(
+    u: &Unfitted,
+    input: &TriMesh,
+    input_p: &[V3],
+    bvh: &TriangleBvh,
+    fit_samples: &[V3],
+    opts: &RemeshOptions,
+) -> Result<(PolyMesh, fit::FitCounts)> {
+    let normal = |t: u32| vec3::tri_cross(input_p, input.triangles[t as usize]);
+    let mut qp = u.qp.clone();
+    let fitted = fit::fit_to_surface(&mut qp, &u.quads, fit_samples, bvh, normal, opts.fit_rounds);
     let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
-    Ok((PolyMesh::new(positions, &quads)?, extra, valence, fitted))
+    Ok((PolyMesh::new(positions, &u.quads)?, fitted))
 }
 
 /// Which of `points` (a working mesh's vertices) lie farther than `reach` from the quad mesh `out`. Cost: a
