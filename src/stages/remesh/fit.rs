@@ -20,7 +20,7 @@ use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::vec3::{V3, add, cross, dot, norm2, scale, sub};
 
-use super::quadify::{adjacency, flipped_faces, polygon_centre, vertex_normals};
+use super::quadify::{adjacency, flipped_faces, flipped_faces_hinted, polygon_centre, vertex_normals};
 
 /// Fit rounds after the clean-up (each refreshes the correspondences).
 pub const FIT_ROUNDS: usize = 4;
@@ -195,8 +195,10 @@ pub fn fit_to_surface(
         // Undo the moves of the corners of faces the round turned over (a few times: an undone corner can
         // turn a neighbouring face over; the whole round is undone if faces are still turned after that).
         for undo in 0..=UNDO_PASSES {
-            let bad: Vec<usize> =
-                flipped_faces(p, quads, bvh, &surface_normal).into_iter().filter(|&f| !was_flipped[f]).collect();
+            let bad: Vec<usize> = flipped_faces_hinted(p, quads, bvh, &surface_normal, &centre_tri)
+                .into_iter()
+                .filter(|&f| !was_flipped[f])
+                .collect();
             if bad.is_empty() {
                 break;
             }

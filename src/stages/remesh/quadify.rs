@@ -928,9 +928,35 @@ pub fn flipped_faces(
     (0..faces.len()).into_par_iter().filter(|&fi| face_flipped(p, &faces[fi], bvh, surface_normal)).collect()
 }
 
+/// [`flipped_faces`], each face's query started from `hints[face]` (an input triangle near its centre; the
+/// same answer, fewer boxes searched).
+pub fn flipped_faces_hinted(
+    p: &[V3],
+    faces: &[Vec<u32>],
+    bvh: &TriangleBvh,
+    surface_normal: &(impl Fn(u32) -> V3 + Sync),
+    hints: &[Option<u32>],
+) -> Vec<usize> {
+    (0..faces.len())
+        .into_par_iter()
+        .filter(|&fi| face_flipped_hinted(p, &faces[fi], bvh, surface_normal, hints.get(fi).copied().flatten()))
+        .collect()
+}
+
 /// Face `f`'s normal points against `surface_normal` of the nearest input triangle to its centre.
 fn face_flipped(p: &[V3], f: &[u32], bvh: &TriangleBvh, surface_normal: &(impl Fn(u32) -> V3 + Sync)) -> bool {
-    bvh.closest(polygon_centre(p, f)).is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
+    face_flipped_hinted(p, f, bvh, surface_normal, None)
+}
+
+fn face_flipped_hinted(
+    p: &[V3],
+    f: &[u32],
+    bvh: &TriangleBvh,
+    surface_normal: &(impl Fn(u32) -> V3 + Sync),
+    hint: Option<u32>,
+) -> bool {
+    bvh.closest_hinted(polygon_centre(p, f), hint)
+        .is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
 }
 
 /// Mean of face `f`'s corners.
