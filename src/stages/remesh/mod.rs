@@ -14,7 +14,8 @@
 //!    result lost something (RMS above [`FALLBACK_TRIGGER_PCT`], more than [`MISSED_MAX`] of the working
 //!    vertices missed, χ changed or a face flipped): the
 //!    *split* route extracts at a quarter of the count, pairs triangles along straight strips and splits
-//!    every n-gon into n quads (regular, but features thinner than twice the spacing can vanish); the
+//!    every n-gon into n quads (regular, but features thinner than twice the spacing can vanish; skipped
+//!    where many are, [`SKIP_THIN_SHARE`]); the
 //!    *adaptive split* route does the same with a finer spacing on thin parts and narrow gaps
 //!    ([`thickness`], [`spacing_field`]); the *direct* route extracts at the full count and pairs every
 //!    triangle along straight strips or bent paths, on its own finer working mesh
@@ -29,7 +30,8 @@
 //!    re-solving the position field ([`CANCEL_RESCALES`]); that result replaces the first when it is as
 //!    sound, within the vertex-count
 //!    tolerance, has fewer irregular vertices and its RMS grows by at most [`CANCEL_TRADE`] times their
-//!    relative drop ([`CANCEL_RMS_SLACK`] at most). Every try is reported (`cancellation`);
+//!    relative drop ([`CANCEL_RMS_SLACK`] at most); only tries with fewer irregular vertices are fitted,
+//!    fewest first, until one is kept. Every try is reported (`cancellation`);
 //! 7. a valence pass (diagonal collapses and edge rotations that lower Σ|valence − 4|), then projection
 //!    onto the input surface (onto triangles facing the same way) and tangential relaxation;
 //! 8. a least-squares fit of the vertices to the input, both ways ([`fit`]), on every route's result
