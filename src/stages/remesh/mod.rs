@@ -523,8 +523,9 @@ pub struct RemeshReport {
     /// Share of the split routes' working vertices thinner than [`SKIP_THIN_SPACINGS`] uniform split
     /// spacings (measured when the adaptive split route is on; 0 otherwise).
     pub thin_share: f64,
-    /// The uniform split route was not run: `thin_share` was above [`SKIP_THIN_SHARE`], so it would have
-    /// lost thin parts and the adaptive split route runs first.
+    /// The uniform split route was not run first: `thin_share` was above [`SKIP_THIN_SHARE`], so it would
+    /// have lost thin parts and the adaptive split route runs first. It runs last when no other route gave a
+    /// sound result (then `alternatives` or `mode` shows it).
     pub uniform_split_skipped: bool,
     /// Working vertices farther than [`MISS_SPACINGS`] direct spacings from the direct result (measured only
     /// when the direct route ran and `refine_missed` is on; 0 otherwise).
@@ -672,6 +673,11 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             modes.extend([Mode::RefinedDirect; REFINE_TRIES.len()]);
         }
     }
+    if opts.adaptive_spacing {
+        // The uniform split once more, last, where it was skipped and no later route was sound: its result
+        // may then be the only one without a flipped face.
+        modes.push(Mode::Split);
+    }
     // Working vertices the direct result missed (set when the direct route finished).
     let mut missed: Option<Vec<bool>> = None;
     let bvh = TriangleBvh::new(mesh);
@@ -710,13 +716,16 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     && direct_rms.is_some_and(|(class, rms)| f.class() <= class && FIDELITY_RATIO * f.rms < rms)
             })
         {
-            break;
+            continue;
         }
         let per_vertex = if mode.is_direct() { 1.0 } else { 4.0 };
         if mode == Mode::RefinedDirect && missed.as_ref().is_none_or(|m| !m.contains(&true)) {
             continue;
         }
-        if mode == Mode::Split && opts.adaptive_spacing {
+        if mode == Mode::Split && mi > 0 && !report.uniform_split_skipped {
+            continue;
+        }
+        if mode == Mode::Split && mi == 0 && opts.adaptive_spacing {
             // Parts thinner than the uniform split's lattice spacing fold onto one lattice row: on a mesh
             // with many, that route cannot keep them, and the adaptive one runs instead.
             let t = thick_by[0]
