@@ -306,8 +306,8 @@ pub const PATIENCE: usize = 3;
 /// uniform split measured 0.033–0.058 % where nothing is lost and 0.23–0.75 % where thin parts vanish
 /// before the fit, which lowers both: since, 0.026–0.035 % (the adaptive split on the armadillo 0.054 %)
 /// and 0.08–0.15 % (hence also [`MISSED_MAX`]); the threshold sits between, at the accuracy issue 4 asks
-/// of the dragon (with 0.1 %, the dragon's adaptive split at a count steered in two attempts instead of
-/// three counted as sound at 0.085 %, 7.1 % irregular).
+/// of the dragon (with 0.1 %, a dragon adaptive split at 0.085 % RMS counted as sound and ended the cascade:
+/// a count steering tried on 2026-12-03 and not kept led there).
 pub const FALLBACK_TRIGGER_PCT: f64 = 0.07;
 
 /// A fitted result is sound only when at most this fraction of its working vertices lie farther than
