@@ -284,10 +284,7 @@ impl TriangleBvh {
 
     /// The closest point on the mesh to `p`, or `None` for a mesh without triangles.
     pub fn closest(&self, p: V3) -> Option<Closest> {
-        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |slot| self.dist2(slot, p))?;
-        let [a, b, c] = self.tris[slot].map(wide);
-        let point = closest_point_on_triangle(p, a, b, c);
-        Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
+        self.closest_hinted(p, None)
     }
 
     /// [`TriangleBvh::closest`], bit for bit, started from the distance to triangle `hint` (a source index,
@@ -296,10 +293,33 @@ impl TriangleBvh {
     /// answer (the first nearest triangle in the tree's order) is the unhinted one even on ties. A hint out
     /// of range is ignored. Cost: as `closest`, less the boxes the bound prunes.
     pub fn closest_hinted(&self, p: V3, hint: Option<u32>) -> Option<Closest> {
+        self.nearest_from(p, hint, |slot| self.dist2(slot, p))
+    }
+
+    /// The closest point to `p` on a triangle whose (unnormalised, corner-order) normal `n_t` satisfies
+    /// `n_t · facing > 0`, i.e. a triangle facing the same way as `facing`; `None` when there is none.
+    /// Used to project onto the right sheet of a thin part. Cost: as [`TriangleBvh::closest`], more when
+    /// many near triangles face away.
+    pub fn closest_facing(&self, p: V3, facing: V3) -> Option<Closest> {
+        self.closest_facing_hinted(p, facing, None)
+    }
+
+    /// [`TriangleBvh::closest_facing`], bit for bit, started from the distance to triangle `hint` (ignored
+    /// when it faces away or is out of range), as [`TriangleBvh::closest_hinted`].
+    pub fn closest_facing_hinted(&self, p: V3, facing: V3, hint: Option<u32>) -> Option<Closest> {
+        self.nearest_from(p, hint, |slot| self.facing_dist2(slot, p, facing))
+    }
+
+    /// The nearest triangle to `p` by `dist2` (∞ for triangles that do not qualify), searched within the
+    /// next float above the hint's distance first and, when that finds none (a hint that does not qualify,
+    /// or none given), without bound.
+    fn nearest_from(&self, p: V3, hint: Option<u32>, dist2: impl Fn(usize) -> f64) -> Option<Closest> {
         let slot = hint.and_then(|h| self.slot_of.get(h as usize)).map(|&s| s as usize);
-        let bound = slot.map_or(f64::INFINITY, |s| self.dist2(s, p).next_up());
-        let dist2 = |slot: usize| self.dist2(slot, p);
-        let (slot, d2) = self.tree.nearest(p, bound, dist2).or_else(|| self.tree.nearest(p, f64::INFINITY, dist2))?;
+        let bound = slot.map_or(f64::INFINITY, |s| dist2(s).next_up());
+        let (slot, d2) = self
+            .tree
+            .nearest(p, bound, &dist2)
+            .or_else(|| if bound == f64::INFINITY { None } else { self.tree.nearest(p, f64::INFINITY, &dist2) })?;
         let [a, b, c] = self.tris[slot].map(wide);
         let point = closest_point_on_triangle(p, a, b, c);
         Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
@@ -313,32 +333,6 @@ impl TriangleBvh {
             return f64::INFINITY;
         }
         vec3::norm2(vec3::sub(p, closest_point_on_triangle(p, a, b, c)))
-    }
-
-    /// [`TriangleBvh::closest_facing`], bit for bit, started from the distance to triangle `hint` (ignored
-    /// when it faces away or is out of range), as [`TriangleBvh::closest_hinted`].
-    pub fn closest_facing_hinted(&self, p: V3, facing: V3, hint: Option<u32>) -> Option<Closest> {
-        let slot = hint.and_then(|h| self.slot_of.get(h as usize)).map(|&s| s as usize);
-        let bound = slot.map_or(f64::INFINITY, |s| self.facing_dist2(s, p, facing).next_up());
-        let dist2 = |slot: usize| self.facing_dist2(slot, p, facing);
-        let (slot, d2) = self
-            .tree
-            .nearest(p, bound, dist2)
-            .or_else(|| if bound == f64::INFINITY { None } else { self.tree.nearest(p, f64::INFINITY, dist2) })?;
-        let [a, b, c] = self.tris[slot].map(wide);
-        let point = closest_point_on_triangle(p, a, b, c);
-        Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
-    }
-
-    /// The closest point to `p` on a triangle whose (unnormalised, corner-order) normal `n_t` satisfies
-    /// `n_t · facing > 0`, i.e. a triangle facing the same way as `facing`; `None` when there is none.
-    /// Used to project onto the right sheet of a thin part. Cost: as [`TriangleBvh::closest`], more when
-    /// many near triangles face away.
-    pub fn closest_facing(&self, p: V3, facing: V3) -> Option<Closest> {
-        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |slot| self.facing_dist2(slot, p, facing))?;
-        let [a, b, c] = self.tris[slot].map(wide);
-        let point = closest_point_on_triangle(p, a, b, c);
-        Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
     }
 
     /// Distance along the ray `origin + t·dir` (barycentric slack [`RAY_EDGE_SLACK`], so a ray through an

@@ -168,15 +168,9 @@ pub struct Frame {
     pub s: f64,
 }
 
-/// Closest pair of lattice points of two frames near their edge's middle point, as integer coordinates
-/// relative to each frame's origin (frame 1 rotated to match frame 0 first; each frame on its own spacing).
-#[inline]
-pub fn compat_position_index(f0: &Frame, f1: &Frame) -> ([i64; 2], [i64; 2]) {
-    let (c0, c1, _, _) = compat_position_pair(f0, f1);
-    (c0, c1)
-}
-
-/// [`compat_position_index`] and the two lattice points themselves. Cost: 8 lattice points and 16 distances.
+/// Closest pair of lattice points of two frames near their edge's middle point: their integer coordinates
+/// relative to each frame's origin (frame 1 rotated to match frame 0 first; each frame on its own spacing)
+/// and the points themselves. Cost: 8 lattice points and 16 distances.
 #[inline]
 fn compat_position_pair(f0: &Frame, f1: &Frame) -> ([i64; 2], [i64; 2], V3, V3) {
     let q1 = rotate90(f1.q, f1.n, best_rotation(f0.q, f1.q, f1.n));
@@ -207,12 +201,9 @@ fn compat_position_pair(f0: &Frame, f1: &Frame) -> ([i64; 2], [i64; 2], V3, V3) 
 /// frame): the data [`super::integer`] works on.
 #[inline]
 pub fn compat_position_offset(f0: &Frame, f1: &Frame) -> ([i64; 2], u32, [f64; 2]) {
-    let (c0, c1) = compat_position_index(f0, f1);
+    let (c0, c1, x0, x1) = compat_position_pair(f0, f1);
     let r = best_rotation(f0.q, f1.q, f1.n);
-    let q1 = rotate90(f1.q, f1.n, r);
     let t0 = cross(f0.n, f0.q);
-    let x0 = lattice_point(f0.o, f0.q, t0, c0, f0.s);
-    let x1 = lattice_point(f1.o, q1, cross(f1.n, q1), c1, f1.s);
     let g = sub(x1, x0);
     let inv = 2.0 / (f0.s + f1.s);
     ([c0[0] - c1[0], c0[1] - c1[1]], r, [dot(g, f0.q) * inv, dot(g, t0) * inv])

@@ -928,7 +928,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 if !(count_ok && manifold && c2.counts.triangles_unpaired == 0 && c2.topology_ok) {
                     return Ok((trial, None, t_cancel, t_resolve));
                 }
-                let u2 = prepare(&c2, &input_p, mesh, &bvh, opts)?;
+                let u2 = prepare(&c2, mesh, &input_p, &bvh, opts)?;
                 let stats2 = quad_stats(&u2.mesh()?, None);
                 trial.irregular_fraction = stats2.irregular_fraction;
                 trial.vertices = stats2.vertices;
@@ -936,16 +936,18 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             };
             let tries: Vec<Result<Try>> = integer::TRIES.par_iter().map(|&reach| try_cost(reach)).collect();
             // The tries with fewer irregular vertices than this result, fewest first (TRIES order on ties).
+            // (irregular vertices, index in `prepared`)
             let mut order: Vec<(usize, usize)> = Vec::new();
             let mut prepared: Vec<Option<Prepared>> = Vec::new();
+            let first = report.cancellation.len();
             for t in tries {
                 let (trial, pr, t_cancel, t_resolve) = t?;
                 *report.seconds.entry("cancellation".into()).or_insert(0.0) += t_cancel;
                 t_pos += t_resolve;
-                if let Some(pr) = &pr
-                    && pr.2.irregular_vertices < kept.stats.irregular_vertices
+                if let Some((_, _, st)) = &pr
+                    && st.irregular_vertices < kept.stats.irregular_vertices
                 {
-                    order.push((pr.2.irregular_vertices, report.cancellation.len()));
+                    order.push((st.irregular_vertices, prepared.len()));
                 }
                 report.cancellation.push(trial);
                 prepared.push(pr);
@@ -953,9 +955,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             order.sort_unstable();
             // The first of them that, fitted, is sound and whose RMS grew by at most CANCEL_TRADE times its
             // relative drop of irregular vertices (CANCEL_RMS_SLACK at most) replaces this result.
-            let first = report.cancellation.len() - prepared.len();
-            for (irregular, slot) in order {
-                let Some((c2, u2, _)) = prepared[slot - first].take() else { continue };
+            for (irregular, k) in order {
+                let Some((c2, u2, _)) = prepared[k].take() else { continue };
+                let slot = first + k;
                 let (out2, fit2) = fit_pack(&u2, mesh, &input_p, &bvh, &fit_samples, opts)?;
                 let rms2 = measure(&out2)?;
                 let stats2 = quad_stats(&out2, Some((mesh, &bvh)));
@@ -1171,9 +1173,13 @@ struct Unfitted {
 impl Unfitted {
     /// The mesh as stored (f32), unfitted.
     fn mesh(&self) -> Result<PolyMesh> {
-        let positions: Vec<[f32; 3]> = self.qp.iter().map(|x| x.map(|c| c as f32)).collect();
-        PolyMesh::new(positions, &self.quads)
+        packed(&self.qp, &self.quads)
     }
+}
+
+/// Quad mesh positions (f64) and faces as the stored mesh (f32 positions).
+fn packed(qp: &[V3], quads: &[Vec<u32>]) -> Result<PolyMesh> {
+    PolyMesh::new(qp.iter().map(|x| x.map(|c| c as f32)).collect(), quads)
 }
 
 /// [`prepare`], then [`fit_pack`].
@@ -1185,7 +1191,7 @@ fn finish(
     fit_samples: &[V3],
     opts: &RemeshOptions,
 ) -> Result<(Unfitted, PolyMesh, fit::FitCounts)> {
-    let u = prepare(c, input_p, input, bvh, opts)?;
+    let u = prepare(c, input, input_p, bvh, opts)?;
     let (out, fitted) = fit_pack(&u, input, input_p, bvh, fit_samples, opts)?;
     Ok((u, out, fitted))
 }
@@ -1194,8 +1200,8 @@ fn finish(
 /// relax again, unfold flipped faces (collapsing those that stay flipped).
 fn prepare(
     c: &Candidate,
-    input_p: &[V3],
     input: &TriMesh,
+    input_p: &[V3],
     bvh: &TriangleBvh,
     opts: &RemeshOptions,
 ) -> Result<Unfitted> {
@@ -1250,8 +1256,7 @@ fn fit_pack(
     let normal = |t: u32| vec3::tri_cross(input_p, input.triangles[t as usize]);
     let mut qp = u.qp.clone();
     let fitted = fit::fit_to_surface(&mut qp, &u.quads, fit_samples, bvh, normal, opts.fit_rounds);
-    let positions: Vec<[f32; 3]> = qp.iter().map(|x| x.map(|c| c as f32)).collect();
-    Ok((PolyMesh::new(positions, &u.quads)?, fitted))
+    Ok((packed(&qp, &u.quads)?, fitted))
 }
 
 /// Which of `points` (a working mesh's vertices) lie farther than `reach` from the quad mesh `out`. Cost: a

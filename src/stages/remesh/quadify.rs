@@ -925,11 +925,11 @@ pub fn flipped_faces(
     bvh: &TriangleBvh,
     surface_normal: &(impl Fn(u32) -> V3 + Sync),
 ) -> Vec<usize> {
-    (0..faces.len()).into_par_iter().filter(|&fi| face_flipped(p, &faces[fi], bvh, surface_normal)).collect()
+    flipped_faces_hinted(p, faces, bvh, surface_normal, &[])
 }
 
 /// [`flipped_faces`], each face's query started from `hints[face]` (an input triangle near its centre; the
-/// same answer, fewer boxes searched).
+/// same answer, fewer boxes searched; faces past the end of `hints` start without one).
 pub fn flipped_faces_hinted(
     p: &[V3],
     faces: &[Vec<u32>],
@@ -939,16 +939,13 @@ pub fn flipped_faces_hinted(
 ) -> Vec<usize> {
     (0..faces.len())
         .into_par_iter()
-        .filter(|&fi| face_flipped_hinted(p, &faces[fi], bvh, surface_normal, hints.get(fi).copied().flatten()))
+        .filter(|&fi| face_flipped(p, &faces[fi], bvh, surface_normal, hints.get(fi).copied().flatten()))
         .collect()
 }
 
-/// Face `f`'s normal points against `surface_normal` of the nearest input triangle to its centre.
-fn face_flipped(p: &[V3], f: &[u32], bvh: &TriangleBvh, surface_normal: &(impl Fn(u32) -> V3 + Sync)) -> bool {
-    face_flipped_hinted(p, f, bvh, surface_normal, None)
-}
-
-fn face_flipped_hinted(
+/// Face `f`'s normal points against `surface_normal` of the nearest input triangle to its centre (the query
+/// started from `hint`).
+fn face_flipped(
     p: &[V3],
     f: &[u32],
     bvh: &TriangleBvh,
@@ -1077,8 +1074,10 @@ pub fn untangle(
         touched.sort_unstable();
         touched.dedup();
         let p_now: &[V3] = p;
-        let now: Vec<bool> =
-            touched.par_iter().map(|&fi| face_flipped(p_now, &faces[fi as usize], bvh, &surface_normal)).collect();
+        let now: Vec<bool> = touched
+            .par_iter()
+            .map(|&fi| face_flipped(p_now, &faces[fi as usize], bvh, &surface_normal, None))
+            .collect();
         for (&fi, b) in touched.iter().zip(now) {
             flag[fi as usize] = b;
         }
