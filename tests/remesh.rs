@@ -77,7 +77,10 @@ fn sphere_field_has_eight_valence_deficits() {
     assert_valid(o, &r, "sphere");
     let deficit: i64 = o.valence_histogram.iter().map(|(&k, &n)| (4 - k as i64) * n as i64).sum();
     assert_eq!(deficit, 8, "sphere: valences {:?}", o.valence_histogram);
-    println!("sphere: irregular {} valences {:?}", o.irregular_vertices, o.valence_histogram);
+    println!("sphere: irregular {} valences {:?}, {:?}", o.irregular_vertices, o.valence_histogram, r.dipole_transport);
+    if let Some(path) = std::env::var_os("SPHERE_OBJ") {
+        scanstation::geometry::io::write_obj(std::path::Path::new(&path), &q).unwrap();
+    }
     // Position singularities come in 3–5 pairs: 61 of 2000 as extracted; 22 once pairs are cancelled
     // (integer::cancel_pairs with the longer reach); 14 (11 of valence 3, 3 of valence 5) when paths may end
     // in the 8 cones (kept by the trade rule). Seeds 1–5: 20–23. The target is 8 ± a few.

@@ -102,6 +102,10 @@ enum Command {
         /// Rounds of the least-squares fit of the quad mesh to the input (0 = vertices stay on the input).
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().fit_rounds)]
         fit_rounds: usize,
+        /// Longest chain of cost-neutral edge rotations that moves a dipole (valence 3–5 pair) until it
+        /// cancels another (0 = no dipole transport).
+        #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().dipole_depth)]
+        dipole_depth: usize,
         /// Weight of the pull toward principal curvature directions (0 = off).
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight)]
         curvature_weight: f64,
@@ -265,6 +269,7 @@ fn main() -> ExitCode {
             work_per_vertex_direct,
             no_refine,
             fit_rounds,
+            dipole_depth,
             split_only,
             uniform_spacing,
             keep_singularities,
@@ -278,6 +283,7 @@ fn main() -> ExitCode {
                 work_per_vertex_direct: *work_per_vertex_direct,
                 refine_missed: !*no_refine,
                 fit_rounds: *fit_rounds,
+                dipole_depth: *dipole_depth,
                 try_direct: !*split_only,
                 adaptive_spacing: !*uniform_spacing,
                 cancel_singularities: !*keep_singularities,

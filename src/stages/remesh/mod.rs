@@ -49,6 +49,7 @@
 //! first). It is deterministic for a fixed seed, whatever the number of threads: the fields are updated by
 //! colour classes, each class in parallel from the previous values of the other classes.
 
+pub mod dipoles;
 pub mod extract;
 pub mod field;
 pub mod fit;
@@ -130,6 +131,9 @@ pub struct RemeshOptions {
     /// Cancel position singularities in pairs on the integer edge steps before extraction
     /// ([`integer::cancel_pairs`]).
     pub cancel_singularities: bool,
+    /// Longest chain of cost-neutral edge rotations that moves a dipole toward one it cancels
+    /// ([`dipoles::transport_dipoles`]; 0 disables the transport).
+    pub dipole_depth: usize,
     /// Most bytes the stage may allocate.
     pub memory_budget: u64,
 }
@@ -151,6 +155,7 @@ impl Default for RemeshOptions {
             adaptive_spacing: true,
             refine_missed: true,
             cancel_singularities: true,
+            dipole_depth: dipoles::TRANSPORT_DEPTH,
             memory_budget: 8 << 30,
         }
     }
@@ -360,6 +365,7 @@ struct Finished {
     /// Two-sided RMS distance to the input (0 when only one route can run).
     rms: f64,
     valence: quadify::ValenceCounts,
+    dipoles: dipoles::TransportCounts,
     fit: fit::FitCounts,
     stats: QuadStats,
     /// Fraction of the route's working vertices farther than [`MISS_SPACINGS`] final spacings from `out`.
@@ -546,6 +552,8 @@ pub struct RemeshReport {
     pub euler_characteristic_changed: bool,
     /// What the valence pass changed on the kept result.
     pub valence_optimization: quadify::ValenceCounts,
+    /// What the dipole transport changed on the kept result ([`dipoles`]).
+    pub dipole_transport: dipoles::TransportCounts,
     /// What the least-squares fit to the input did on the kept result.
     pub fit: fit::FitCounts,
     /// The other routes' results when more than one ran, for comparison.
@@ -859,7 +867,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             }
             Ok(meter.rms(out))
         };
-        let (Unfitted { extra, valence, .. }, out, fitted) = finish(&c, mesh, &input_p, &bvh, &fit_samples, opts)?;
+        let (Unfitted { extra, valence, dipoles, .. }, out, fitted) = finish(&c, mesh, &input_p, &bvh, &fit_samples, opts)?;
         let rms = measure(&out)?;
         let stats = quad_stats(&out, Some((mesh, &bvh)));
         // Missed working vertices: farther than MISS_SPACINGS final spacings from the result.
@@ -869,7 +877,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         *report.seconds.entry("missed".into()).or_insert(0.0) += t1.elapsed().as_secs_f64();
         let missed_of = |m: &[bool]| m.iter().filter(|&&b| b).count() as f64 / m.len().max(1) as f64;
         let mut kept =
-            Finished { index, c, changed, out, extra, rms, valence, fit: fitted, stats, missed: missed_of(&mask) };
+            Finished { index, c, changed, out, extra, rms, valence, dipoles, fit: fitted, stats, missed: missed_of(&mask) };
         // The same position field with its singularities cancelled in pairs: kept when it is sound too,
         // about as close to the input and has fewer irregular vertices. Only where this route's result is
         // sound, so the cascade ends with it. An unsound one sends the cascade on, and its cancelled form (at
@@ -974,6 +982,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     extra: u2.extra,
                     rms: rms2,
                     valence: u2.valence,
+                    dipoles: u2.dipoles,
                     fit: fit2,
                     stats: stats2,
                     missed: missed2,
@@ -1034,10 +1043,11 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             });
         }
     }
-    let Finished { index: chosen_index, c: chosen, changed, out, extra, valence, fit, stats, missed, .. } =
+    let Finished { index: chosen_index, c: chosen, changed, out, extra, valence, dipoles, fit, stats, missed, .. } =
         finished.swap_remove(pick);
     report.missed_fraction = missed;
     report.valence_optimization = valence;
+    report.dipole_transport = dipoles;
     report.fit = fit;
     if changed {
         tracing::warn!(
@@ -1168,6 +1178,7 @@ struct Unfitted {
     quads: Vec<Vec<u32>>,
     extra: quadify::CleanupCounts,
     valence: quadify::ValenceCounts,
+    dipoles: dipoles::TransportCounts,
 }
 
 impl Unfitted {
@@ -1220,6 +1231,13 @@ fn prepare(
         quadify::CleanupCounts { doublets_removed: quadify::remove_doublets(&mut quads), ..Default::default() };
     let mut qp = quadify::compact(&qp, &mut quads);
     let valence = quadify::optimize_valence(&mut qp, &mut quads, VALENCE_PASSES);
+    let dipoles = if opts.dipole_depth > 0 {
+        dipoles::transport_dipoles(&mut qp, &mut quads, opts.dipole_depth, dipoles::TRANSPORT_PASSES)
+    } else {
+        dipoles::TransportCounts::default()
+    };
+    extra.doublets_removed += quadify::remove_doublets(&mut quads);
+    let mut qp = quadify::compact(&qp, &mut quads);
     quadify::relax_and_project(&mut qp, &quads, bvh, relax, 0.5);
     let normal = |t: u32| vec3::tri_cross(input_p, input.triangles[t as usize]);
     let mut left = quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
@@ -1241,7 +1259,7 @@ fn prepare(
         qp.par_iter_mut().for_each(|x| *x = bvh.closest(*x).map_or(*x, |c| c.point));
         left = quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
     }
-    Ok(Unfitted { qp, quads, extra, valence })
+    Ok(Unfitted { qp, quads, extra, valence, dipoles })
 }
 
 /// The prepared mesh fitted to the input ([`fit`], `opts.fit_rounds` rounds, on `fit_samples`).
