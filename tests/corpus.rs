@@ -312,6 +312,8 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         // is kept).
         let thin = f.contains("dragon") || f.contains("armadillo");
         assert_eq!(r.uniform_split_skipped, thin, "{f}: thin share {}", r.thin_share);
+        // Only the dragon is thin enough (5.6 %) for the adaptive split to go after the direct routes.
+        assert_eq!(r.adaptive_split_skipped, f.contains("dragon"), "{f}: thin share {}", r.thin_share);
         if f.contains("dragon") {
             assert_eq!(r.mode, Some(scanstation::stages::remesh::Mode::RefinedDirect), "{f}: {:?}", r.alternatives);
             // Regression (2026-12-03): with the direct routes off, the skipped uniform split must still run
@@ -325,26 +327,31 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         assert!(d.symmetric.rms.pct_of_diagonal <= bound, "{f}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
         // Every result kept is sound: at most MISSED_MAX of its working vertices missed.
         assert!(r.missed_fraction <= scanstation::stages::remesh::MISSED_MAX, "{f}: missed {}", r.missed_fraction);
-        // Irregular vertices, measured 2026-12-03: 1.1–2.6 % on the meshes the uniform split keeps whole,
-        // 5.7 % on the armadillo (adaptive split; its uniform split has 2.5 % after the fit but thins the
-        // fingers: 1.5 % of the working vertices missed), 12.0 % on the dragon (refined direct; the plain
-        // direct route 10.2 %; target ≤ 3 %, open). Where position singularities are cancelled in pairs and
-        // that result is kept (igea 1.63 %, paths may end in cones; fandisk 1.09 %), the bound is tighter.
+        // Irregular vertices, measured 2026-12-03 with the dipole transport (before it in brackets): bunny
+        // 1.11 % (1.37), spot 1.52 % (1.90), igea 1.40 % (1.63), fandisk 0.99 % (1.09), armadillo 4.62 %
+        // (5.71; adaptive split: its uniform split thins the fingers, 1.5 % of the working vertices missed),
+        // dragon 5.19 % (11.98; refined direct). Target ≤ 3 %, open on the armadillo and the dragon. Where
+        // position singularities are cancelled in pairs and that result is kept (igea, fandisk), the
+        // extraction is checked to be kept.
         let cancelled = r.cancellation.iter().any(|t| t.kept);
         if f.contains("igea") || f.contains("fandisk") {
             assert!(cancelled, "{f}: the cancelled extraction should be kept: {:?}", r.cancellation);
         }
         let irregular = if f.contains("dragon") {
-            0.125
-        } else if f.contains("armadillo") {
             0.06
+        } else if f.contains("armadillo") {
+            0.05
         } else if f.contains("igea") {
-            0.019
+            0.016
         } else if f.contains("fandisk") {
-            0.014
+            0.012
         } else {
-            0.03
+            0.02
         };
+        // The transport ran and cancelled dipoles on every mesh (its chains are committed only when they
+        // lower Σ|valence − 4|).
+        let t = &r.dipole_transport;
+        assert!(t.chains > 0 && t.irregularity_after < t.irregularity_before, "{f}: transport {t:?}");
         assert!(
             o.irregular_fraction <= irregular,
             "{f}: irregular {:.4} {:?}",
@@ -352,11 +359,14 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             o.valence_histogram
         );
         println!(
-            "{f}: {:?} route, {} vertices, irregular {} ({:.2} %), χ {} → {}, flipped {} ({} collapsed), angle dev mean {:.1}° p95 {:.1}°, RMS {:.4} % (quad→input {:.4} %, input→quad {:.4} %), {:.1} s",
+            "{f}: {:?} route, {} vertices, irregular {} ({:.2} %; transport: {} chains, Σ|v − 4| {} → {}), χ {} → {}, flipped {} ({} collapsed), angle dev mean {:.1}° p95 {:.1}°, RMS {:.4} % (quad→input {:.4} %, input→quad {:.4} %), {:.1} s",
             r.mode.expect("chosen"),
             o.vertices,
             o.irregular_vertices,
             100.0 * o.irregular_fraction,
+            t.chains,
+            t.irregularity_before,
+            t.irregularity_after,
             r.input_euler_characteristic,
             o.euler_characteristic,
             o.flipped_faces,

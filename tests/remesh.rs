@@ -78,13 +78,15 @@ fn sphere_field_has_eight_valence_deficits() {
     let deficit: i64 = o.valence_histogram.iter().map(|(&k, &n)| (4 - k as i64) * n as i64).sum();
     assert_eq!(deficit, 8, "sphere: valences {:?}", o.valence_histogram);
     println!("sphere: irregular {} valences {:?}, {:?}", o.irregular_vertices, o.valence_histogram, r.dipole_transport);
-    if let Some(path) = std::env::var_os("SPHERE_OBJ") {
-        scanstation::geometry::io::write_obj(std::path::Path::new(&path), &q).unwrap();
-    }
     // Position singularities come in 3–5 pairs: 61 of 2000 as extracted; 22 once pairs are cancelled
     // (integer::cancel_pairs with the longer reach); 14 (11 of valence 3, 3 of valence 5) when paths may end
-    // in the 8 cones (kept by the trade rule). Seeds 1–5: 20–23. The target is 8 ± a few.
-    assert!(o.irregular_vertices <= 16, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
+    // in the 8 cones (kept by the trade rule). The dipole transport finds no chain for the three 3–5 pairs
+    // left, even at depth 8: each glides along its grid line past the cones, 2–3 edges away (one chain at
+    // depth 5 reached a cone, giving 12, but only by folding a quad corner back past 270°, which the
+    // transport refuses). The target is 8 ± a few.
+    assert!(o.irregular_vertices <= 14, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
+    let t = &r.dipole_transport;
+    assert!(t.irregularity_after <= t.irregularity_before, "sphere: {t:?}");
     let kept: Vec<_> = r.cancellation.iter().filter(|t| t.kept).collect();
     assert_eq!(kept.len(), 1, "sphere: the cancelled extraction should win: {:?}", r.cancellation);
     assert!(kept[0].counts.singular_after * 2 < kept[0].counts.singular_before, "sphere: {:?}", kept[0].counts);
