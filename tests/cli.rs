@@ -151,6 +151,13 @@ fn remesh_writes_pure_quads_of_the_bundled_sample() {
     let m = common::read_mesh(&out);
     assert!(m.faces().all(|f| f.len() == 4), "the OBJ keeps quads");
     assert_eq!(m.face_count() as u64, v["output"]["faces"].as_u64().unwrap());
+    // The dipole transport reports what it did, and --dipole-depth 0 turns it off.
+    let t = &v["dipole_transport"];
+    assert!(t["irregularity_after"].as_u64().unwrap() <= t["irregularity_before"].as_u64().unwrap(), "{t}");
+    let (code, v0) =
+        json(&["remesh", SPOT, "-o", out.to_str().unwrap(), "--vertices", "3000", "--dipole-depth", "0", "--json"]);
+    assert_eq!(code, 0, "{v0}");
+    assert_eq!(v0["dipole_transport"]["chains"], 0, "{v0}");
     // --edge-length gives the count from the area.
     let (code, v) = json(&["remesh", SPOT, "-o", out.to_str().unwrap(), "--edge-length", "0.05", "--json"]);
     assert_eq!(code, 0, "{v}");

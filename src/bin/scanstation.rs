@@ -537,6 +537,11 @@ fn print_remesh(r: &pipeline::RemeshFileReport) {
         o.flipped_faces,
         o.nonmanifold_edges
     );
+    let t = &m.dipole_transport;
+    println!(
+        "  dipole transport: {} chains ({} moves), Σ|valence − 4| {} -> {}, vertices +{} -{}",
+        t.chains, t.moves, t.irregularity_before, t.irregularity_after, t.vertices_added, t.vertices_removed
+    );
     println!(
         "  corner angle deviation mean {:.1}°, p95 {:.1}°; edge length {:.4} (cv {:.2})",
         o.angle_deviation_mean_deg, o.angle_deviation_p95_deg, o.edge_length_mean, o.edge_length_cv

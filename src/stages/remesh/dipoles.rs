@@ -622,8 +622,7 @@ pub fn transport_dipoles(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, depth: usiz
         starts = m.rings_around(&changed, depth + 2);
     }
     counts.irregularity_after = m.irregularity();
-    let mut out: Vec<Vec<u32>> =
-        m.faces.iter().zip(&m.dead).filter(|(_, d)| !**d).map(|(f, _)| f.to_vec()).collect();
+    let mut out: Vec<Vec<u32>> = m.faces.iter().zip(&m.dead).filter(|(_, d)| !**d).map(|(f, _)| f.to_vec()).collect();
     *p = super::quadify::compact(&m.p, &mut out);
     *faces = out;
     counts
@@ -646,7 +645,8 @@ mod tests {
             }
         }
         let id = |i: u32, j: u32| (i % n) * m + (j % m);
-        let faces = (0..n).flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]));
+        let faces =
+            (0..n).flat_map(|i| (0..m).map(move |j| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]));
         (p, faces.collect())
     }
 

@@ -758,8 +758,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             continue;
         }
         // The adaptive split goes after the direct routes where even it would lose thin parts.
-        if mode == Mode::AdaptiveSplit && mi == 1 && opts.try_direct && report.thin_share > SKIP_ADAPTIVE_THIN_SHARE
-        {
+        if mode == Mode::AdaptiveSplit && mi == 1 && opts.try_direct && report.thin_share > SKIP_ADAPTIVE_THIN_SHARE {
             report.adaptive_split_skipped = true;
             continue;
         }
@@ -900,7 +899,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             }
             Ok(meter.rms(out))
         };
-        let (Unfitted { extra, valence, dipoles, .. }, out, fitted) = finish(&c, mesh, &input_p, &bvh, &fit_samples, opts)?;
+        let (Unfitted { extra, valence, dipoles, .. }, out, fitted) =
+            finish(&c, mesh, &input_p, &bvh, &fit_samples, opts)?;
         let rms = measure(&out)?;
         let stats = quad_stats(&out, Some((mesh, &bvh)));
         // Missed working vertices: farther than MISS_SPACINGS final spacings from the result.
@@ -909,8 +909,19 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         let mask = missed_mask(&out, &levels[0].p, miss_reach);
         *report.seconds.entry("missed".into()).or_insert(0.0) += t1.elapsed().as_secs_f64();
         let missed_of = |m: &[bool]| m.iter().filter(|&&b| b).count() as f64 / m.len().max(1) as f64;
-        let mut kept =
-            Finished { index, c, changed, out, extra, rms, valence, dipoles, fit: fitted, stats, missed: missed_of(&mask) };
+        let mut kept = Finished {
+            index,
+            c,
+            changed,
+            out,
+            extra,
+            rms,
+            valence,
+            dipoles,
+            fit: fitted,
+            stats,
+            missed: missed_of(&mask),
+        };
         // The same position field with its singularities cancelled in pairs: kept when it is sound too,
         // about as close to the input and has fewer irregular vertices. Only where this route's result is
         // sound, so the cascade ends with it. An unsound one sends the cascade on, and its cancelled form (at
