@@ -122,15 +122,26 @@ struct QuadEdit {
 }
 
 impl QuadEdit {
+    /// None unless `faces` is a closed, edge-manifold pure-quad mesh over `p`.
     fn new(p: Vec<V3>, faces: &[Vec<u32>]) -> Option<Self> {
         let mut fs = Vec::with_capacity(faces.len());
         let mut vf = vec![Vec::new(); p.len()];
+        let mut half: Vec<(u32, u32)> = Vec::with_capacity(faces.len() * 4);
         for (fi, f) in faces.iter().enumerate() {
             let q: [u32; 4] = f.as_slice().try_into().ok()?;
-            for &v in &q {
-                vf[v as usize].push(fi as u32);
+            if (0..4).any(|k| (k + 1..4).any(|l| q[k] == q[l]) || q[k] as usize >= p.len()) {
+                return None;
+            }
+            for k in 0..4 {
+                vf[q[k] as usize].push(fi as u32);
+                half.push((q[k], q[(k + 1) % 4]));
             }
             fs.push(q);
+        }
+        // Closed and edge-manifold: every directed edge once, and its twin present.
+        half.sort_unstable();
+        if half.windows(2).any(|w| w[0] == w[1]) || half.iter().any(|&(a, b)| half.binary_search(&(b, a)).is_err()) {
+            return None;
         }
         let mut nrm = vec![[0.0; 3]; p.len()];
         for q in &fs {
@@ -574,7 +585,7 @@ fn search(
 /// added (splits) and removed (collapses): `p` is compacted and `faces` renumbered. Deterministic.
 pub fn transport_dipoles(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, depth: usize, passes: usize) -> TransportCounts {
     let mut counts = TransportCounts::default();
-    let Some(mut m) = QuadEdit::new(std::mem::take(p), faces) else { return counts };
+    let Some(mut m) = QuadEdit::new(p.clone(), faces) else { return counts };
     counts.irregularity_before = m.irregularity();
     let mut scratch = [Vec::new(), Vec::new()];
     // Starts: vertices of valence > 4 (every dipole and every cancelling pair has one; starting from the
@@ -763,6 +774,23 @@ mod tests {
         assert_eq!((counts.irregularity_before, counts.irregularity_after), (4, 0), "{counts:?}");
         assert!(counts.moves >= 1, "the dipoles met only by a transport: {counts:?}");
         assert_eq!(p.len(), 16 * 12, "{counts:?}");
+    }
+
+    /// Bad input is left as it was: an open quad mesh, a triangle among the quads, a repeated corner.
+    #[test]
+    fn anything_but_a_closed_quad_mesh_is_left_unchanged() {
+        let (p, faces) = torus_grid(8, 6);
+        let mut open = faces.clone();
+        open.pop();
+        let mut tri = faces.clone();
+        tri[0].pop();
+        let mut repeated = faces.clone();
+        repeated[0][1] = repeated[0][0];
+        for (what, f) in [("open", open), ("triangle", tri), ("repeated corner", repeated)] {
+            let (mut p2, mut f2) = (p.clone(), f.clone());
+            let counts = transport_dipoles(&mut p2, &mut f2, TRANSPORT_DEPTH, TRANSPORT_PASSES);
+            assert_eq!((counts, &p2, &f2), (TransportCounts::default(), &p, &f), "{what}");
+        }
     }
 
     proptest! {
