@@ -102,8 +102,8 @@ enum Command {
         /// Rounds of the least-squares fit of the quad mesh to the input (0 = vertices stay on the input).
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().fit_rounds)]
         fit_rounds: usize,
-        /// Longest chain of cost-neutral edge rotations that moves a dipole (valence 3–5 pair) until it
-        /// cancels another (0 = no dipole transport).
+        /// Longest chain of cost-neutral operations (edge rotations, vertex splits, diagonal collapses) that
+        /// moves a dipole (valence 3–5 pair) until it cancels another (0 = no dipole transport).
         #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().dipole_depth)]
         dipole_depth: usize,
         /// Weight of the pull toward principal curvature directions (0 = off).

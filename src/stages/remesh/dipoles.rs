@@ -162,22 +162,26 @@ impl QuadEdit {
         f.iter().position(|&x| x == v).expect("vertex of face")
     }
 
+    /// The corners after and before `v` in face `fi` (v → next is an edge of the face, prev → v too).
+    fn around(&self, fi: u32, v: u32) -> (u32, u32) {
+        let f = &self.faces[fi as usize];
+        let i = Self::pos(f, v);
+        (f[(i + 1) % 4], f[(i + 3) % 4])
+    }
+
     /// x and y share an edge.
     fn adjacent(&self, x: u32, y: u32) -> bool {
         self.vf[x as usize].iter().any(|&fi| {
-            let f = &self.faces[fi as usize];
-            let i = Self::pos(f, x);
-            f[(i + 1) % 4] == y || f[(i + 3) % 4] == y
+            let (next, prev) = self.around(fi, x);
+            next == y || prev == y
         })
     }
 
     fn neighbours(&self, x: u32, out: &mut Vec<u32>) {
         out.clear();
         for &fi in &self.vf[x as usize] {
-            let f = &self.faces[fi as usize];
-            let i = Self::pos(f, x);
-            out.push(f[(i + 1) % 4]);
-            out.push(f[(i + 3) % 4]);
+            let (next, prev) = self.around(fi, x);
+            out.extend([next, prev]);
         }
         out.sort_unstable();
         out.dedup();
@@ -185,10 +189,7 @@ impl QuadEdit {
 
     /// The face holding the directed edge u → v, if any.
     fn face_with(&self, u: u32, v: u32) -> Option<u32> {
-        self.vf[u as usize].iter().copied().find(|&fi| {
-            let f = &self.faces[fi as usize];
-            f[(Self::pos(f, u) + 1) % 4] == v
-        })
+        self.vf[u as usize].iter().copied().find(|&fi| self.around(fi, u).0 == v)
     }
 
     // --- journaled primitives -------------------------------------------------------------------------
@@ -274,8 +275,8 @@ impl QuadEdit {
 
     // --- operations -------------------------------------------------------------------------------------
 
-    /// Both rotations of the edge u → v of face `f1` (valid ones without a loss only).
-    fn rotations(&self, f1: u32, u: u32, v: u32, out: &mut Vec<Found>) {
+    /// Both rotations of the edge u → v of face `f1` (valid ones with a gain of at least `floor`).
+    fn rotations(&self, f1: u32, u: u32, v: u32, floor: i64, out: &mut Vec<Found>) {
         let Some(f2) = self.face_with(v, u) else { return };
         if f2 == f1 || self.val(u) < 4 || self.val(v) < 4 {
             return;
@@ -292,7 +293,7 @@ impl QuadEdit {
         let base = cost(self.val(u)) + cost(self.val(v)) - cost(self.val(u) - 1) - cost(self.val(v) - 1);
         for (x, y, n1, n2) in [(a, c, [a, b, u, c], [c, d, v, a]), (b, d, [b, u, c, d], [d, v, a, b])] {
             let gain = base + cost(self.val(x)) + cost(self.val(y)) - cost(self.val(x) + 1) - cost(self.val(y) + 1);
-            if gain < 0 || self.adjacent(x, y) {
+            if gain < floor || self.adjacent(x, y) {
                 continue;
             }
             out.push(Found { gain, op: Op::Rotate { f1, f2, n1, n2 }, touched: vec![u, v, x, y] });
@@ -330,14 +331,8 @@ impl QuadEdit {
     fn fan(&self, w: u32) -> Option<Vec<u32>> {
         let fs = &self.vf[w as usize];
         let k = fs.len();
-        let first = |fi: u32| {
-            let f = &self.faces[fi as usize];
-            f[(Self::pos(f, w) + 1) % 4]
-        };
-        let last = |fi: u32| {
-            let f = &self.faces[fi as usize];
-            f[(Self::pos(f, w) + 3) % 4]
-        };
+        let first = |fi: u32| self.around(fi, w).0;
+        let last = |fi: u32| self.around(fi, w).1;
         let mut order = Vec::with_capacity(k);
         let mut cur = *fs.first()?;
         for _ in 0..k {
@@ -361,10 +356,7 @@ impl QuadEdit {
             return;
         }
         let Some(order) = self.fan(w) else { return };
-        let last = |fi: u32| {
-            let f = &self.faces[fi as usize];
-            f[(Self::pos(f, w) + 3) % 4]
-        };
+        let last = |fi: u32| self.around(fi, w).1;
         // Each quad of the fan lies between the edges to last(order[s]) and last(order[s + 1]). Side A,
         // faces i..j (exclusive), keeps w; side B, j..i round, goes to w′; the cut runs along the edges to
         // b = last(order[i]) and d = last(order[j]).
@@ -401,7 +393,7 @@ impl QuadEdit {
                 if u > v && self.face_with(v, u).is_some_and(|g| faces.binary_search(&g).is_ok()) {
                     continue;
                 }
-                self.rotations(fi, u, v, out);
+                self.rotations(fi, u, v, 0, out);
             }
             self.collapses(fi, scratch, out);
         }
@@ -436,9 +428,7 @@ impl QuadEdit {
                 let centre = |fs: &mut dyn Iterator<Item = u32>| {
                     let (mut c, mut n) = ([0.0; 3], 0.0);
                     for fi in fs {
-                        let f = &self.faces[fi as usize];
-                        let i = Self::pos(f, *w);
-                        c = add(c, self.p[f[(i + 1) % 4] as usize]);
+                        c = add(c, self.p[self.around(fi, *w).0 as usize]);
                         n += 1.0;
                     }
                     scale(c, 1.0 / n)
@@ -688,30 +678,18 @@ mod tests {
         hist.iter().map(|(&k, &n)| (k as i64 - 4).unsigned_abs() as usize * n).sum()
     }
 
-    /// Every rotation of every edge, whatever its gain (the editor's own list keeps only the free ones).
+    /// Every rotation of every edge, whatever its gain (the search lists only those without a loss).
     fn any_rotations(m: &QuadEdit) -> Vec<Op> {
         let mut out = Vec::new();
         for (fi, f) in m.faces.iter().enumerate().filter(|(fi, _)| !m.dead[*fi]) {
             for k in 0..4 {
                 let (u, v) = (f[k], f[(k + 1) % 4]);
-                let Some(f2) = m.face_with(v, u) else { continue };
-                if u > v || m.val(u) < 4 || m.val(v) < 4 {
-                    continue;
-                }
-                let (g1, g2) = (&m.faces[fi], &m.faces[f2 as usize]);
-                let (i, j) = (QuadEdit::pos(g1, u), QuadEdit::pos(g2, v));
-                let (a, b, c, d) = (g1[(i + 2) % 4], g1[(i + 3) % 4], g2[(j + 2) % 4], g2[(j + 3) % 4]);
-                if [a, b, c, d].iter().collect::<HashSet<_>>().len() < 4 {
-                    continue;
-                }
-                for (x, y, n1, n2) in [(a, c, [a, b, u, c], [c, d, v, a]), (b, d, [b, u, c, d], [d, v, a, b])] {
-                    if !m.adjacent(x, y) {
-                        out.push(Op::Rotate { f1: fi as u32, f2, n1, n2 });
-                    }
+                if u < v {
+                    m.rotations(fi as u32, u, v, i64::MIN, &mut out);
                 }
             }
         }
-        out
+        out.into_iter().map(|found| found.op).collect()
     }
 
     fn faces_of(m: &QuadEdit) -> Vec<Vec<u32>> {

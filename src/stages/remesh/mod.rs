@@ -141,8 +141,8 @@ pub struct RemeshOptions {
     /// Cancel position singularities in pairs on the integer edge steps before extraction
     /// ([`integer::cancel_pairs`]).
     pub cancel_singularities: bool,
-    /// Longest chain of cost-neutral edge rotations that moves a dipole toward one it cancels
-    /// ([`dipoles::transport_dipoles`]; 0 disables the transport).
+    /// Longest chain of cost-neutral operations (edge rotations, vertex splits, diagonal collapses) that
+    /// moves a dipole toward one it cancels ([`dipoles::transport_dipoles`]; 0 disables the transport).
     pub dipole_depth: usize,
     /// Most bytes the stage may allocate.
     pub memory_budget: u64,
@@ -1275,13 +1275,12 @@ fn prepare(
         quadify::CleanupCounts { doublets_removed: quadify::remove_doublets(&mut quads), ..Default::default() };
     let mut qp = quadify::compact(&qp, &mut quads);
     let valence = quadify::optimize_valence(&mut qp, &mut quads, VALENCE_PASSES);
+    // Keeps valences ≥ 3 and compacts `qp`, as the valence pass does: no doublet to remove after it.
     let dipoles = if opts.dipole_depth > 0 {
         dipoles::transport_dipoles(&mut qp, &mut quads, opts.dipole_depth, dipoles::TRANSPORT_PASSES)
     } else {
         dipoles::TransportCounts::default()
     };
-    extra.doublets_removed += quadify::remove_doublets(&mut quads);
-    let mut qp = quadify::compact(&qp, &mut quads);
     quadify::relax_and_project(&mut qp, &quads, bvh, relax, 0.5);
     let normal = |t: u32| vec3::tri_cross(input_p, input.triangles[t as usize]);
     let mut left = quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
