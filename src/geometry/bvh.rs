@@ -118,10 +118,11 @@ impl Tree {
         }
     }
 
-    /// Nearest primitive to `p` whose squared distance (from `dist2(slot)`, slot in leaf order) is below
+    /// Nearest primitive to `p` whose squared distance (from `dist2(slot, best)`, slot in leaf order, `best`
+    /// the smallest found so far: `dist2` may answer ∞ for a primitive it can tell is no nearer) is below
     /// `bound2`. Returns (slot, squared distance).
     #[inline]
-    fn nearest(&self, p: V3, bound2: f64, mut dist2: impl FnMut(usize) -> f64) -> Option<(usize, f64)> {
+    fn nearest(&self, p: V3, bound2: f64, mut dist2: impl FnMut(usize, f64) -> f64) -> Option<(usize, f64)> {
         if self.order.is_empty() {
             return None;
         }
@@ -141,7 +142,7 @@ impl Tree {
             if node.count > 0 {
                 let s = node.start as usize;
                 for slot in s..s + node.count as usize {
-                    let d = dist2(slot);
+                    let d = dist2(slot, best);
                     if d < best {
                         best = d;
                         hit = Some((slot, d));
@@ -293,7 +294,7 @@ impl TriangleBvh {
     /// answer (the first nearest triangle in the tree's order) is the unhinted one even on ties. A hint out
     /// of range is ignored. Cost: as `closest`, less the boxes the bound prunes.
     pub fn closest_hinted(&self, p: V3, hint: Option<u32>) -> Option<Closest> {
-        self.nearest_from(p, hint, |slot| self.dist2(slot, p))
+        self.nearest_from(p, hint, |slot, best| self.dist2(slot, p, best))
     }
 
     /// The closest point to `p` on a triangle whose (unnormalised, corner-order) normal `n_t` satisfies
@@ -307,15 +308,15 @@ impl TriangleBvh {
     /// [`TriangleBvh::closest_facing`], bit for bit, started from the distance to triangle `hint` (ignored
     /// when it faces away or is out of range), as [`TriangleBvh::closest_hinted`].
     pub fn closest_facing_hinted(&self, p: V3, facing: V3, hint: Option<u32>) -> Option<Closest> {
-        self.nearest_from(p, hint, |slot| self.facing_dist2(slot, p, facing))
+        self.nearest_from(p, hint, |slot, best| self.facing_dist2(slot, p, facing, best))
     }
 
     /// The nearest triangle to `p` by `dist2` (∞ for triangles that do not qualify), searched within the
     /// next float above the hint's distance first and, when that finds none (a hint that does not qualify,
     /// or none given), without bound.
-    fn nearest_from(&self, p: V3, hint: Option<u32>, dist2: impl Fn(usize) -> f64) -> Option<Closest> {
+    fn nearest_from(&self, p: V3, hint: Option<u32>, dist2: impl Fn(usize, f64) -> f64) -> Option<Closest> {
         let slot = hint.and_then(|h| self.slot_of.get(h as usize)).map(|&s| s as usize);
-        let bound = slot.map_or(f64::INFINITY, |s| dist2(s).next_up());
+        let bound = slot.map_or(f64::INFINITY, |s| dist2(s, f64::INFINITY).next_up());
         let (slot, d2) = self
             .tree
             .nearest(p, bound, &dist2)
@@ -325,9 +326,13 @@ impl TriangleBvh {
         Some(Closest { index: self.tree.order[slot], point, distance: d2.sqrt() })
     }
 
-    /// The squared distance from `p` to leaf slot `slot` when that triangle faces along `facing`, else ∞.
+    /// The squared distance from `p` to leaf slot `slot` when that triangle faces along `facing`, else ∞
+    /// (∞ too when its box is farther than `best`).
     #[inline]
-    fn facing_dist2(&self, slot: usize, p: V3, facing: V3) -> f64 {
+    fn facing_dist2(&self, slot: usize, p: V3, facing: V3, best: f64) -> f64 {
+        if self.box_dist2(slot, p) >= best {
+            return f64::INFINITY;
+        }
         let [a, b, c] = self.tris[slot].map(wide);
         if vec3::dot(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)), facing) <= 0.0 {
             return f64::INFINITY;
@@ -408,16 +413,45 @@ impl TriangleBvh {
         hit.then_some(best)
     }
 
+    /// The squared distance from `p` to leaf slot `slot`, or ∞ when the triangle's box is already farther than
+    /// `best` (the closest point lies in the box, so the triangle cannot be nearer).
     #[inline]
-    fn dist2(&self, slot: usize, p: V3) -> f64 {
+    fn dist2(&self, slot: usize, p: V3, best: f64) -> f64 {
+        if self.box_dist2(slot, p) >= best {
+            return f64::INFINITY;
+        }
         let [a, b, c] = self.tris[slot].map(wide);
         vec3::norm2(vec3::sub(p, closest_point_on_triangle(p, a, b, c)))
+    }
+
+    /// A lower bound on the squared distance from `p` to leaf slot `slot`: the distance to its corners' box,
+    /// less a relative 1e-9 so that rounding in the closest-point arithmetic never makes it exceed the exact
+    /// answer (the search's answers stay bit for bit those of a search without it).
+    #[inline]
+    fn box_dist2(&self, slot: usize, p: V3) -> f64 {
+        let [a, b, c] = &self.tris[slot];
+        let mut d2 = 0.0;
+        for k in 0..3 {
+            let lo = a[k].min(b[k]).min(c[k]) as f64;
+            let hi = a[k].max(b[k]).max(c[k]) as f64;
+            let d = if p[k] < lo {
+                lo - p[k]
+            } else if p[k] > hi {
+                p[k] - hi
+            } else {
+                0.0
+            };
+            d2 += d * d;
+        }
+        d2 * (1.0 - 1e-9)
     }
 
     /// Distance from `p` to the mesh (infinite for a mesh without triangles).
     #[inline]
     pub fn distance(&self, p: V3) -> f64 {
-        self.tree.nearest(p, f64::INFINITY, |slot| self.dist2(slot, p)).map_or(f64::INFINITY, |(_, d2)| d2.sqrt())
+        self.tree
+            .nearest(p, f64::INFINITY, |slot, best| self.dist2(slot, p, best))
+            .map_or(f64::INFINITY, |(_, d2)| d2.sqrt())
     }
 }
 
@@ -449,7 +483,7 @@ impl PointBvh {
 
     /// Nearest point to `p`.
     pub fn closest(&self, p: V3) -> Option<Closest> {
-        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |s| vec3::norm2(vec3::sub(p, wide(self.points[s]))))?;
+        let (slot, d2) = self.tree.nearest(p, f64::INFINITY, |s, _| vec3::norm2(vec3::sub(p, wide(self.points[s]))))?;
         Some(Closest { index: self.tree.order[slot], point: wide(self.points[slot]), distance: d2.sqrt() })
     }
 
@@ -457,7 +491,7 @@ impl PointBvh {
     #[inline]
     pub fn distance(&self, p: V3) -> f64 {
         self.tree
-            .nearest(p, f64::INFINITY, |s| vec3::norm2(vec3::sub(p, wide(self.points[s]))))
+            .nearest(p, f64::INFINITY, |s, _| vec3::norm2(vec3::sub(p, wide(self.points[s]))))
             .map_or(f64::INFINITY, |(_, d2)| d2.sqrt())
     }
 }

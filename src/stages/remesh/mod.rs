@@ -899,15 +899,86 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             }
             Ok(meter.rms(out))
         };
-        let (Unfitted { extra, valence, dipoles, .. }, out, fitted) =
-            finish(&c, mesh, &input_p, &bvh, &fit_samples, opts)?;
-        let rms = measure(&out)?;
-        let stats = quad_stats(&out, Some((mesh, &bvh)));
-        // Missed working vertices: farther than MISS_SPACINGS final spacings from the result.
+        // The cancellation tries (below) need only this candidate, not its finished result: they run
+        // alongside the finish, and are dropped unless the result turns out sound.
+        let thick_c: Option<&[f64]> = if cancel {
+            Some(thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report)))
+        } else {
+            None
+        };
+        let input_components = report.input_components;
+        let input_chi = report.input_euler_characteristic;
+        // The tries of integer::TRIES in parallel (each search is sequential), then weighed in order.
+        // (the try, its candidate, prepared mesh and its figures when it was prepared, seconds cancelling,
+        // seconds re-solving)
+        type Prepared = (Candidate, Unfitted, QuadStats);
+        type Try = (CancelTrial, Option<Prepared>, f64, f64);
+        let try_cost = |reach: integer::Reach| -> Result<Try> {
+            // Cancelling removes more rows than it adds: steer the count by re-solving the position
+            // field at a finer spacing (at most CANCEL_RESCALES times).
+            let (mut o2, mut s2) = (o.clone(), s0.clone());
+            let (mut rescales, mut t_cancel, mut t_resolve) = (0, 0.0, 0.0);
+            let mut c2 = loop {
+                let blocked: Vec<bool> = thick_c
+                    .unwrap_or_default()
+                    .iter()
+                    .zip(&s2)
+                    .map(|(&t, &sp)| t < integer::CANCEL_THIN * sp)
+                    .collect();
+                let how = integer::Cancel { tris: &tris, reach, blocked: &blocked };
+                let t1 = Instant::now();
+                let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some(how), mode, input_components);
+                t_cancel += t1.elapsed().as_secs_f64();
+                let off = c2.predicted as f64 / target;
+                if (off - 1.0).abs() <= CANCEL_COUNT_TOLERANCE || rescales == CANCEL_RESCALES || off == 0.0 {
+                    break c2;
+                }
+                rescales += 1;
+                let t1 = Instant::now();
+                for x in &mut s2 {
+                    *x *= off.sqrt();
+                }
+                let sl2 = field::level_spacings(&levels, s2.clone());
+                o2 = field::solve_position(&levels, &qs, &sl2, opts.iterations, opts.seed);
+                t_resolve += t1.elapsed().as_secs_f64();
+            };
+            let (chi, manifold) = quadify::polygon_check(&c2.faces);
+            c2.topology_ok = manifold && chi == input_chi;
+            let mut trial = CancelTrial {
+                mode: Some(mode),
+                path_cost: reach.max_path_cost,
+                into_cones: reach.into_cones,
+                counts: c2.ex.integer.unwrap_or_default(),
+                rescales,
+                vertices: c2.predicted,
+                ..Default::default()
+            };
+            let count_ok = (c2.predicted as f64 / target - 1.0).abs() <= CANCEL_COUNT_TOLERANCE;
+            if !(count_ok && manifold && c2.counts.triangles_unpaired == 0 && c2.topology_ok) {
+                return Ok((trial, None, t_cancel, t_resolve));
+            }
+            let u2 = prepare(&c2, mesh, &input_p, &bvh, opts)?;
+            let stats2 = quad_stats(&u2.mesh()?, None);
+            trial.irregular_fraction = stats2.irregular_fraction;
+            trial.vertices = stats2.vertices;
+            Ok((trial, Some((c2, u2, stats2)), t_cancel, t_resolve))
+        };
         let miss_reach = MISS_SPACINGS * report.attempts[index].scale / per_vertex.sqrt();
-        let t1 = Instant::now();
-        let mask = missed_mask(&out, &levels[0].p, miss_reach);
-        *report.seconds.entry("missed".into()).or_insert(0.0) += t1.elapsed().as_secs_f64();
+        let first = || -> Result<_> {
+            let (u, out, fitted) = finish(&c, mesh, &input_p, &bvh, &fit_samples, opts)?;
+            let rms = measure(&out)?;
+            let stats = quad_stats(&out, Some((mesh, &bvh)));
+            // Missed working vertices: farther than MISS_SPACINGS final spacings from the result.
+            let t1 = Instant::now();
+            let mask = missed_mask(&out, &levels[0].p, miss_reach);
+            Ok((u, out, fitted, rms, stats, mask, t1.elapsed().as_secs_f64()))
+        };
+        let tries = || -> Option<Vec<Result<Try>>> {
+            cancel.then(|| integer::TRIES.par_iter().map(|&reach| try_cost(reach)).collect())
+        };
+        let (first, tries) = rayon::join(first, tries);
+        let (Unfitted { extra, valence, dipoles, .. }, out, fitted, rms, stats, mask, t_missed) = first?;
+        *report.seconds.entry("missed".into()).or_insert(0.0) += t_missed;
         let missed_of = |m: &[bool]| m.iter().filter(|&&b| b).count() as f64 / m.len().max(1) as f64;
         let mut kept = Finished {
             index,
@@ -930,63 +1001,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         //
         // Only the tries with fewer irregular vertices are fitted and weighed, fewest first, until one is
         // kept: fitting every try cost a fifth of igea's time.
-        if cancel && kept.sound(diagonal) {
-            let thick_c: &[f64] =
-                thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report));
-            // The tries of integer::TRIES in parallel (each search is sequential), then weighed in order.
-            let input_components = report.input_components;
-            let input_chi = report.input_euler_characteristic;
-            // (the try, its candidate, prepared mesh and its figures when it was prepared, seconds cancelling,
-            // seconds re-solving)
-            type Prepared = (Candidate, Unfitted, QuadStats);
-            type Try = (CancelTrial, Option<Prepared>, f64, f64);
-            let try_cost = |reach: integer::Reach| -> Result<Try> {
-                // Cancelling removes more rows than it adds: steer the count by re-solving the position
-                // field at a finer spacing (at most CANCEL_RESCALES times).
-                let (mut o2, mut s2) = (o.clone(), s0.clone());
-                let (mut rescales, mut t_cancel, mut t_resolve) = (0, 0.0, 0.0);
-                let mut c2 = loop {
-                    let blocked: Vec<bool> =
-                        thick_c.iter().zip(&s2).map(|(&t, &sp)| t < integer::CANCEL_THIN * sp).collect();
-                    let how = integer::Cancel { tris: &tris, reach, blocked: &blocked };
-                    let t1 = Instant::now();
-                    let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some(how), mode, input_components);
-                    t_cancel += t1.elapsed().as_secs_f64();
-                    let off = c2.predicted as f64 / target;
-                    if (off - 1.0).abs() <= CANCEL_COUNT_TOLERANCE || rescales == CANCEL_RESCALES || off == 0.0 {
-                        break c2;
-                    }
-                    rescales += 1;
-                    let t1 = Instant::now();
-                    for x in &mut s2 {
-                        *x *= off.sqrt();
-                    }
-                    let sl2 = field::level_spacings(&levels, s2.clone());
-                    o2 = field::solve_position(&levels, &qs, &sl2, opts.iterations, opts.seed);
-                    t_resolve += t1.elapsed().as_secs_f64();
-                };
-                let (chi, manifold) = quadify::polygon_check(&c2.faces);
-                c2.topology_ok = manifold && chi == input_chi;
-                let mut trial = CancelTrial {
-                    mode: Some(mode),
-                    path_cost: reach.max_path_cost,
-                    into_cones: reach.into_cones,
-                    counts: c2.ex.integer.unwrap_or_default(),
-                    rescales,
-                    vertices: c2.predicted,
-                    ..Default::default()
-                };
-                let count_ok = (c2.predicted as f64 / target - 1.0).abs() <= CANCEL_COUNT_TOLERANCE;
-                if !(count_ok && manifold && c2.counts.triangles_unpaired == 0 && c2.topology_ok) {
-                    return Ok((trial, None, t_cancel, t_resolve));
-                }
-                let u2 = prepare(&c2, mesh, &input_p, &bvh, opts)?;
-                let stats2 = quad_stats(&u2.mesh()?, None);
-                trial.irregular_fraction = stats2.irregular_fraction;
-                trial.vertices = stats2.vertices;
-                Ok((trial, Some((c2, u2, stats2)), t_cancel, t_resolve))
-            };
-            let tries: Vec<Result<Try>> = integer::TRIES.par_iter().map(|&reach| try_cost(reach)).collect();
+        if let Some(tries) = tries.filter(|_| kept.sound(diagonal)) {
             // The tries with fewer irregular vertices than this result, fewest first (TRIES order on ties).
             // (irregular vertices, index in `prepared`)
             let mut order: Vec<(usize, usize)> = Vec::new();
