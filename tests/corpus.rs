@@ -327,20 +327,20 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         assert!(d.symmetric.rms.pct_of_diagonal <= bound, "{f}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
         // Every result kept is sound: at most MISSED_MAX of its working vertices missed.
         assert!(r.missed_fraction <= scanstation::stages::remesh::MISSED_MAX, "{f}: missed {}", r.missed_fraction);
-        // Irregular vertices, measured 2026-12-03 with the dipole transport (before it in brackets): bunny
-        // 1.11 % (1.37), spot 1.52 % (1.90), igea 1.40 % (1.63), fandisk 0.99 % (1.09), armadillo 4.62 %
-        // (5.71; adaptive split: its uniform split thins the fingers, 1.5 % of the working vertices missed),
-        // dragon 5.19 % (11.98; refined direct). Target ≤ 3 %, open on the armadillo and the dragon. Where
-        // position singularities are cancelled in pairs and that result is kept (igea, fandisk), the
-        // extraction is checked to be kept.
+        // Irregular vertices, measured 2026-12-03 with the dipole transport and its settling phase (before
+        // the transport in brackets): bunny 1.03 % (1.37), spot 1.48 % (1.90), igea 1.35 % (1.63), fandisk
+        // 0.93 % (1.09), armadillo 4.42 % (5.71; adaptive split: its uniform split thins the fingers, 1.5 % of
+        // the working vertices missed), dragon 4.66 % (11.98; refined direct). Target ≤ 3 %, open on the
+        // armadillo and the dragon. Where position singularities are cancelled in pairs and that result is
+        // kept (igea, fandisk), the extraction is checked to be kept.
         let cancelled = r.cancellation.iter().any(|t| t.kept);
         if f.contains("igea") || f.contains("fandisk") {
             assert!(cancelled, "{f}: the cancelled extraction should be kept: {:?}", r.cancellation);
         }
         let irregular = if f.contains("dragon") {
-            0.06
-        } else if f.contains("armadillo") {
             0.05
+        } else if f.contains("armadillo") {
+            0.047
         } else if f.contains("igea") {
             0.016
         } else if f.contains("fandisk") {
@@ -352,6 +352,10 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         // lower Σ|valence − 4|).
         let t = &r.dipole_transport;
         assert!(t.chains > 0 && t.irregularity_after < t.irregularity_before, "{f}: transport {t:?}");
+        // The settling phase found chains the guarded one could not on the two meshes with most dipoles.
+        if f.contains("dragon") || f.contains("armadillo") {
+            assert!(t.settled_chains > 0, "{f}: no settled chain {t:?}");
+        }
         assert!(
             o.irregular_fraction <= irregular,
             "{f}: irregular {:.4} {:?}",

@@ -80,11 +80,13 @@ fn sphere_field_has_eight_valence_deficits() {
     println!("sphere: irregular {} valences {:?}, {:?}", o.irregular_vertices, o.valence_histogram, r.dipole_transport);
     // Position singularities come in 3–5 pairs: 61 of 2000 as extracted; 22 once pairs are cancelled
     // (integer::cancel_pairs with the longer reach); 14 (11 of valence 3, 3 of valence 5) when paths may end
-    // in the 8 cones (kept by the trade rule). The dipole transport finds no chain for the three 3–5 pairs
-    // left, even at depth 8: each glides along its grid line past the cones, 2–3 edges away (one chain at
-    // depth 5 reached a cone, giving 12, but only by folding a quad corner back past 270°, which the
-    // transport refuses). The target is 8 ± a few.
-    assert!(o.irregular_vertices <= 14, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
+    // in the 8 cones (kept by the trade rule). The guarded dipole transport finds no chain for the three 3–5
+    // pairs left, even at depth 8: each glides along its grid line past the cones, 2–3 edges away. The
+    // settling phase (a chain's quads may fold on the way, its region is smoothed and checked at the end)
+    // cancels one of them at depth 5: 12 (10 of valence 3, 2 of valence 5); depth 7 still leaves those two.
+    // The target is 8 ± a few.
+    assert!(o.irregular_vertices <= 12, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
+    assert!(r.dipole_transport.settled_chains >= 1, "sphere: {:?}", r.dipole_transport);
     let t = &r.dipole_transport;
     assert!(t.irregularity_after <= t.irregularity_before, "sphere: {t:?}");
     let kept: Vec<_> = r.cancellation.iter().filter(|t| t.kept).collect();

@@ -539,8 +539,14 @@ fn print_remesh(r: &pipeline::RemeshFileReport) {
     );
     let t = &m.dipole_transport;
     println!(
-        "  dipole transport: {} chains ({} moves), Σ|valence − 4| {} -> {}, vertices +{} -{}",
-        t.chains, t.moves, t.irregularity_before, t.irregularity_after, t.vertices_added, t.vertices_removed
+        "  dipole transport: {} chains ({} moves, {} settled), Σ|valence − 4| {} -> {}, vertices +{} -{}",
+        t.chains,
+        t.moves,
+        t.settled_chains,
+        t.irregularity_before,
+        t.irregularity_after,
+        t.vertices_added,
+        t.vertices_removed
     );
     println!(
         "  corner angle deviation mean {:.1}°, p95 {:.1}°; edge length {:.4} (cv {:.2})",
