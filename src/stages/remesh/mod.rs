@@ -917,7 +917,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             }
             Ok(meter.rms(out))
         };
-        // The cancellation tries (below) need only this candidate, not its finished result: they run
+        // The cancellation tries (below) need only this candidate, not its finished result: they may run
         // alongside the finish, and are dropped unless the result turns out sound.
         let thick_c: Option<&[f64]> = if cancel {
             Some(thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report)))
@@ -991,10 +991,12 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             let mask = missed_mask(&out, &levels[0].p, miss_reach);
             Ok((u, out, fitted, rms, stats, mask, t1.elapsed().as_secs_f64()))
         };
-        let tries = || -> Option<Vec<Result<Try>>> {
-            cancel.then(|| integer::TRIES.par_iter().map(|&reach| try_cost(reach)).collect())
-        };
-        let (first, tries) = rayon::join(first, tries);
+        let run_tries = || -> Vec<Result<Try>> { integer::TRIES.par_iter().map(|&reach| try_cost(reach)).collect() };
+        // Alongside the finish only where the result is likely sound (few thin parts, as for the uniform
+        // split's skip): on the dragon's unsound split routes the dropped tries cost 12 s of --split-only's
+        // 19 s (against 6.6 s without them).
+        let speculate = cancel && opts.adaptive_spacing && report.thin_share <= SKIP_THIN_SHARE;
+        let (first, tries) = rayon::join(first, || speculate.then(run_tries));
         let (Unfitted { extra, valence, dipoles, .. }, out, fitted, rms, stats, mask, t_missed) = first?;
         *report.seconds.entry("missed".into()).or_insert(0.0) += t_missed;
         let missed_of = |m: &[bool]| m.iter().filter(|&&b| b).count() as f64 / m.len().max(1) as f64;
@@ -1019,7 +1021,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         //
         // Only the tries with fewer irregular vertices are fitted and weighed, fewest first, until one is
         // kept: fitting every try cost a fifth of igea's time.
-        if let Some(tries) = tries.filter(|_| kept.sound(diagonal)) {
+        let sound = kept.sound(diagonal);
+        let tries = if cancel && sound { Some(tries.unwrap_or_else(run_tries)) } else { None };
+        if let Some(tries) = tries {
             // The tries with fewer irregular vertices than this result, fewest first (TRIES order on ties).
             // (irregular vertices, index in `prepared`)
             let mut order: Vec<(usize, usize)> = Vec::new();
