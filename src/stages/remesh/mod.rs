@@ -669,44 +669,25 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
 
     // 1–3. Working mesh, hierarchy and orientation field.
     progress.report(0.0, "working mesh, hierarchy, orientation field");
-    // The input's BVH and samples (for projection, the fit and the meter) do not need the working mesh: they
-    // are made alongside it (the decimation is sequential).
-    let input_side = || {
-        let bvh = TriangleBvh::new(mesh);
-        // The fit's own samples of the input (not the meter's, which judge its result).
-        let fit_samples: Vec<V3> = if opts.fit_rounds > 0 {
-            let n = fit::FIT_SAMPLES_PER_VERTEX * opts.target_vertices;
-            sample_area_uniform(mesh, n, &mut Rng::new(opts.seed ^ 0xf17)).into_iter().map(|s| s.point).collect()
-        } else {
-            Vec::new()
-        };
-        (bvh, fit_samples)
-    };
-    let work_side = || {
-        let t_work = Instant::now();
-        let mut work_p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
-        let mut work_t = mesh.triangles.clone();
-        work_p = quadify::compact(&work_p, &mut work_t);
-        let want_main = (opts.work_per_vertex * opts.target_vertices as f64) as usize;
-        let want_direct = (opts.work_per_vertex_direct * opts.target_vertices as f64) as usize;
-        // The direct routes' working mesh when it was made on the way to the split routes' one.
-        let mut staged: Option<(Vec<V3>, Vec<[u32; 3]>, String)> = None;
-        let (pm, tm, label) =
-            if opts.try_direct && want_direct > want_main && work_p.len() > STAGED_DECIMATION * want_direct {
-                let (pf, tf, lf) = working_mesh(work_p.clone(), work_t.clone(), want_direct, opts.seed);
-                let (pm, tm, _) = working_mesh(pf.clone(), tf.clone(), want_main, opts.seed);
-                staged = Some((pf, tf, lf));
-                (pm, tm, "decimated in two stages".to_string())
-            } else {
-                working_mesh(work_p.clone(), work_t.clone(), want_main, opts.seed)
-            };
-        let work_seconds = t_work.elapsed().as_secs_f64();
-        let main = Work::build(pm, tm, label, opts);
-        (main, staged, work_seconds, work_p, work_t)
-    };
-    let ((main, mut staged, work_seconds, mut work_p, mut work_t), (bvh, fit_samples)) =
-        rayon::join(work_side, input_side);
+    let t_work = Instant::now();
+    let mut work_p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
+    let mut work_t = mesh.triangles.clone();
+    work_p = quadify::compact(&work_p, &mut work_t);
+    let want_main = (opts.work_per_vertex * opts.target_vertices as f64) as usize;
     let want_direct = (opts.work_per_vertex_direct * opts.target_vertices as f64) as usize;
+    // The direct routes' working mesh when it was made on the way to the split routes' one.
+    let mut staged: Option<(Vec<V3>, Vec<[u32; 3]>, String)> = None;
+    let (pm, tm, label) =
+        if opts.try_direct && want_direct > want_main && work_p.len() > STAGED_DECIMATION * want_direct {
+            let (pf, tf, lf) = working_mesh(work_p.clone(), work_t.clone(), want_direct, opts.seed);
+            let (pm, tm, _) = working_mesh(pf.clone(), tf.clone(), want_main, opts.seed);
+            staged = Some((pf, tf, lf));
+            (pm, tm, "decimated in two stages".to_string())
+        } else {
+            working_mesh(work_p.clone(), work_t.clone(), want_main, opts.seed)
+        };
+    let work_seconds = t_work.elapsed().as_secs_f64();
+    let main = Work::build(pm, tm, label, opts);
     report.seconds.insert("working_mesh".into(), work_seconds);
     report.working_mesh = main.label.clone();
     report.working_vertices = main.p.len();
@@ -749,11 +730,19 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     }
     // Working vertices the direct result missed (set when the direct route finished).
     let mut missed: Option<Vec<bool>> = None;
+    let bvh = TriangleBvh::new(mesh);
     let input_p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
     let input_geometry = Geometry::Mesh(poly);
     let diagonal = mesh.bbox().diagonal();
     // The two-sided RMS that weighs the routes and the cancellation's tries (samples on the input drawn once).
     let meter = TradeMeter::new(mesh, &bvh, TRADE_SAMPLES, opts.seed);
+    // The fit's own samples of the input (not the meter's, which judge its result).
+    let fit_samples: Vec<V3> = if opts.fit_rounds > 0 {
+        let n = fit::FIT_SAMPLES_PER_VERTEX * opts.target_vertices;
+        sample_area_uniform(mesh, n, &mut Rng::new(opts.seed ^ 0xf17)).into_iter().map(|s| s.point).collect()
+    } else {
+        Vec::new()
+    };
     // Per mode: the best attempt with the input's χ (else the best closed manifold one), finished and
     // measured.
     let mut finished: Vec<Finished> = Vec::new();
