@@ -25,10 +25,16 @@ struct Node {
 /// Squared distance from `p` to the box of `n` (0 inside).
 #[inline]
 fn box_dist2(n: &Node, p: V3) -> f64 {
+    aabb_dist2(n.min, n.max, p)
+}
+
+/// Squared distance from `p` to the box `[min, max]` (0 inside).
+#[inline]
+fn aabb_dist2(min: [f32; 3], max: [f32; 3], p: V3) -> f64 {
     let mut d2 = 0.0;
     for k in 0..3 {
-        let lo = n.min[k] as f64;
-        let hi = n.max[k] as f64;
+        let lo = min[k] as f64;
+        let hi = max[k] as f64;
         let d = if p[k] < lo {
             lo - p[k]
         } else if p[k] > hi {
@@ -430,20 +436,9 @@ impl TriangleBvh {
     #[inline]
     fn box_dist2(&self, slot: usize, p: V3) -> f64 {
         let [a, b, c] = &self.tris[slot];
-        let mut d2 = 0.0;
-        for k in 0..3 {
-            let lo = a[k].min(b[k]).min(c[k]) as f64;
-            let hi = a[k].max(b[k]).max(c[k]) as f64;
-            let d = if p[k] < lo {
-                lo - p[k]
-            } else if p[k] > hi {
-                p[k] - hi
-            } else {
-                0.0
-            };
-            d2 += d * d;
-        }
-        d2 * (1.0 - 1e-9)
+        let min = std::array::from_fn(|k| a[k].min(b[k]).min(c[k]));
+        let max = std::array::from_fn(|k| a[k].max(b[k]).max(c[k]));
+        aabb_dist2(min, max, p) * (1.0 - 1e-9)
     }
 
     /// Distance from `p` to the mesh (infinite for a mesh without triangles).
