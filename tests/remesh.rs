@@ -537,3 +537,20 @@ proptest! {
         prop_assert!(counts.mean_square_last < counts.mean_square_first, "k {}: {:?}", k, counts);
     }
 }
+
+/// Regression (proptest `tori_remesh_validly`, CI run of 2026-12-03): a thin torus at a small target.
+#[test]
+fn thin_torus_at_771_keeps_its_count() {
+    let t = torus(1.0, 0.254585723866076, 120, 48);
+    let o = RemeshOptions { seed: 705, ..opts(771) };
+    let (_, r) = remesh(&t, &o, &NoProgress).unwrap();
+    println!(
+        "thin torus: mode {:?} vertices {} transport {:?} cancellation {:?} attempts {:?}",
+        r.mode,
+        r.output.vertices,
+        r.dipole_transport,
+        r.cancellation.iter().map(|c| (c.path_cost, c.into_cones, c.vertices, c.fitted, c.kept)).collect::<Vec<_>>(),
+        r.attempts.iter().map(|a| (a.mode, a.predicted_vertices)).collect::<Vec<_>>()
+    );
+    assert_valid(&r.output, &r, "thin torus 771 seed 705");
+}
