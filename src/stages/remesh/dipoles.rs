@@ -24,7 +24,7 @@
 //! within [`SETTLE_REACH`] edges, the **settling phase** lets the chain's intermediate quads fold and judges
 //! only its end: the region it changed is smoothed tangentially ([`RELAX_ROUNDS`] rounds, the moves
 //! journaled) and every quad at it must then be sound. A dislocation two edges from its partner often has to
-//! pass through a folded quad on its way. Measured at 10k (seed 0): the repaired dragon 489 → 452 irregular
+//! pass through a folded quad on its way. Measured at 10k (seed 0): the repaired dragon 489 → 454 irregular
 //! vertices, the armadillo 475 → 450, the test sphere 14 → 12; going on to depth 6 gave 448 and 442 for four
 //! times the dragon's settling time.
 //!
