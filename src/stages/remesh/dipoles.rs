@@ -553,7 +553,8 @@ impl QuadEdit {
         region.iter().all(|&v| self.vf[v as usize].iter().all(|&fi| self.convex(fi)))
     }
 
-    /// A vertex of valence < 4 lies within `rings` edges of `v`.
+    /// A vertex of valence < 4 lies within `rings` edges of `v`. Cost: the vertices within that reach (a
+    /// handful for 2 rings), checked against a short list rather than a mesh-sized mask.
     fn deficit_within(&self, v: u32, rings: usize) -> bool {
         let mut front = vec![v];
         let mut seen = vec![v];
@@ -669,7 +670,7 @@ fn search(
 
 /// Move dipoles by cost-neutral operations until they cancel (see the module docs): chains of at most
 /// `depth` moves, each committed only when it ends in a strict drop of Σ|valence − 4|, for at most `passes`
-/// passes over the vertices.
+/// passes over the vertices, first guarded, then settling.
 ///
 /// `faces` must be a closed, edge-manifold pure-quad mesh (anything else is left unchanged). Vertices may be
 /// added (splits) and removed (collapses): `p` is compacted and `faces` renumbered. Deterministic.
@@ -677,49 +678,9 @@ pub fn transport_dipoles(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, depth: usiz
     let mut counts = TransportCounts::default();
     let Some(mut m) = QuadEdit::new(p.clone(), faces) else { return counts };
     counts.irregularity_before = m.irregularity();
-    let mut scratch = [Vec::new(), Vec::new()];
-    // Starts: vertices of valence > 4 (every dipole and every cancelling pair has one; starting from the
-    // valence-3 side as well finds the same chains at twice the cost: dragon 472 either way), first all of
-    // them, then only those near a change of the previous pass (a search that failed fails again where
-    // nothing within its reach changed). The settling phase starts over, from those with a deficit near.
     if depth > 0 {
         for settling in [false, true] {
-            let mut starts: Vec<bool> = vec![true; m.vf.len()];
-            for _ in 0..passes {
-                let mut found = 0;
-                let mut changed: Vec<u32> = Vec::new();
-                for s in 0..m.vf.len() as u32 {
-                    let start = m.val(s) > 4
-                        && starts.get(s as usize).copied().unwrap_or(true)
-                        && (!settling || m.deficit_within(s, SETTLE_REACH));
-                    if !start {
-                        continue;
-                    }
-                    let mark = m.journal.len();
-                    let settle = settling.then_some(mark);
-                    if let Some(n) = search(&mut m, &[s], depth, None, settle, &mut scratch, &mut counts) {
-                        counts.chains += 1;
-                        counts.moves += n - 1;
-                        if settling {
-                            counts.settled_chains += 1;
-                        }
-                        changed.extend(m.vertices_since(mark));
-                        for c in &m.journal[mark..] {
-                            match *c {
-                                Change::PushedVertex => counts.vertices_added += 1,
-                                Change::Killed(_) => counts.vertices_removed += 1,
-                                _ => {}
-                            }
-                        }
-                        found += 1;
-                    }
-                    m.journal.clear();
-                }
-                if found == 0 {
-                    break;
-                }
-                starts = m.rings_around(&changed, depth + 2);
-            }
+            run_phase(&mut m, depth, passes, settling, &mut counts);
         }
     }
     counts.irregularity_after = m.irregularity();
@@ -727,6 +688,49 @@ pub fn transport_dipoles(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, depth: usiz
     *p = super::quadify::compact(&m.p, &mut out);
     *faces = out;
     counts
+}
+
+/// One phase of [`transport_dipoles`] (guarded, or `settling`): up to `passes` passes, each committing every
+/// chain it finds, counted into `counts`.
+fn run_phase(m: &mut QuadEdit, depth: usize, passes: usize, settling: bool, counts: &mut TransportCounts) {
+    let mut scratch = [Vec::new(), Vec::new()];
+    // Starts: vertices of valence > 4 (every dipole and every cancelling pair has one; starting from the
+    // valence-3 side as well finds the same chains at twice the cost: dragon 472 either way), first all of
+    // them, then only those near a change of the previous pass (a search that failed fails again where
+    // nothing within its reach changed). The settling phase starts over, from those with a deficit near.
+    let mut starts: Vec<bool> = vec![true; m.vf.len()];
+    for _ in 0..passes {
+        let mut changed: Vec<u32> = Vec::new();
+        for s in 0..m.vf.len() as u32 {
+            let start = m.val(s) > 4
+                && starts.get(s as usize).copied().unwrap_or(true)
+                && (!settling || m.deficit_within(s, SETTLE_REACH));
+            if !start {
+                continue;
+            }
+            let mark = m.journal.len();
+            let settle = settling.then_some(mark);
+            if let Some(n) = search(m, &[s], depth, None, settle, &mut scratch, counts) {
+                counts.chains += 1;
+                counts.moves += n - 1;
+                counts.settled_chains += usize::from(settling);
+                changed.extend(m.vertices_since(mark));
+                for c in &m.journal[mark..] {
+                    match *c {
+                        Change::PushedVertex => counts.vertices_added += 1,
+                        Change::Killed(_) => counts.vertices_removed += 1,
+                        _ => {}
+                    }
+                }
+            }
+            m.journal.clear();
+        }
+        // A committed chain always changes faces: nothing changed means nothing was found.
+        if changed.is_empty() {
+            break;
+        }
+        starts = m.rings_around(&changed, depth + 2);
+    }
 }
 
 #[cfg(test)]

@@ -820,14 +820,14 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         let (p, tris, levels, qs) = (&w.p, &w.tris, &w.levels, &w.qs);
         let thick_all = &mut thick_by[wi];
         if mode == Mode::AdaptiveSplit {
-            let t = thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report));
+            let t = thick_all.get_or_insert_with(|| timed_thickness(&levels[0], p, tris, reach, &mut report));
             report.thin_vertices = t.iter().filter(|x| x.is_finite()).count();
         }
         // Which spacing the refined direct route tries this time (REFINE_TRIES, in order).
         let refine = (mode == Mode::RefinedDirect)
             .then(|| REFINE_TRIES[modes[..mi].iter().filter(|&&m| m == Mode::RefinedDirect).count()]);
         if refine.is_some_and(|r| r != Refine::Missed) {
-            let t = thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report));
+            let t = thick_all.get_or_insert_with(|| timed_thickness(&levels[0], p, tris, reach, &mut report));
             report.thin_vertices = t.iter().filter(|x| x.is_finite()).count();
         }
         let thick = if mode == Mode::AdaptiveSplit { thick_all.as_deref() } else { None };
@@ -867,8 +867,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             progress.report((0.3 + 0.04 * report.attempts.len() as f64).min(0.75), "position field");
             let t0 = Instant::now();
             let s0 = spacing(s);
-            let mut sl = field::level_spacings(&levels, s0);
-            let o = field::solve_position(&levels, &qs, &sl, opts.iterations, opts.seed);
+            let mut sl = field::level_spacings(levels, s0);
+            let o = field::solve_position(levels, qs, &sl, opts.iterations, opts.seed);
             t_pos += t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
             let mut c = candidate(&levels[0], &qs[0], &o, &sl[0], None, mode, report.input_components);
@@ -926,7 +926,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         // The cancellation tries (below) need only this candidate, not its finished result: they may run
         // alongside the finish, and are dropped unless the result turns out sound.
         let thick_c: Option<&[f64]> = if cancel {
-            Some(thick_all.get_or_insert_with(|| timed_thickness(&levels[0], &p, &tris, reach, &mut report)))
+            Some(thick_all.get_or_insert_with(|| timed_thickness(&levels[0], p, tris, reach, &mut report)))
         } else {
             None
         };
@@ -949,7 +949,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     .zip(&s2)
                     .map(|(&t, &sp)| t < integer::CANCEL_THIN * sp)
                     .collect();
-                let how = integer::Cancel { tris: &tris, reach, blocked: &blocked };
+                let how = integer::Cancel { tris, reach, blocked: &blocked };
                 let t1 = Instant::now();
                 let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some(how), mode, input_components);
                 t_cancel += t1.elapsed().as_secs_f64();
@@ -962,8 +962,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 for x in &mut s2 {
                     *x *= off.sqrt();
                 }
-                let sl2 = field::level_spacings(&levels, s2.clone());
-                o2 = field::solve_position(&levels, &qs, &sl2, opts.iterations, opts.seed);
+                let sl2 = field::level_spacings(levels, s2.clone());
+                o2 = field::solve_position(levels, qs, &sl2, opts.iterations, opts.seed);
                 t_resolve += t1.elapsed().as_secs_f64();
             };
             let (chi, manifold) = quadify::polygon_check(&c2.faces);
@@ -1027,8 +1027,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         //
         // Only the tries with fewer irregular vertices are fitted and weighed, fewest first, until one is
         // kept: fitting every try cost a fifth of igea's time.
-        let sound = kept.sound(diagonal);
-        let tries = if cancel && sound { Some(tries.unwrap_or_else(run_tries)) } else { None };
+        let tries = (cancel && kept.sound(diagonal)).then(|| tries.unwrap_or_else(run_tries));
         if let Some(tries) = tries {
             // The tries with fewer irregular vertices than this result, fewest first (TRIES order on ties).
             // (irregular vertices, index in `prepared`)
