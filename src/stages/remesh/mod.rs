@@ -933,8 +933,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         let input_components = report.input_components;
         let input_chi = report.input_euler_characteristic;
         // The tries of integer::TRIES in parallel (each search is sequential), then weighed in order.
-        // (the try, its candidate, prepared mesh and its figures when it was prepared, seconds cancelling,
-        // seconds re-solving)
+        // (the try, its candidate, arranged mesh ([`arrange`]) and its figures when it was arranged, seconds
+        // cancelling, seconds re-solving)
         type Prepared = (Candidate, Unfitted, QuadStats);
         type Try = (CancelTrial, Option<Prepared>, f64, f64);
         let try_cost = |reach: integer::Reach| -> Result<Try> {
@@ -981,7 +981,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             if !(count_ok && manifold && c2.counts.triangles_unpaired == 0 && c2.topology_ok) {
                 return Ok((trial, None, t_cancel, t_resolve));
             }
-            let u2 = prepare(&c2, mesh, &input_p, &bvh, opts)?;
+            let u2 = arrange(&c2, &bvh, opts)?;
             let stats2 = quad_stats(&u2.mesh()?, None);
             trial.irregular_fraction = stats2.irregular_fraction;
             trial.vertices = stats2.vertices;
@@ -1029,7 +1029,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         // kept: fitting every try cost a fifth of igea's time.
         let tries = (cancel && kept.sound(diagonal)).then(|| tries.unwrap_or_else(run_tries));
         if let Some(tries) = tries {
-            // The tries with fewer irregular vertices than this result, fewest first (TRIES order on ties).
+            // The tries with fewer irregular vertices than this result, fewest first (TRIES order on ties),
+            // counted on the arranged mesh (settling, which only the fitted ones get, may yet collapse a quad
+            // that stays flipped).
             // (irregular vertices, index in `prepared`)
             let mut order: Vec<(usize, usize)> = Vec::new();
             let mut prepared: Vec<Option<Prepared>> = Vec::new();
@@ -1052,6 +1054,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             for (irregular, k) in order {
                 let Some((c2, u2, _)) = prepared[k].take() else { continue };
                 let slot = first + k;
+                let u2 = settle(u2, mesh, &input_p, &bvh, opts);
                 let (out2, fit2) = fit_pack(&u2, mesh, &input_p, &bvh, &fit_samples, opts)?;
                 let rms2 = measure(&out2)?;
                 let stats2 = quad_stats(&out2, Some((mesh, &bvh)));
@@ -1298,8 +1301,9 @@ fn finish(
     Ok((u, out, fitted))
 }
 
-/// Relax the candidate's polygon mesh on the input, split it to quads (split mode), remove doublets and
-/// relax again, unfold flipped faces (collapsing those that stay flipped).
+/// [`arrange`], then [`settle`]: relax the candidate's polygon mesh on the input, split it to quads (split
+/// mode), remove doublets, improve valences, relax again and unfold flipped faces (collapsing those that stay
+/// flipped).
 fn prepare(
     c: &Candidate,
     input: &TriMesh,
@@ -1307,19 +1311,26 @@ fn prepare(
     bvh: &TriangleBvh,
     opts: &RemeshOptions,
 ) -> Result<Unfitted> {
-    let relax = opts.relax_iterations;
+    let u = arrange(c, bvh, opts)?;
+    Ok(settle(u, input, input_p, bvh, opts))
+}
+
+/// The first part of [`prepare`], which decides the connectivity (all but the collapses of quads that stay
+/// flipped): the candidate's polygon mesh relaxed on the input, split to quads (split mode), doublets
+/// removed, valences improved and dipoles transported. The cancellation tries are ranked on it, so only the
+/// tries that are fitted pay for [`settle`].
+fn arrange(c: &Candidate, bvh: &TriangleBvh, opts: &RemeshOptions) -> Result<Unfitted> {
     if c.faces.is_empty() {
         return Err(Error::new(ErrorCode::RemeshFailed, "extraction: no face was extracted")
             .with_hint("the target may be too small for this shape; try more vertices"));
     }
     let mut coarse = c.ex.positions.clone();
-    quadify::relax_and_project(&mut coarse, &c.faces, bvh, relax, 0.5);
+    quadify::relax_and_project(&mut coarse, &c.faces, bvh, opts.relax_iterations, 0.5);
     let (qp, mut quads) = match c.mode {
         Mode::Split | Mode::AdaptiveSplit => quadify::split_to_quads(&coarse, &c.faces),
         Mode::Direct | Mode::RefinedDirect => (coarse, c.faces.clone()),
     };
-    let mut extra =
-        quadify::CleanupCounts { doublets_removed: quadify::remove_doublets(&mut quads), ..Default::default() };
+    let extra = quadify::CleanupCounts { doublets_removed: quadify::remove_doublets(&mut quads), ..Default::default() };
     let mut qp = quadify::compact(&qp, &mut quads);
     let valence = quadify::optimize_valence(&mut qp, &mut quads, VALENCE_PASSES);
     // Keeps valences ≥ 3 and compacts `qp`, as the valence pass does: no doublet to remove after it.
@@ -1328,7 +1339,14 @@ fn prepare(
     } else {
         dipoles::TransportCounts::default()
     };
-    quadify::relax_and_project(&mut qp, &quads, bvh, relax, 0.5);
+    Ok(Unfitted { qp, quads, extra, valence, dipoles })
+}
+
+/// The second part of [`prepare`]: relax the arranged mesh on the input and unfold flipped faces, collapsing
+/// the quads that stay flipped (then removing doublets).
+fn settle(u: Unfitted, input: &TriMesh, input_p: &[V3], bvh: &TriangleBvh, opts: &RemeshOptions) -> Unfitted {
+    let Unfitted { mut qp, mut quads, mut extra, valence, dipoles } = u;
+    quadify::relax_and_project(&mut qp, &quads, bvh, opts.relax_iterations, 0.5);
     let normal = |t: u32| vec3::tri_cross(input_p, input.triangles[t as usize]);
     let mut left = quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
     // Folds relaxation cannot undo (a sliver quad turned over on a sharp bend): collapse those quads and
@@ -1349,7 +1367,7 @@ fn prepare(
         qp.par_iter_mut().for_each(|x| *x = bvh.closest(*x).map_or(*x, |c| c.point));
         left = quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
     }
-    Ok(Unfitted { qp, quads, extra, valence, dipoles })
+    Unfitted { qp, quads, extra, valence, dipoles }
 }
 
 /// The prepared mesh fitted to the input ([`fit`], `opts.fit_rounds` rounds, on `fit_samples`).
