@@ -247,7 +247,7 @@ fn every_shared_mesh_repairs_to_a_closed_manifold() {
 
 /// Every closed shared mesh, plus the repaired bunny and dragon, remeshes at a 10k-vertex target into a
 /// closed, 2-manifold, pure-quad mesh with valences ≥ 3 and a count within 10 %, keeping the Euler
-/// characteristic. The repaired meshes are repaired as `convert` does at this target: handles whose loop is
+/// characteristic, at seed 0 and at seeds 1 and 2. The repaired meshes are repaired as `convert` does at this target: handles whose loop is
 /// shorter than two quad spacings are cut first (the dragon's 20 sub-millimetre tunnels, which no quad mesh
 /// at 10k carries; its real handle stays, χ 0).
 #[test]
@@ -281,17 +281,53 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             }
             m
         };
+        // The validity points, which hold at every seed.
+        let assert_sound = |r: &scanstation::stages::remesh::RemeshReport, f: &str| {
+            let o = &r.output;
+            assert_eq!(o.quad_fraction, 1.0, "{f}: faces by degree {:?}", o.faces_by_degree);
+            assert!(o.closed, "{f}: {} boundary edges", o.boundary_edges);
+            assert_eq!((o.nonmanifold_edges, o.nonmanifold_vertices), (0, 0), "{f}: non-manifold");
+            assert!(o.min_valence >= 3, "{f}: valences {:?}", o.valence_histogram);
+            assert_eq!(o.components, r.input_components, "{f}: pieces (dropped {:?})", r.cleanup.components_dropped);
+            assert!(r.vertex_count_error.abs() <= 0.10, "{f}: {} vertices", o.vertices);
+            assert!(!r.euler_characteristic_changed, "{f}: χ flagged as changed");
+            assert_eq!(o.euler_characteristic, r.input_euler_characteristic, "{f}: Euler characteristic");
+            // Faces still flipped after unfolding are collapsed (spot: 2, dragon: 2), so none is left.
+            assert_eq!(o.flipped_faces, 0, "{f}: flipped faces ({} collapsed)", r.cleanup.flipped_quads_collapsed);
+            // Every result kept is sound: at most MISSED_MAX of its working vertices missed.
+            assert!(r.missed_fraction <= scanstation::stages::remesh::MISSED_MAX, "{f}: missed {}", r.missed_fraction);
+        };
         let opts = RemeshOptions { target_vertices: 10_000, compare_samples: 100_000, ..Default::default() };
+        // Seeds 1 and 2 (the field's random start): sound, the dragon within the RMS bound, and fewer
+        // irregular vertices than the peer's 9 % on the dragon. Measured 2026-12-03 (seeds 1, 2, 3): dragon
+        // 5.15, 5.29, 4.85 % at RMS 0.0553, 0.0577, 0.0571 %; armadillo 3.81, 3.70, 5.01 %; spot 1.39, 2.17,
+        // 1.97 %; igea 1.21, 1.47, 1.57 %; fandisk 1.25, 0.79, 1.25 %; bunny 1.41, 1.51, 1.24 %; every RMS
+        // else ≤ 0.0569 %.
+        for seed in [1, 2] {
+            let o = RemeshOptions { seed, compare_samples: 20_000, ..opts.clone() };
+            let (_, r) = remesh(&mesh, &o, &NoProgress).unwrap_or_else(|e| panic!("{f}, seed {seed}: {e}"));
+            let what = format!("{f}, seed {seed}");
+            assert_sound(&r, &what);
+            let rms = r.distance.as_ref().expect("measured").symmetric.rms.pct_of_diagonal;
+            let (rms_bound, irregular_bound) = if f.contains("dragon") {
+                (0.07, 0.06)
+            } else if f.contains("armadillo") {
+                (0.1, 0.06)
+            } else {
+                (0.1, 0.03)
+            };
+            assert!(rms <= rms_bound, "{what}: RMS {rms} %");
+            let irregular = r.output.irregular_fraction;
+            assert!(irregular <= irregular_bound, "{what}: irregular {irregular:.4} {:?}", r.output.valence_histogram);
+            println!(
+                "{what}: {:?} route, irregular {:.2} %, RMS {rms:.4} %",
+                r.mode.expect("chosen"),
+                100.0 * irregular
+            );
+        }
         let (_, r) = remesh(&mesh, &opts, &NoProgress).unwrap_or_else(|e| panic!("{f}: {e}"));
         let o = &r.output;
-        assert_eq!(o.quad_fraction, 1.0, "{f}: faces by degree {:?}", o.faces_by_degree);
-        assert!(o.closed, "{f}: {} boundary edges", o.boundary_edges);
-        assert_eq!((o.nonmanifold_edges, o.nonmanifold_vertices), (0, 0), "{f}: non-manifold");
-        assert!(o.min_valence >= 3, "{f}: valences {:?}", o.valence_histogram);
-        assert_eq!(o.components, r.input_components, "{f}: pieces (dropped {:?})", r.cleanup.components_dropped);
-        assert!(r.vertex_count_error.abs() <= 0.10, "{f}: {} vertices", o.vertices);
-        assert!(!r.euler_characteristic_changed, "{f}: χ flagged as changed");
-        assert_eq!(o.euler_characteristic, r.input_euler_characteristic, "{f}: Euler characteristic");
+        assert_sound(&r, f);
         // Scans' principal directions agree only in patches (measured 0.45–0.79), so the coherent pull of
         // tori and surfaces of revolution stays off and their fields are the plain curvature-pulled ones.
         let coherence = r.curvature_coherence.expect("the curvature pull is on by default");
@@ -299,8 +335,6 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             (0.3..COHERENCE_TRUST_MIN).contains(&coherence),
             "{f}: principal-direction coherence {coherence} (the coherent pull would change this field)"
         );
-        // Faces still flipped after unfolding are collapsed (spot: 2, dragon: 2), so none is left.
-        assert_eq!(o.flipped_faces, 0, "{f}: flipped faces ({} collapsed)", r.cleanup.flipped_quads_collapsed);
         let d = r.distance.as_ref().expect("measured");
         // Measured ≤ 0.054 % on every mesh (2026-12-03, with the least-squares fit to the input; before it
         // up to 0.087 %, the dragon 0.074 %). The dragon needs the refined direct route: the direct one lost
@@ -325,8 +359,6 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             assert_eq!(s.output.euler_characteristic, r.input_euler_characteristic, "{f}: split only: χ");
         }
         assert!(d.symmetric.rms.pct_of_diagonal <= bound, "{f}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
-        // Every result kept is sound: at most MISSED_MAX of its working vertices missed.
-        assert!(r.missed_fraction <= scanstation::stages::remesh::MISSED_MAX, "{f}: missed {}", r.missed_fraction);
         // Irregular vertices, measured 2026-12-03 with the dipole transport and its settling phase (before
         // the transport in brackets): bunny 1.03 % (1.37), spot 1.48 % (1.90), igea 1.35 % (1.63), fandisk
         // 0.93 % (1.09), armadillo 4.42 % (5.71; adaptive split: its uniform split thins the fingers, 1.5 % of

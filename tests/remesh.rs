@@ -84,7 +84,11 @@ fn sphere_field_has_eight_valence_deficits() {
     // pairs left, even at depth 8: each glides along its grid line past the cones, 2–3 edges away. The
     // settling phase (a chain's quads may fold on the way, its region is smoothed and checked at the end)
     // cancels one of them at depth 5: 12 (10 of valence 3, 2 of valence 5); depth 7 still leaves those two.
-    // The target is 8 ± a few.
+    // Why the cones do not take them up: each pair left is a dislocation (its valence-5 vertex two edges from a
+    // valence-3 one), of Burgers vector one lattice step. A cone (a quarter turn R) absorbs only vectors
+    // (R − I)t, t a lattice vector, whose two components sum to an even number, and turning by R keeps that
+    // parity; so a unit dislocation stays until it meets the other one, far across the sphere. The issue's
+    // target is 8 ± a few.
     assert!(o.irregular_vertices <= 12, "sphere: {} irregular {:?}", o.irregular_vertices, o.valence_histogram);
     assert!(r.dipole_transport.settled_chains >= 1, "sphere: {:?}", r.dipole_transport);
     let t = &r.dipole_transport;
