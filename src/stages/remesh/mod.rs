@@ -935,8 +935,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         // The tries of integer::TRIES in parallel (each search is sequential), then weighed in order.
         // (the try, its candidate, arranged mesh ([`arrange`]) and its figures when it was arranged, seconds
         // cancelling, seconds re-solving)
-        type Prepared = (Candidate, Unfitted, QuadStats);
-        type Try = (CancelTrial, Option<Prepared>, f64, f64);
+        type Arranged = (Candidate, Unfitted, QuadStats);
+        type Try = (CancelTrial, Option<Arranged>, f64, f64);
         let try_cost = |reach: integer::Reach| -> Result<Try> {
             // Cancelling removes more rows than it adds: steer the count by re-solving the position
             // field at a finer spacing (at most CANCEL_RESCALES times).
@@ -1032,9 +1032,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             // The tries with fewer irregular vertices than this result, fewest first (TRIES order on ties),
             // counted on the arranged mesh (settling, which only the fitted ones get, may yet collapse a quad
             // that stays flipped).
-            // (irregular vertices, index in `prepared`)
+            // (irregular vertices, index in `arranged`)
             let mut order: Vec<(usize, usize)> = Vec::new();
-            let mut prepared: Vec<Option<Prepared>> = Vec::new();
+            let mut arranged: Vec<Option<Arranged>> = Vec::new();
             let first = report.cancellation.len();
             for t in tries {
                 let (trial, pr, t_cancel, t_resolve) = t?;
@@ -1043,16 +1043,16 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 if let Some((_, _, st)) = &pr
                     && st.irregular_vertices < kept.stats.irregular_vertices
                 {
-                    order.push((st.irregular_vertices, prepared.len()));
+                    order.push((st.irregular_vertices, arranged.len()));
                 }
                 report.cancellation.push(trial);
-                prepared.push(pr);
+                arranged.push(pr);
             }
             order.sort_unstable();
             // The first of them that, fitted, is sound and whose RMS grew by at most CANCEL_TRADE times its
             // relative drop of irregular vertices (CANCEL_RMS_SLACK at most) replaces this result.
             for (irregular, k) in order {
-                let Some((c2, u2, _)) = prepared[k].take() else { continue };
+                let Some((c2, u2, _)) = arranged[k].take() else { continue };
                 let slot = first + k;
                 let u2 = settle(u2, mesh, &input_p, &bvh, opts);
                 let (out2, fit2) = fit_pack(&u2, mesh, &input_p, &bvh, &fit_samples, opts)?;
