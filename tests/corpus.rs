@@ -247,9 +247,9 @@ fn every_shared_mesh_repairs_to_a_closed_manifold() {
 
 /// Every closed shared mesh, plus the repaired bunny and dragon, remeshes at a 10k-vertex target into a
 /// closed, 2-manifold, pure-quad mesh with valences ≥ 3 and a count within 10 %, keeping the Euler
-/// characteristic, at seed 0 and at seeds 1 and 2. The repaired meshes are repaired as `convert` does at this target: handles whose loop is
-/// shorter than two quad spacings are cut first (the dragon's 20 sub-millimetre tunnels, which no quad mesh
-/// at 10k carries; its real handle stays, χ 0).
+/// characteristic, at seed 0 and at seeds 1 and 2. The repaired meshes are repaired as `convert` does at
+/// this target: handles whose loop is shorter than two quad spacings are cut first (the dragon's 20
+/// sub-millimetre tunnels, which no quad mesh at 10k carries; its real handle stays, χ 0).
 #[test]
 fn every_closed_shared_mesh_remeshes_to_pure_quads() {
     use scanstation::stages::remesh::{COHERENCE_TRUST_MIN, RemeshOptions, remesh};
@@ -292,8 +292,8 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             assert!(r.vertex_count_error.abs() <= 0.10, "{f}: {} vertices", o.vertices);
             assert!(!r.euler_characteristic_changed, "{f}: χ flagged as changed");
             assert_eq!(o.euler_characteristic, r.input_euler_characteristic, "{f}: Euler characteristic");
-            // Faces still flipped after unfolding are collapsed (seed 0: the dragon 3, the others none), so none is
-            // left.
+            // Faces still flipped after unfolding are collapsed (seed 0: the dragon 3, the others none), so
+            // none is left.
             assert_eq!(o.flipped_faces, 0, "{f}: flipped faces ({} collapsed)", r.cleanup.flipped_quads_collapsed);
             // Every result kept is sound: at most MISSED_MAX of its working vertices missed.
             assert!(r.missed_fraction <= scanstation::stages::remesh::MISSED_MAX, "{f}: missed {}", r.missed_fraction);

@@ -988,7 +988,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             Ok((trial, Some((c2, u2, stats2)), t_cancel, t_resolve))
         };
         let miss_reach = MISS_SPACINGS * report.attempts[index].scale / per_vertex.sqrt();
-        let first = || -> Result<_> {
+        let finish_this = || -> Result<_> {
             let (u, out, fitted) = finish(&c, mesh, &input_p, &bvh, &fit_samples, opts)?;
             let rms = measure(&out)?;
             let stats = quad_stats(&out, Some((mesh, &bvh)));
@@ -1002,8 +1002,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         // split's skip): on the dragon's unsound split routes the dropped tries cost 12 s of --split-only's
         // 19 s (against 6.6 s without them).
         let speculate = cancel && opts.adaptive_spacing && report.thin_share <= SKIP_THIN_SHARE;
-        let (first, tries) = rayon::join(first, || speculate.then(run_tries));
-        let (Unfitted { extra, valence, dipoles, .. }, out, fitted, rms, stats, mask, t_missed) = first?;
+        let (finished_this, tries) = rayon::join(finish_this, || speculate.then(run_tries));
+        let (Unfitted { extra, valence, dipoles, .. }, out, fitted, rms, stats, mask, t_missed) = finished_this?;
         *report.seconds.entry("missed".into()).or_insert(0.0) += t_missed;
         let missed_of = |m: &[bool]| m.iter().filter(|&&b| b).count() as f64 / m.len().max(1) as f64;
         let mut kept = Finished {
@@ -1035,7 +1035,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             // (irregular vertices, index in `arranged`)
             let mut order: Vec<(usize, usize)> = Vec::new();
             let mut arranged: Vec<Option<Arranged>> = Vec::new();
-            let first = report.cancellation.len();
+            let first_slot = report.cancellation.len();
             for t in tries {
                 let (trial, pr, t_cancel, t_resolve) = t?;
                 *report.seconds.entry("cancellation".into()).or_insert(0.0) += t_cancel;
@@ -1053,7 +1053,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             // relative drop of irregular vertices (CANCEL_RMS_SLACK at most) replaces this result.
             for (irregular, k) in order {
                 let Some((c2, u2, _)) = arranged[k].take() else { continue };
-                let slot = first + k;
+                let slot = first_slot + k;
                 let u2 = settle(u2, mesh, &input_p, &bvh, opts);
                 let (out2, fit2) = fit_pack(&u2, mesh, &input_p, &bvh, &fit_samples, opts)?;
                 let rms2 = measure(&out2)?;
@@ -1287,7 +1287,9 @@ fn packed(qp: &[V3], quads: &[Vec<u32>]) -> Result<PolyMesh> {
     PolyMesh::new(qp.iter().map(|x| x.map(|c| c as f32)).collect(), quads)
 }
 
-/// [`prepare`], then [`fit_pack`].
+/// Clean up a candidate, [`arrange`] then [`settle`]: relax its polygon mesh on the input, split it to quads
+/// (split mode), remove doublets, improve valences, relax again and unfold flipped faces (collapsing those
+/// that stay flipped); then [`fit_pack`].
 fn finish(
     c: &Candidate,
     input: &TriMesh,
@@ -1296,27 +1298,13 @@ fn finish(
     fit_samples: &[V3],
     opts: &RemeshOptions,
 ) -> Result<(Unfitted, PolyMesh, fit::FitCounts)> {
-    let u = prepare(c, input, input_p, bvh, opts)?;
+    let u = settle(arrange(c, bvh, opts)?, input, input_p, bvh, opts);
     let (out, fitted) = fit_pack(&u, input, input_p, bvh, fit_samples, opts)?;
     Ok((u, out, fitted))
 }
 
-/// [`arrange`], then [`settle`]: relax the candidate's polygon mesh on the input, split it to quads (split
-/// mode), remove doublets, improve valences, relax again and unfold flipped faces (collapsing those that stay
-/// flipped).
-fn prepare(
-    c: &Candidate,
-    input: &TriMesh,
-    input_p: &[V3],
-    bvh: &TriangleBvh,
-    opts: &RemeshOptions,
-) -> Result<Unfitted> {
-    let u = arrange(c, bvh, opts)?;
-    Ok(settle(u, input, input_p, bvh, opts))
-}
-
-/// The first part of [`prepare`], which decides the connectivity (all but the collapses of quads that stay
-/// flipped): the candidate's polygon mesh relaxed on the input, split to quads (split mode), doublets
+/// The first part of the clean-up ([`finish`]), which decides the connectivity (all but the collapses of quads
+/// that stay flipped): the candidate's polygon mesh relaxed on the input, split to quads (split mode), doublets
 /// removed, valences improved and dipoles transported. The cancellation tries are ranked on it, so only the
 /// tries that are fitted pay for [`settle`].
 fn arrange(c: &Candidate, bvh: &TriangleBvh, opts: &RemeshOptions) -> Result<Unfitted> {
@@ -1342,8 +1330,8 @@ fn arrange(c: &Candidate, bvh: &TriangleBvh, opts: &RemeshOptions) -> Result<Unf
     Ok(Unfitted { qp, quads, extra, valence, dipoles })
 }
 
-/// The second part of [`prepare`]: relax the arranged mesh on the input and unfold flipped faces, collapsing
-/// the quads that stay flipped (then removing doublets).
+/// The second part of the clean-up ([`finish`]): relax the arranged mesh on the input and unfold flipped
+/// faces, collapsing the quads that stay flipped (then removing doublets).
 fn settle(u: Unfitted, input: &TriMesh, input_p: &[V3], bvh: &TriangleBvh, opts: &RemeshOptions) -> Unfitted {
     let Unfitted { mut qp, mut quads, mut extra, valence, dipoles } = u;
     quadify::relax_and_project(&mut qp, &quads, bvh, opts.relax_iterations, 0.5);
@@ -1370,7 +1358,7 @@ fn settle(u: Unfitted, input: &TriMesh, input_p: &[V3], bvh: &TriangleBvh, opts:
     Unfitted { qp, quads, extra, valence, dipoles }
 }
 
-/// The prepared mesh fitted to the input ([`fit`], `opts.fit_rounds` rounds, on `fit_samples`).
+/// The cleaned-up mesh ([`settle`]) fitted to the input ([`fit`], `opts.fit_rounds` rounds, on `fit_samples`).
 fn fit_pack(
     u: &Unfitted,
     input: &TriMesh,
