@@ -301,7 +301,8 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         let opts = RemeshOptions { target_vertices: 10_000, compare_samples: 100_000, ..Default::default() };
         // Seeds 1 and 2 (the field's random start): sound, the dragon within the RMS bound, and fewer
         // irregular vertices than the peer's 9 % on the dragon. Measured 2026-12-03 (seeds 1, 2, 3): dragon
-        // 5.15, 5.29, 4.85 % at RMS 0.0553, 0.0577, 0.0571 %; armadillo 3.81, 3.70, 5.01 %; spot 1.39, 2.17,
+        // 5.15, 5.29, 4.85 % at RMS 0.0553, 0.0577, 0.0571 %; armadillo 3.81, 3.66, 3.98 % (2026-12-04, with
+        // the direct routes run where the split misses IRREGULAR_GOAL; before 3.81, 3.70, 5.01 %); spot 1.39, 2.17,
         // 1.97 %; igea 1.21, 1.47, 1.57 %; fandisk 1.25, 0.79, 1.25 %; bunny 1.41, 1.51, 1.24 %; every RMS
         // else ≤ 0.0569 %.
         for seed in [1, 2] {
@@ -313,7 +314,7 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             let (rms_bound, irregular_bound) = if f.contains("dragon") {
                 (0.07, 0.06)
             } else if f.contains("armadillo") {
-                (0.1, 0.06)
+                (0.1, 0.042)
             } else {
                 (0.1, 0.03)
             };
@@ -349,6 +350,13 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         assert_eq!(r.uniform_split_skipped, thin, "{f}: thin share {}", r.thin_share);
         // Only the dragon is thin enough (5.6 %) for the adaptive split to go after the direct routes.
         assert_eq!(r.adaptive_split_skipped, f.contains("dragon"), "{f}: thin share {}", r.thin_share);
+        if f.contains("armadillo") {
+            // Its sound adaptive split result (4.42 %) misses IRREGULAR_GOAL: the direct routes ran, and one of
+            // their results, with fewer irregular vertices for a small rise in RMS (here none), replaced it.
+            use scanstation::stages::remesh::Mode;
+            assert!(r.mode.is_some_and(Mode::is_direct), "{f}: {:?} kept, {:?}", r.mode, r.alternatives);
+            assert!(r.alternatives.iter().any(|a| a.mode == Mode::AdaptiveSplit), "{f}: {:?}", r.alternatives);
+        }
         if f.contains("dragon") {
             assert_eq!(r.mode, Some(scanstation::stages::remesh::Mode::RefinedDirect), "{f}: {:?}", r.alternatives);
             // Regression (2026-12-03): with the direct routes off, the skipped uniform split must still run
@@ -362,9 +370,9 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         assert!(d.symmetric.rms.pct_of_diagonal <= bound, "{f}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
         // Irregular vertices, measured 2026-12-03 with the dipole transport and its settling phase (before
         // the transport in brackets): bunny 1.03 % (1.37), spot 1.48 % (1.90), igea 1.35 % (1.63), fandisk
-        // 0.93 % (1.09), armadillo 4.42 % (5.71; adaptive split: its uniform split thins the fingers, 1.5 % of
-        // the working vertices missed), dragon 4.66 % (11.98; refined direct). Target ≤ 3 %, open on the
-        // armadillo and the dragon. Where position singularities are cancelled in pairs and that result is
+        // 0.93 % (1.09), armadillo 3.43 % (refined direct; its adaptive split, 4.42 %, misses IRREGULAR_GOAL,
+        // so the direct routes run too; its uniform split thins the fingers, 1.5 % of the working vertices
+        // missed), dragon 4.66 % (11.98; refined direct). Target ≤ 3 %, open on the armadillo and the dragon. Where position singularities are cancelled in pairs and that result is
         // kept (igea, fandisk), the extraction is checked to be kept.
         let cancelled = r.cancellation.iter().any(|t| t.kept);
         if f.contains("igea") || f.contains("fandisk") {
@@ -373,7 +381,7 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         let irregular = if f.contains("dragon") {
             0.05
         } else if f.contains("armadillo") {
-            0.047
+            0.036
         } else if f.contains("igea") {
             0.016
         } else if f.contains("fandisk") {
