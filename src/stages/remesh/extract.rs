@@ -41,16 +41,27 @@ pub struct Extracted {
     pub pinch_vertices_removed: usize,
     /// What the cancellation of position singularities did (when it ran).
     pub integer: Option<integer::CancelCounts>,
+    /// The integer steps the extraction followed, when they were the position field's own (no cancellation):
+    /// a cancellation of the same field starts from them instead of computing them again.
+    pub steps: Option<integer::Offsets>,
 }
 
 /// Extract from level 0 with orientation `q`, lattice origins `o` and spacing `s[i]` at vertex i. With
 /// `cancel` (the triangles level 0 was built from, a reach, blocked vertices), position singularities are first
 /// cancelled in pairs ([`integer::cancel_pairs`]); the extraction then follows the changed steps, and the
-/// clusters are placed by them ([`place_by_steps`]).
-pub fn extract(level: &Level, q: &[V3], o: &[V3], s: &[f64], cancel: Option<integer::Cancel>) -> Extracted {
+/// clusters are placed by them ([`place_by_steps`]). `steps`, when given, are this field's steps as an earlier
+/// extraction of it returned them ([`Extracted::steps`]); else they are computed.
+pub fn extract(
+    level: &Level,
+    q: &[V3],
+    o: &[V3],
+    s: &[f64],
+    cancel: Option<integer::Cancel>,
+    steps: Option<integer::Offsets>,
+) -> Extracted {
     let n = level.len();
     // 1. Integer steps of every input edge (in parallel), optionally made consistent.
-    let mut off = integer::Offsets::compute(level, q, o, s);
+    let mut off = steps.unwrap_or_else(|| integer::Offsets::compute(level, q, o, s));
     let mut out = Extracted::default();
     if let Some(c) = cancel {
         out.integer = integer::cancel_pairs(&mut off, c.tris, c.reach, Some(c.blocked));
@@ -141,6 +152,9 @@ pub fn extract(level: &Level, q: &[V3], o: &[V3], s: &[f64], cancel: Option<inte
         }
     }
     out.faces = faces.into_iter().map(|f| f.into_iter().map(|v| used[v as usize]).collect()).collect();
+    if out.integer.is_none() {
+        out.steps = Some(off);
+    }
     out
 }
 

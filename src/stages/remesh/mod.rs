@@ -450,10 +450,11 @@ fn candidate(
     o: &[V3],
     s: &[f64],
     cancel: Option<integer::Cancel>,
+    steps: Option<integer::Offsets>,
     mode: Mode,
     components: usize,
 ) -> Candidate {
-    let ex = extract::extract(level, q, o, s, cancel);
+    let ex = extract::extract(level, q, o, s, cancel, steps);
     let mut by_degree = BTreeMap::new();
     for f in &ex.faces {
         *by_degree.entry(f.len()).or_insert(0) += 1;
@@ -896,7 +897,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             let o = field::solve_position(levels, qs, &sl, opts.iterations, opts.seed);
             t_pos += t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let mut c = candidate(&levels[0], &qs[0], &o, &sl[0], None, mode, report.input_components);
+            let mut c = candidate(&levels[0], &qs[0], &o, &sl[0], None, None, mode, report.input_components);
             let (chi, manifold) = quadify::polygon_check(&c.faces);
             c.topology_ok = manifold && chi == report.input_euler_characteristic;
             let usable = manifold && c.counts.triangles_unpaired == 0;
@@ -932,7 +933,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             // Steer the count; an unusable attempt is retried at a slightly different spacing.
             s *= (predicted as f64 / target).sqrt() * if valid { 1.0 } else { 0.985 };
         }
-        let (index, c, changed, o, s0) = match (best, fallback) {
+        let (index, mut c, changed, o, s0) = match (best, fallback) {
             (Some((_, i, c, o, s0)), _) => (i, c, false, o, s0),
             (None, Some((_, i, c, o, s0))) => (i, c, true, o, s0),
             (None, None) => continue,
@@ -962,6 +963,8 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
         // cancelling, seconds re-solving)
         type Arranged = (Candidate, Unfitted, QuadStats);
         type Try = (CancelTrial, Option<Arranged>, f64, f64);
+        // The position field's own steps, from which the tries' cancellations start (until a re-solve).
+        let field_steps = c.ex.steps.take();
         let try_cost = |reach: integer::Reach| -> Result<Try> {
             // Cancelling removes more rows than it adds: steer the count by re-solving the position
             // field at a finer spacing (at most CANCEL_RESCALES times).
@@ -976,7 +979,9 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     .collect();
                 let how = integer::Cancel { tris, reach, blocked: &blocked };
                 let t1 = Instant::now();
-                let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some(how), mode, input_components);
+                // Before a re-solve the field is the candidate's own: start from its steps.
+                let steps = if rescales == 0 { field_steps.clone() } else { None };
+                let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some(how), steps, mode, input_components);
                 t_cancel += t1.elapsed().as_secs_f64();
                 let off = c2.predicted as f64 / target;
                 if (off - 1.0).abs() <= CANCEL_COUNT_TOLERANCE || rescales == CANCEL_RESCALES || off == 0.0 {
