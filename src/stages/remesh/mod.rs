@@ -333,6 +333,12 @@ pub const FIDELITY_RATIO: f64 = 1.25;
 /// for 7–11 s instead of 4.5. The other shared meshes meet it with the split route (output bytes unchanged).
 pub const IRREGULAR_GOAL: f64 = 0.03;
 
+/// How many times an earlier result's RMS a result with `fewer` (a share) fewer irregular vertices may have:
+/// 1 + [`CANCEL_TRADE`] · `fewer`, at most [`CANCEL_RMS_SLACK`].
+fn rms_allowed(fewer: f64) -> f64 {
+    (1.0 + CANCEL_TRADE * fewer).min(CANCEL_RMS_SLACK)
+}
+
 /// Attempts per mode after which a closed manifold attempt that changes χ is accepted.
 pub const PATIENCE: usize = 3;
 
@@ -419,7 +425,7 @@ impl Finished {
     /// ([`CANCEL_RMS_SLACK`] at most): the trade the cancellation's tries are weighed by, also between routes.
     fn trades_well_against(&self, other: &Finished) -> bool {
         let fewer = 1.0 - self.stats.irregular_vertices as f64 / other.stats.irregular_vertices.max(1) as f64;
-        fewer > 0.0 && self.rms <= (1.0 + CANCEL_TRADE * fewer).min(CANCEL_RMS_SLACK) * other.rms
+        fewer > 0.0 && self.rms <= rms_allowed(fewer) * other.rms
     }
 
     /// [`Self::sound`] with `missed_max` in place of [`MISSED_MAX`].
@@ -1108,7 +1114,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     missed: missed2,
                 };
                 let fewer = 1.0 - irregular as f64 / kept.stats.irregular_vertices.max(1) as f64;
-                let allowed = (1.0 + CANCEL_TRADE * fewer).min(CANCEL_RMS_SLACK);
+                let allowed = rms_allowed(fewer);
                 // Sound, but measured against the result it would replace: a try may miss up to
                 // CANCEL_MISSED_SLACK times as many working vertices (never more than MISSED_LOST).
                 let missed_max = (CANCEL_MISSED_SLACK * kept.missed).clamp(MISSED_MAX, MISSED_LOST);
