@@ -450,16 +450,19 @@ struct Candidate {
     topology_ok: bool,
 }
 
+/// Extract a candidate of route `mode` from the position field (origins `o`, spacings `s`) and clean it up to
+/// the polygon mesh the route finishes: with `cancel`, position singularities are first cancelled, starting
+/// from the field's own integer steps when they are given ([`extract::Extracted::steps`]).
 fn candidate(
     level: &hierarchy::Level,
     q: &[V3],
     o: &[V3],
     s: &[f64],
-    cancel: Option<integer::Cancel>,
-    steps: Option<integer::Offsets>,
+    cancel: Option<(integer::Cancel, Option<integer::Offsets>)>,
     mode: Mode,
     components: usize,
 ) -> Candidate {
+    let (cancel, steps) = cancel.map_or((None, None), |(c, steps)| (Some(c), steps));
     let ex = extract::extract(level, q, o, s, cancel, steps);
     let mut by_degree = BTreeMap::new();
     for f in &ex.faces {
@@ -903,7 +906,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             let o = field::solve_position(levels, qs, &sl, opts.iterations, opts.seed);
             t_pos += t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let mut c = candidate(&levels[0], &qs[0], &o, &sl[0], None, None, mode, report.input_components);
+            let mut c = candidate(&levels[0], &qs[0], &o, &sl[0], None, mode, report.input_components);
             let (chi, manifold) = quadify::polygon_check(&c.faces);
             c.topology_ok = manifold && chi == report.input_euler_characteristic;
             let usable = manifold && c.counts.triangles_unpaired == 0;
@@ -987,7 +990,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 let t1 = Instant::now();
                 // Before a re-solve the field is the candidate's own: start from its steps.
                 let steps = if rescales == 0 { field_steps.clone() } else { None };
-                let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some(how), steps, mode, input_components);
+                let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some((how, steps)), mode, input_components);
                 t_cancel += t1.elapsed().as_secs_f64();
                 let off = c2.predicted as f64 / target;
                 if (off - 1.0).abs() <= CANCEL_COUNT_TOLERANCE || rescales == CANCEL_RESCALES || off == 0.0 {
