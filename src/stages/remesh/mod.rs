@@ -1116,6 +1116,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                     stats: stats2,
                     missed: missed2,
                 };
+                // The trade of `trades_well_against`, on the arranged count the tries were ranked by.
                 let fewer = 1.0 - irregular as f64 / kept.stats.irregular_vertices.max(1) as f64;
                 let allowed = rms_allowed(fewer);
                 // Sound, but measured against the result it would replace: a try may miss up to
