@@ -8,9 +8,10 @@ use common::{data_dir, peak_mib, reset_peak};
 
 use std::time::Instant;
 
+use scanstation::geometry::decimate;
 use scanstation::geometry::io::{ReadOptions, read_mesh};
 use scanstation::stages::NoProgress;
-use scanstation::stages::repair::{RepairOptions, decimate, intersections, repair};
+use scanstation::stages::repair::{RepairOptions, intersections, repair};
 
 fn main() {
     let data = data_dir();

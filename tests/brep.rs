@@ -167,10 +167,10 @@ fn high_valence_patches_join_within_one_degree() {
 /// valence 8, and armadillo's solid had 180° jumps.
 #[test]
 fn patch_corners_at_extraordinary_vertices_never_turn_over() {
+    use scanstation::geometry::subdivision::limit::{FaceKind, tangent_stencils};
+    use scanstation::geometry::subdivision::net::combine;
     use scanstation::stages::brep::patches;
     use scanstation::stages::surface::LimitSurface;
-    use scanstation::stages::surface::limit::{FaceKind, tangent_stencils};
-    use scanstation::stages::surface::net::combine;
     let mut state = 0x9e37_79b9_7f4a_7c15u64;
     let mut noise = move || {
         state ^= state << 13;
@@ -328,10 +328,10 @@ fn a_diverging_fit_is_refused() {
 /// it stays within a small fraction of an edge of the limit.
 #[test]
 fn only_the_corner_cell_of_an_extraordinary_face_is_approximated() {
+    use scanstation::geometry::subdivision::limit::{EvPatch, FaceKind, point_weights};
+    use scanstation::geometry::subdivision::net::combine;
     use scanstation::stages::brep::patches;
     use scanstation::stages::surface::LimitSurface;
-    use scanstation::stages::surface::limit::{EvPatch, FaceKind, point_weights};
-    use scanstation::stages::surface::net::combine;
     for n in [3usize, 5, 8] {
         let (net, pos) = control_net(&polar_ball(n, 4)).unwrap();
         let surface = LimitSurface::new(&net).unwrap();

@@ -6,9 +6,10 @@ mod common;
 use proptest::prelude::*;
 use scanstation::geometry::bvh::{RAY_EDGE_SLACK, TriangleBvh, closest_point_on_triangle};
 use scanstation::geometry::shapes::{cuboid, icosphere};
+use scanstation::geometry::stats::percentile;
 use scanstation::geometry::vec3::{cross, dot, norm, sub};
 use scanstation::stages::NoProgress;
-use scanstation::stages::quality::{CompareOptions, compare, percentile};
+use scanstation::stages::quality::{CompareOptions, compare};
 use scanstation::{ErrorCode, Geometry, PointCloud, PolyMesh, TriMesh, assert_near, assert_rel_near};
 
 fn mesh(t: TriMesh) -> Geometry {

@@ -242,7 +242,8 @@ fn torus_grid(n: u32, m: u32, big: f64, small: f64) -> (Vec<[f64; 3]>, Vec<Vec<u
 /// pure-quad torus (χ 0).
 #[test]
 fn far_apart_triangles_pair_with_an_unbounded_search() {
-    use scanstation::stages::remesh::quadify::{CleanupCounts, pair_triangles_along_paths, polygon_check};
+    use scanstation::geometry::polygon::polygon_check;
+    use scanstation::stages::remesh::quadify::{CleanupCounts, pair_triangles_along_paths};
     let (n, m) = (200u32, 4u32);
     let id = |i: u32, j: u32| (i % n) * m + (j % m);
     let (p, grid) = torus_grid(n, m, 10.0, 0.5);
@@ -275,7 +276,8 @@ fn far_apart_triangles_pair_with_an_unbounded_search() {
 /// with one vertex and one face fewer.
 #[test]
 fn collapsing_a_quad_keeps_a_closed_quad_torus() {
-    use scanstation::stages::remesh::quadify::{collapse_quads, polygon_check};
+    use scanstation::geometry::polygon::polygon_check;
+    use scanstation::stages::remesh::quadify::collapse_quads;
     let (n, m) = (8u32, 6u32);
     let (mut p, mut faces) = torus_grid(n, m, 2.0, 0.5);
     assert_eq!(collapse_quads(&mut p, &mut faces, &[7]), 1);
@@ -283,7 +285,7 @@ fn collapsing_a_quad_keeps_a_closed_quad_torus() {
     assert!(faces.iter().all(|f| f.len() == 4));
     assert_eq!(polygon_check(&faces), (0, true));
     let mut valence = std::collections::BTreeMap::new();
-    for (a, b) in scanstation::stages::remesh::quadify::unique_edges(faces.iter().map(Vec::as_slice)) {
+    for (a, b) in scanstation::geometry::polygon::unique_edges(faces.iter().map(Vec::as_slice)) {
         *valence.entry(a).or_insert(0) += 1;
         *valence.entry(b).or_insert(0) += 1;
     }
@@ -495,9 +497,9 @@ fn radial_rms(p: &[[f64; 3]], faces: &[Vec<u32>]) -> f64 {
 #[test]
 fn the_fit_moves_a_sphere_s_chords_outward_to_straddle_it() {
     use scanstation::geometry::bvh::TriangleBvh;
+    use scanstation::geometry::polygon::polygon_centre;
     use scanstation::stages::remesh::fit::fit_to_surface;
     use scanstation::stages::remesh::quad_stats;
-    use scanstation::stages::remesh::quadify::polygon_centre;
     let (p0, faces, s, samples) = sphere_quads();
     let bvh = TriangleBvh::new(s);
     let h_max = faces.iter().map(|f| 1.0 - radius(polygon_centre(p0, f))).fold(0.0, f64::max);

@@ -241,8 +241,8 @@ fn a_rough_rim_is_filled_smoothly() {
 /// decimation short of the target (37 vertices for 30): it stops rather than cross.
 #[test]
 fn decimation_refuses_collapses_that_would_cross_the_surface() {
+    use scanstation::geometry::decimate::{Crossings, decimate};
     use scanstation::geometry::intersect::self_intersections_brute_force;
-    use scanstation::stages::repair::decimate::{Crossings, decimate};
     for (minor, crossing_without) in [(0.02, 10), (0.1, 6)] {
         let m = torus(1.0, minor, 160, 10);
         let p0: Vec<[f64; 3]> = m.positions.iter().map(|q| q.map(|c| c as f64)).collect();
@@ -278,7 +278,7 @@ proptest! {
         size in prop::sample::select(vec![1.0, 0.1]),
     ) {
         use scanstation::geometry::intersect::self_intersections_brute_force;
-        use scanstation::stages::repair::decimate::{Crossings, decimate};
+        use scanstation::geometry::decimate::{Crossings, decimate};
         let mut m = torus(1.0, 0.08, 120, 12);
         common::jitter(&mut m, seed, 0.03);
         let mut p: Vec<[f64; 3]> = m.positions.iter().map(|q| q.map(|c| c as f64 * size)).collect();

@@ -1,9 +1,9 @@
 //! Surface stage: Catmull–Clark limit evaluation and the least-squares fit.
 
 use scanstation::geometry::shapes;
+use scanstation::geometry::subdivision::limit::{EvPatch, FaceKind, LimitSurface, limit_stencil, point_weights};
 use scanstation::geometry::vec3::{self, V3};
 use scanstation::stages::NoProgress;
-use scanstation::stages::surface::limit::{EvPatch, FaceKind, LimitSurface, limit_stencil, point_weights};
 use scanstation::stages::surface::{FitOptions, QuadNet, SphereTarget, control_net, fit_control_points};
 
 /// The quad ball of `shapes` as a control net with f64 positions.

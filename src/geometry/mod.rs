@@ -2,12 +2,16 @@
 //! synthetic shapes and file formats. Pure computation: no async runtime, no D-Bus, no global state.
 
 pub mod bvh;
+pub mod decimate;
 pub mod intersect;
 pub mod io;
 pub mod linalg;
 pub mod mesh;
+pub mod polygon;
 pub mod sampling;
 pub mod shapes;
+pub mod stats;
+pub mod subdivision;
 pub mod tolerance;
 pub mod topology;
 pub mod vec3;

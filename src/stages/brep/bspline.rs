@@ -367,8 +367,8 @@ mod tests {
         for &(u, v) in &[(0.0, 0.0), (0.3, 2.7), (2.5, 1.5), (4.99, 3.2), (5.0, 4.0), (1.0, 3.0)] {
             let (p, pu, _) = s.eval(u, v);
             let (iu, iv) = ((u.floor() as usize).min(w - 1), (v.floor() as usize).min(h - 1));
-            let (bu, du) = crate::stages::surface::limit::bspline_basis(u - iu as f64);
-            let (bv, _) = crate::stages::surface::limit::bspline_basis(v - iv as f64);
+            let (bu, du) = crate::geometry::subdivision::limit::bspline_basis(u - iu as f64);
+            let (bv, _) = crate::geometry::subdivision::limit::bspline_basis(v - iv as f64);
             let mut q = [0.0; 3];
             let mut qu = [0.0; 3];
             for b in 0..4 {

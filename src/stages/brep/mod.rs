@@ -22,10 +22,10 @@ use rayon::prelude::*;
 
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::mesh::TriMesh;
+use crate::geometry::subdivision::limit::FaceKind;
+use crate::geometry::subdivision::{LimitSurface, QuadNet};
 use crate::geometry::tolerance::BREP_EDGE_REL;
 use crate::geometry::vec3::{self, Aabb, V3};
-use crate::stages::surface::limit::FaceKind;
-use crate::stages::surface::{LimitSurface, QuadNet};
 use bspline::{BsplineSurface, bezier_point};
 use patches::{FaceNet, Patches};
 
@@ -146,7 +146,7 @@ struct Block {
 /// 3: u = 0) with the corner where its frame, aligned with `f`'s, starts.
 fn across(net: &QuadNet, (f, s): (u32, u8), k: usize) -> Option<(u32, u8)> {
     let t = net.twin[4 * f as usize + (s as usize + k) % 4];
-    if t == crate::stages::surface::net::NO_TWIN {
+    if t == crate::geometry::subdivision::net::NO_TWIN {
         return None;
     }
     let j = (t % 4) as usize;

@@ -22,10 +22,12 @@
 
 use crate::error::{Error, Result};
 use crate::geometry::linalg::NormalEquations;
+use crate::geometry::subdivision::limit::{
+    EvPatch, FaceKind, LimitSurface, limit_stencil, point_weights, tangent_stencils,
+};
+use crate::geometry::subdivision::net::combine;
 use crate::geometry::vec3::{self, V3};
 use crate::stages::brep::bspline::bernstein;
-use crate::stages::surface::limit::{EvPatch, FaceKind, LimitSurface, limit_stencil, point_weights, tangent_stencils};
-use crate::stages::surface::net::combine;
 use rayon::prelude::*;
 
 /// The most times an extraordinary face is cut towards its extraordinary corner (see the module docs).
@@ -742,7 +744,7 @@ pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> NormalJumps {
         .reduce(|| (0.0, [0.0; 3]), |a, b| if b.0 > a.0 { b } else { a });
     if inner.0 > max_deg {
         let mut v: Vec<f64> = per_edge.iter().map(|e| e.0).collect();
-        let p99_deg = crate::stages::quality::percentile(&mut v, 0.99);
+        let p99_deg = crate::geometry::stats::percentile(&mut v, 0.99);
         return NormalJumps {
             max_deg: inner.0,
             max_at: inner.1,
@@ -757,7 +759,7 @@ pub fn normal_jumps(surface: &LimitSurface, patches: &Patches) -> NormalJumps {
     let max_at_extraordinary =
         [h, t].iter().any(|&x| matches!(surface.kinds[(x / 4) as usize], FaceKind::Extraordinary(_)));
     let mut v: Vec<f64> = per_edge.iter().map(|e| e.0).collect();
-    let p99_deg = crate::stages::quality::percentile(&mut v, 0.99);
+    let p99_deg = crate::geometry::stats::percentile(&mut v, 0.99);
     let max_at_valences = [surface.net.valence(surface.net.from(h)), surface.net.valence(surface.net.to(h))];
     NormalJumps { max_deg, max_at, max_at_extraordinary, max_at_fraction, max_at_valences, p99_deg }
 }

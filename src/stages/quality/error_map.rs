@@ -5,7 +5,8 @@ use std::path::Path;
 use crate::error::Result;
 use crate::geometry::io::{VertexAttributes, write_ply, write_ply_cloud};
 use crate::geometry::mesh::Geometry;
-use crate::stages::quality::{percentile, vertex_distances};
+use crate::geometry::stats::percentile;
+use crate::stages::quality::vertex_distances;
 
 /// Colour ramp blue → cyan → green → yellow → red for `t` in [0, 1] (clamped; NaN is magenta).
 pub fn color_ramp(t: f64) -> [u8; 3] {

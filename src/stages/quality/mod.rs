@@ -27,6 +27,7 @@ use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::bvh::{PointBvh, TriangleBvh};
 use crate::geometry::mesh::{Geometry, TriMesh};
 use crate::geometry::sampling::{Rng, fnv1a, sample_area_uniform};
+use crate::geometry::stats::percentile;
 use crate::geometry::tolerance::DISTANCE_ZERO_REL;
 use crate::geometry::vec3::{V3, wide};
 use crate::stages::Progress;
@@ -172,22 +173,6 @@ fn build<'a>(g: &'a Geometry, tri: &'a Option<TriMesh>) -> Prepared<'a> {
         (Geometry::Cloud(c), _) => Prepared::Cloud { points: &c.positions, bvh: PointBvh::new(&c.positions) },
         (Geometry::Mesh(_), None) => unreachable!("prepare() triangulates every mesh"),
     }
-}
-
-/// Linear-interpolated percentile (numpy's default) of `v`, `q` in [0, 1]. Reorders `v`. O(n).
-pub fn percentile(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let pos = q.clamp(0.0, 1.0) * (v.len() - 1) as f64;
-    let lo = pos.floor() as usize;
-    let (_, &mut a, rest) = v.select_nth_unstable_by(lo, f64::total_cmp);
-    let frac = pos - lo as f64;
-    if frac == 0.0 || rest.is_empty() {
-        return a;
-    }
-    let b = rest.iter().copied().fold(f64::INFINITY, f64::min);
-    a + (b - a) * frac
 }
 
 /// Sums of a set of distances; adding two is commutative, so pooled figures do not depend on the order.

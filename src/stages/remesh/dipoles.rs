@@ -32,6 +32,7 @@
 //! (cost-neutral operations near a chain, a handful) and r the operations in one ring; single-threaded and
 //! deterministic (vertices in index order).
 
+use crate::geometry::polygon;
 use crate::geometry::vec3::{V3, add, cross, dot, norm, scale, sub};
 
 /// Longest chain of cost-neutral operations searched before a cancelling one (about the reach, in edges).
@@ -166,7 +167,7 @@ impl QuadEdit {
         }
         let mut nrm = vec![[0.0; 3]; p.len()];
         for q in &fs {
-            let n = super::quadify::polygon_normal(&p, q);
+            let n = polygon::polygon_normal(&p, q);
             for &v in q {
                 nrm[v as usize] = add(nrm[v as usize], n);
             }
@@ -476,7 +477,7 @@ impl QuadEdit {
         let q = self.faces[fi as usize];
         let n = q.iter().fold([0.0; 3], |acc, &v| add(acc, self.nrm[v as usize]));
         let nn = norm(n);
-        let qn = super::quadify::polygon_normal(&self.p, &q);
+        let qn = polygon::polygon_normal(&self.p, &q);
         if dot(qn, n) <= MIN_FACE_COS * norm(qn) * nn {
             return false;
         }
@@ -685,7 +686,7 @@ pub fn transport_dipoles(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, depth: usiz
     }
     counts.irregularity_after = m.irregularity();
     let mut out: Vec<Vec<u32>> = m.faces.iter().zip(&m.dead).filter(|(_, d)| !**d).map(|(f, _)| f.to_vec()).collect();
-    *p = super::quadify::compact(&m.p, &mut out);
+    *p = polygon::compact(&m.p, &mut out);
     *faces = out;
     counts
 }

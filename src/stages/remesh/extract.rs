@@ -323,7 +323,7 @@ fn trace_faces(p: &[V3], n: &[V3], edges: &[(u32, u32)]) -> (Vec<Vec<u32>>, Vec<
         half.push((b, a));
     }
     half.sort_unstable();
-    let off: Vec<usize> = super::hierarchy::csr(nv, &half).0.into_iter().map(|o| o as usize).collect();
+    let off: Vec<usize> = crate::geometry::polygon::csr(nv, &half).0.into_iter().map(|o| o as usize).collect();
     // Sort each vertex's outgoing half-edges counter-clockwise about its normal.
     for v in 0..nv {
         let (lo, hi) = (off[v], off[v + 1]);

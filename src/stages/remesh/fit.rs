@@ -20,7 +20,8 @@ use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::vec3::{V3, add, cross, dot, norm2, scale, sub};
 
-use super::quadify::{adjacency, flipped_faces, flipped_faces_hinted, polygon_centre, vertex_normals};
+use super::quadify::{flipped_faces, flipped_faces_hinted};
+use crate::geometry::polygon::{adjacency, polygon_centre, vertex_normals};
 
 /// Fit rounds after the clean-up (each refreshes the correspondences).
 pub const FIT_ROUNDS: usize = 4;

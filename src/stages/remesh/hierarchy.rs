@@ -5,6 +5,7 @@
 //! first. Every level is greedily graph-coloured so that one colour class can be updated in parallel
 //! without races (Gauss–Seidel over colour classes, deterministic for any thread count).
 
+use crate::geometry::polygon::csr;
 use crate::geometry::vec3::{self, V3};
 
 /// One level of the hierarchy.
@@ -78,18 +79,6 @@ pub fn finest_level(p: &[V3], tris: &[[u32; 3]]) -> Level {
     let mut level = Level { p: p.to_vec(), n: normal, area, off, adj, w, colours: Vec::new(), parent: Vec::new() };
     level.colours = colour(&level);
     level
-}
-
-/// CSR form of sorted (source, target) pairs over `n` sources: offsets (`n + 1`) and targets.
-pub(crate) fn csr(n: usize, sorted_pairs: &[(u32, u32)]) -> (Vec<u32>, Vec<u32>) {
-    let mut off = vec![0u32; n + 1];
-    for &(a, _) in sorted_pairs {
-        off[a as usize + 1] += 1;
-    }
-    for i in 0..n {
-        off[i + 1] += off[i];
-    }
-    (off, sorted_pairs.iter().map(|&(_, b)| b).collect())
 }
 
 /// Greedy colouring in vertex order: each vertex takes the smallest colour none of its neighbours has.

@@ -68,13 +68,15 @@ use serde::Serialize;
 
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::bvh::TriangleBvh;
+use crate::geometry::decimate::{Crossings, decimate};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
+use crate::geometry::polygon;
 use crate::geometry::sampling::{Rng, sample_area_uniform};
+use crate::geometry::stats::percentile;
 use crate::geometry::topology::TopologyReport;
 use crate::geometry::vec3::{self, V3, cross, dot, sub, wide};
 use crate::stages::Progress;
-use crate::stages::quality::{CompareOptions, DistanceReport, compare, percentile};
-use crate::stages::repair::decimate::{Crossings, decimate};
+use crate::stages::quality::{CompareOptions, DistanceReport, compare};
 
 /// Thickness, in uniform split spacings (`√(4·area / target)`), below which a working vertex counts toward
 /// [`RemeshReport::thin_share`].
@@ -481,7 +483,7 @@ fn candidate(
             quadify::pair_triangles(&mut faces, 12, 8, &mut counts);
             counts.doublets_removed += quadify::remove_doublets(&mut faces);
             quadify::keep_largest_components(&mut faces, components, &mut counts);
-            quadify::split_vertex_count(ex.positions.len(), &faces)
+            polygon::split_vertex_count(ex.positions.len(), &faces)
         }
         Mode::Direct | Mode::RefinedDirect => {
             let mut extra = Vec::new();
@@ -706,7 +708,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
     let t_work = Instant::now();
     let mut work_p: Vec<V3> = mesh.positions.iter().map(|&x| wide(x)).collect();
     let mut work_t = mesh.triangles.clone();
-    work_p = quadify::compact(&work_p, &mut work_t);
+    work_p = polygon::compact(&work_p, &mut work_t);
     let want_main = (opts.work_per_vertex * opts.target_vertices as f64) as usize;
     let want_direct = (opts.work_per_vertex_direct * opts.target_vertices as f64) as usize;
     // The direct routes' working mesh when it was made on the way to the split routes' one.
@@ -907,7 +909,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
             t_pos += t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
             let mut c = candidate(&levels[0], &qs[0], &o, &sl[0], None, mode, report.input_components);
-            let (chi, manifold) = quadify::polygon_check(&c.faces);
+            let (chi, manifold) = polygon::polygon_check(&c.faces);
             c.topology_ok = manifold && chi == report.input_euler_characteristic;
             let usable = manifold && c.counts.triangles_unpaired == 0;
             t_ext += t0.elapsed().as_secs_f64();
@@ -1005,7 +1007,7 @@ pub fn remesh(mesh: &TriMesh, opts: &RemeshOptions, progress: &dyn Progress) -> 
                 o2 = field::solve_position(levels, qs, &sl2, opts.iterations, opts.seed);
                 t_resolve += t1.elapsed().as_secs_f64();
             };
-            let (chi, manifold) = quadify::polygon_check(&c2.faces);
+            let (chi, manifold) = polygon::polygon_check(&c2.faces);
             c2.topology_ok = manifold && chi == input_chi;
             let mut trial = CancelTrial {
                 mode: Some(mode),
@@ -1357,11 +1359,11 @@ fn arrange(c: &Candidate, bvh: &TriangleBvh, opts: &RemeshOptions) -> Result<Unf
     let mut coarse = c.ex.positions.clone();
     quadify::relax_and_project(&mut coarse, &c.faces, bvh, opts.relax_iterations, 0.5);
     let (qp, mut quads) = match c.mode {
-        Mode::Split | Mode::AdaptiveSplit => quadify::split_to_quads(&coarse, &c.faces),
+        Mode::Split | Mode::AdaptiveSplit => polygon::split_to_quads(&coarse, &c.faces),
         Mode::Direct | Mode::RefinedDirect => (coarse, c.faces.clone()),
     };
     let extra = quadify::CleanupCounts { doublets_removed: quadify::remove_doublets(&mut quads), ..Default::default() };
-    let mut qp = quadify::compact(&qp, &mut quads);
+    let mut qp = polygon::compact(&qp, &mut quads);
     let valence = quadify::optimize_valence(&mut qp, &mut quads, VALENCE_PASSES);
     // Keeps valences ≥ 3 and compacts `qp`, as the valence pass does: no doublet to remove after it.
     let dipoles = if opts.dipole_depth > 0 {
@@ -1392,7 +1394,7 @@ fn settle(u: Unfitted, input: &TriMesh, input_p: &[V3], bvh: &TriangleBvh, opts:
         }
         extra.flipped_quads_collapsed += made;
         extra.doublets_removed += quadify::remove_doublets(&mut quads);
-        qp = quadify::compact(&qp, &mut quads);
+        qp = polygon::compact(&qp, &mut quads);
         // The merged corners sit at diagonal midpoints: back onto the surface (the others are on it).
         qp.par_iter_mut().for_each(|x| *x = bvh.closest(*x).map_or(*x, |c| c.point));
         left = quadify::untangle(&mut qp, &quads, bvh, normal, UNTANGLE_ROUNDS);
@@ -1743,7 +1745,7 @@ pub fn quad_stats(mesh: &PolyMesh, input: Option<(&TriMesh, &TriangleBvh)>) -> Q
         ..Default::default()
     };
     st.quad_fraction = *topo.faces_by_degree.get(&4).unwrap_or(&0) as f64 / topo.faces.max(1) as f64;
-    let edges = quadify::unique_edges(mesh.faces());
+    let edges = polygon::unique_edges(mesh.faces());
     let mut valence = vec![0usize; p.len()];
     let mut lengths = Vec::with_capacity(edges.len());
     for &(a, b) in &edges {

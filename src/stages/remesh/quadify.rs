@@ -14,7 +14,10 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use crate::geometry::bvh::TriangleBvh;
-use crate::geometry::vec3::{self, V3, add, cross, dot, scale, sub};
+use crate::geometry::polygon::{
+    adjacency, compact, edge_set, key, neighbour_lists, polygon_centre, polygon_normal, unique_edges, vertex_normals,
+};
+use crate::geometry::vec3::{self, V3, add, dot, scale, sub};
 
 /// Counts of what the clean-up changed.
 #[derive(Clone, Debug, Default, serde::Serialize)]
@@ -113,29 +116,6 @@ pub fn split_pinched(faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
     *faces = out;
 }
 
-#[inline]
-fn key(a: u32, b: u32) -> (u32, u32) {
-    (a.min(b), a.max(b))
-}
-
-fn edge_set(faces: &[Vec<u32>]) -> std::collections::HashSet<(u32, u32)> {
-    unique_edges(faces.iter().map(Vec::as_slice)).into_iter().collect()
-}
-
-/// Euler characteristic V − E + F of a polygon mesh over its referenced vertices, and whether every
-/// directed edge occurs once with its twin once (closed, edge-manifold, consistently oriented).
-pub fn polygon_check(faces: &[Vec<u32>]) -> (i64, bool) {
-    let mut half: Vec<(u32, u32)> =
-        faces.iter().flat_map(|f| (0..f.len()).map(move |k| (f[k], f[(k + 1) % f.len()]))).collect();
-    half.sort_unstable();
-    let dup = half.windows(2).any(|w| w[0] == w[1]);
-    let twins = half.iter().all(|&(a, b)| half.binary_search(&(b, a)).is_ok());
-    let mut vs: Vec<u32> = faces.iter().flatten().copied().collect();
-    vs.sort_unstable();
-    vs.dedup();
-    (vs.len() as i64 - (half.len() / 2) as i64 + faces.len() as i64, !dup && twins)
-}
-
 /// Cut faces of degree ≥ 6 into quads (plus at most one triangle or pentagon) along short diagonals.
 pub fn cut_large_faces(p: &[V3], faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
     let mut edges = edge_set(faces);
@@ -166,111 +146,6 @@ pub fn cut_large_faces(p: &[V3], faces: &mut Vec<Vec<u32>>, counts: &mut Cleanup
         out.push(poly);
     }
     *faces = out;
-}
-
-/// Keep only the vertices some face uses (in first-use order), renumbering the faces; works for triangles
-/// (`[u32; 3]`) and polygons (`Vec<u32>`) alike.
-pub fn compact<F: AsMut<[u32]>>(p: &[V3], faces: &mut [F]) -> Vec<V3> {
-    let mut map = vec![u32::MAX; p.len()];
-    let mut out = Vec::with_capacity(p.len());
-    for f in faces.iter_mut() {
-        for v in f.as_mut() {
-            if map[*v as usize] == u32::MAX {
-                map[*v as usize] = out.len() as u32;
-                out.push(p[*v as usize]);
-            }
-            *v = map[*v as usize];
-        }
-    }
-    out
-}
-
-/// The undirected edges (a < b) of a polygon mesh, sorted, each once.
-pub fn unique_edges<'a>(faces: impl IntoIterator<Item = &'a [u32]>) -> Vec<(u32, u32)> {
-    let mut edges: Vec<(u32, u32)> =
-        faces.into_iter().flat_map(|f| (0..f.len()).map(move |k| key(f[k], f[(k + 1) % f.len()]))).collect();
-    edges.sort_unstable();
-    edges.dedup();
-    edges
-}
-
-/// Number of vertices after [`split_to_quads`]: V + E + F.
-pub fn split_vertex_count(nv: usize, faces: &[Vec<u32>]) -> usize {
-    let corners: usize = faces.iter().map(Vec::len).sum();
-    nv + corners / 2 + faces.len()
-}
-
-/// Split every n-gon into n quads around its centre. Returns positions and quads.
-pub fn split_to_quads(p: &[V3], faces: &[Vec<u32>]) -> (Vec<V3>, Vec<Vec<u32>>) {
-    let mut pos = p.to_vec();
-    let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-    let mut quads = Vec::with_capacity(faces.iter().map(Vec::len).sum());
-    for f in faces {
-        let n = f.len();
-        let mut ms = Vec::with_capacity(n);
-        for k in 0..n {
-            let (a, b) = (f[k], f[(k + 1) % n]);
-            let key = (a.min(b), a.max(b));
-            let id = *mid.entry(key).or_insert_with(|| {
-                pos.push(scale(add(p[a as usize], p[b as usize]), 0.5));
-                (pos.len() - 1) as u32
-            });
-            ms.push(id);
-        }
-        let mut c = [0.0; 3];
-        for &v in f {
-            c = add(c, p[v as usize]);
-        }
-        pos.push(scale(c, 1.0 / n as f64));
-        let cid = (pos.len() - 1) as u32;
-        for k in 0..n {
-            quads.push(vec![f[k], ms[k], cid, ms[(k + n - 1) % n]]);
-        }
-    }
-    (pos, quads)
-}
-
-/// Unit vertex normals of a polygon mesh (sums of the faces' Newell normals).
-pub fn vertex_normals(p: &[V3], faces: &[Vec<u32>]) -> Vec<V3> {
-    let mut nrm = vec![[0.0; 3]; p.len()];
-    for f in faces {
-        let c = polygon_normal(p, f);
-        for &v in f {
-            nrm[v as usize] = add(nrm[v as usize], c);
-        }
-    }
-    for v in &mut nrm {
-        let l = vec3::norm(*v);
-        if l > 0.0 {
-            *v = scale(*v, 1.0 / l);
-        }
-    }
-    nrm
-}
-
-/// Twice the vector area of a polygon (Newell).
-#[inline]
-pub fn polygon_normal(p: &[V3], f: &[u32]) -> V3 {
-    let mut n = [0.0; 3];
-    for k in 0..f.len() {
-        n = add(n, cross(p[f[k] as usize], p[f[(k + 1) % f.len()] as usize]));
-    }
-    n
-}
-
-/// Vertex adjacency (edge neighbours) of a polygon mesh as CSR.
-pub fn adjacency(nv: usize, faces: &[Vec<u32>]) -> (Vec<u32>, Vec<u32>) {
-    let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(faces.len() * 8);
-    for f in faces {
-        for k in 0..f.len() {
-            let (a, b) = (f[k], f[(k + 1) % f.len()]);
-            pairs.push((a, b));
-            pairs.push((b, a));
-        }
-    }
-    pairs.sort_unstable();
-    pairs.dedup();
-    super::hierarchy::csr(nv, &pairs)
 }
 
 /// Project every vertex onto the surface of `bvh`, then `iterations` rounds of tangential Laplacian
@@ -703,23 +578,6 @@ pub fn pair_triangles_along_paths(
     faces.iter().filter(|f| f.len() == 3).count()
 }
 
-/// Sorted, distinct neighbours of every vertex of a polygon mesh.
-fn neighbour_lists(nv: usize, faces: &[Vec<u32>]) -> Vec<Vec<u32>> {
-    let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); nv];
-    for f in faces {
-        for k in 0..f.len() {
-            let (a, b) = (f[k], f[(k + 1) % f.len()]);
-            nbrs[a as usize].push(b);
-            nbrs[b as usize].push(a);
-        }
-    }
-    for n in &mut nbrs {
-        n.sort_unstable();
-        n.dedup();
-    }
-    nbrs
-}
-
 /// Link condition of the diagonal collapse of quad (a, b, c, d): a and c share no neighbour but b and d
 /// (which they always share), so merging them keeps the mesh 2-manifold.
 fn collapse_keeps_manifold(nbrs: &[Vec<u32>], a: u32, c: u32) -> bool {
@@ -954,15 +812,6 @@ fn face_flipped(
 ) -> bool {
     bvh.closest_hinted(polygon_centre(p, f), hint)
         .is_some_and(|cl| dot(polygon_normal(p, f), surface_normal(cl.index)) < 0.0)
-}
-
-/// Mean of face `f`'s corners.
-pub fn polygon_centre(p: &[V3], f: &[u32]) -> V3 {
-    let mut c = [0.0; 3];
-    for &v in f {
-        c = add(c, p[v as usize]);
-    }
-    scale(c, 1.0 / f.len() as f64)
 }
 
 /// Collapse each of the quads `which` (of a closed pure-quad mesh) along a diagonal: its two opposite

@@ -20,7 +20,6 @@
 //! The result is checked with the foundation's topology report and measured against the input with
 //! `compare`.
 
-pub mod decimate;
 pub mod handles;
 pub mod holes;
 pub mod intersections;
@@ -31,7 +30,9 @@ pub mod weld;
 use std::time::Instant;
 
 use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::decimate;
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
+use crate::geometry::polygon;
 use crate::geometry::tolerance::WELD_REL;
 use crate::geometry::topology::TopologyReport;
 use crate::geometry::vec3::{V3, wide};
@@ -175,7 +176,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
     if opts.max_handle_loop_rel > 0.0 {
         progress.report(0.5, "handles");
         handles = handles::remove_small_handles(&mut pos, &mut tris, opts.max_handle_loop_rel * input.bbox_diagonal);
-        let (p2, t2, _) = weld::compact(&pos, &tris);
+        let (p2, t2, _) = polygon::drop_unreferenced(&pos, &tris);
         (pos, tris) = (p2, t2);
         tracing::debug!(seconds = t0.elapsed().as_secs_f64(), cuts = handles.cuts, "handles done");
     }
@@ -217,7 +218,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
     let (mut decimated, mut decimate_intersections) = (None, None);
     if let Some(target) = opts.target_vertices {
         progress.report(0.75, "decimate");
-        let (p2, t2, _) = weld::compact(&pos, &tris);
+        let (p2, t2, _) = polygon::drop_unreferenced(&pos, &tris);
         (pos, tris) = (p2, t2);
         let t = Instant::now();
         decimated = Some(decimate::decimate(&mut pos, &mut tris, target, 0, decimate::Crossings::Refuse));
@@ -231,7 +232,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         }
         decimate_intersections = Some(check);
     }
-    let (pos, tris, _) = weld::compact(&pos, &tris);
+    let (pos, tris, _) = polygon::drop_unreferenced(&pos, &tris);
     let mut out = to_trimesh(&pos, tris);
     let flipped_outward = out.signed_volume() < 0.0;
     if flipped_outward {

@@ -74,27 +74,7 @@ pub fn weld(positions: &[V3], triangles: &[[u32; 3]], tol: f64) -> (Vec<V3>, Vec
         }
         out.push(f);
     }
-    let (pos, tris, dropped) = compact(&reps, &out);
+    let (pos, tris, dropped) = crate::geometry::polygon::drop_unreferenced(&reps, &out);
     report.unreferenced_vertices = dropped;
     (pos, tris, report)
-}
-
-/// Drop unreferenced vertices, keeping the order of the rest. Returns (positions, faces, dropped count).
-pub fn compact(positions: &[V3], triangles: &[[u32; 3]]) -> (Vec<V3>, Vec<[u32; 3]>, usize) {
-    let mut new_id = vec![u32::MAX; positions.len()];
-    for t in triangles {
-        for &i in t {
-            new_id[i as usize] = 0;
-        }
-    }
-    let mut pos = Vec::with_capacity(positions.len());
-    for (i, id) in new_id.iter_mut().enumerate() {
-        if *id == 0 {
-            *id = pos.len() as u32;
-            pos.push(positions[i]);
-        }
-    }
-    let tris = triangles.iter().map(|t| t.map(|i| new_id[i as usize])).collect();
-    let dropped = positions.len() - pos.len();
-    (pos, tris, dropped)
 }

@@ -8,11 +8,13 @@
 //! previous round. The normal matrix is never assembled: it is applied as Sᵀ·Aᵀ·W·A·S, with S the
 //! refinement stencils and A the per-sample weights on the refined net.
 
-use super::limit::{EvPatch, FaceKind, LimitSurface, bspline_basis, limit_stencil, point_weights};
-use super::net::{QuadNet, Stencils, combine};
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::mesh::TriMesh;
+use crate::geometry::subdivision::limit::{
+    EvPatch, FaceKind, LimitSurface, bspline_basis, limit_stencil, point_weights,
+};
+use crate::geometry::subdivision::net::{QuadNet, Stencils, combine};
 use crate::geometry::vec3::{self, V3};
 use crate::stages::Progress;
 use rayon::prelude::*;

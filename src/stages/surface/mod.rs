@@ -5,18 +5,15 @@
 //! cage); instead the fit ([`fit::fit_control_points`]) minimises the area-weighted squared distance from
 //! dense limit-surface samples to their closest scan points, with a small smoothness term, over a few
 //! closest-point rounds. The limit surface is evaluated exactly: bicubic B-splines on regular faces and
-//! repeated local subdivision around extraordinary vertices ([`limit`]).
+//! repeated local subdivision around extraordinary vertices ([`crate::geometry::subdivision::limit`]).
 //!
-//! Modules: [`net`] (quad nets, one Catmull–Clark step as stencils, 4×4 grids), [`limit`] (limit
-//! evaluation), [`fit`] (the least-squares fit).
+//! The net and its limit evaluation are geometry ([`crate::geometry::subdivision`]); this stage is
+//! [`fit`] (the least-squares fit).
 
 pub mod fit;
-pub mod limit;
-pub mod net;
 
+pub use crate::geometry::subdivision::{LimitSurface, QuadNet};
 pub use fit::{FitOptions, FitReport, FitTarget, MeshTarget, SphereTarget, fit_control_points};
-pub use limit::LimitSurface;
-pub use net::QuadNet;
 
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::mesh::PolyMesh;

@@ -763,7 +763,7 @@ pub fn decimate(
     }
     tracing::debug!(seconds = t0.elapsed().as_secs_f64(), collapses = report.collapses, "decimation loop done");
     let kept: Vec<[u32; 3]> = s.tris.iter().zip(&s.face_alive).filter(|(_, a)| **a).map(|(t, _)| *t).collect();
-    let (pos, tris_out, _) = crate::stages::repair::weld::compact(s.p, &kept);
+    let (pos, tris_out, _) = crate::geometry::polygon::drop_unreferenced(s.p, &kept);
     *s.p = pos;
     *s.tris = tris_out;
     report.vertices_after = s.p.len();
