@@ -192,3 +192,24 @@ pub fn csr(n: usize, sorted_pairs: &[(u32, u32)]) -> (Vec<u32>, Vec<u32>) {
     }
     (off, sorted_pairs.iter().map(|&(_, b)| b).collect())
 }
+
+/// Split every triangle into four at its edge midpoints (the surface is unchanged).
+pub fn subdivide_midpoints(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) {
+    let mut mid: HashMap<(u32, u32), u32> = HashMap::with_capacity(tris.len() * 3 / 2);
+    let mut out = Vec::with_capacity(tris.len() * 4);
+    for &t in tris.iter() {
+        let mut m = [0u32; 3];
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            m[k] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                p.push(vec3::scale(vec3::add(p[a as usize], p[b as usize]), 0.5));
+                (p.len() - 1) as u32
+            });
+        }
+        out.push([t[0], m[0], m[2]]);
+        out.push([t[1], m[1], m[0]]);
+        out.push([t[2], m[2], m[1]]);
+        out.push(m);
+    }
+    *tris = out;
+}

@@ -193,34 +193,49 @@ pub fn fit_to_surface(
             .collect();
         let before = p.to_vec();
         p.copy_from_slice(&next);
-        // Undo the moves of the corners of faces the round turned over (a few times: an undone corner can
-        // turn a neighbouring face over; the whole round is undone if faces are still turned after that).
-        for undo in 0..=UNDO_PASSES {
-            let bad: Vec<usize> = flipped_faces_hinted(p, quads, bvh, &surface_normal, &centre_tri)
-                .into_iter()
-                .filter(|&f| !was_flipped[f])
-                .collect();
-            if bad.is_empty() {
-                break;
-            }
-            if undo == UNDO_PASSES {
-                counts.moves_undone += (0..nv).filter(|&v| p[v] != before[v]).count();
-                p.copy_from_slice(&before);
-                break;
-            }
-            for fi in bad {
-                for &v in &quads[fi] {
-                    if p[v as usize] != before[v as usize] {
-                        p[v as usize] = before[v as usize];
-                        counts.moves_undone += 1;
-                    }
-                }
-            }
-        }
+        counts.moves_undone += undo_flips(p, &before, quads, bvh, &surface_normal, &centre_tri, &was_flipped);
         counts.rounds += 1;
     }
     counts.seconds = clock.elapsed().as_secs_f64();
     counts
+}
+
+/// Undoes the moves (from `before`) of the corners of faces a round turned over, a few times
+/// ([`UNDO_PASSES`]): an undone corner can turn a neighbouring face over; the whole round is undone if faces
+/// are still turned after that. Faces in `was_flipped` do not count. Returns the moves undone.
+fn undo_flips(
+    p: &mut [V3],
+    before: &[V3],
+    quads: &[Vec<u32>],
+    bvh: &TriangleBvh,
+    surface_normal: &(impl Fn(u32) -> V3 + Sync),
+    centre_tri: &[Option<u32>],
+    was_flipped: &[bool],
+) -> usize {
+    let mut undone = 0;
+    for undo in 0..=UNDO_PASSES {
+        let bad: Vec<usize> = flipped_faces_hinted(p, quads, bvh, surface_normal, centre_tri)
+            .into_iter()
+            .filter(|&f| !was_flipped[f])
+            .collect();
+        if bad.is_empty() {
+            break;
+        }
+        if undo == UNDO_PASSES {
+            undone += (0..p.len()).filter(|&v| p[v] != before[v]).count();
+            p.copy_from_slice(before);
+            break;
+        }
+        for fi in bad {
+            for &v in &quads[fi] {
+                if p[v as usize] != before[v as usize] {
+                    p[v as usize] = before[v as usize];
+                    undone += 1;
+                }
+            }
+        }
+    }
+    undone
 }
 
 /// `x` rounded to the f32 precision the quad mesh is stored in.
