@@ -20,15 +20,17 @@ m=$data/meshes
 
 # Reports without their timings, peak memories and the paths of this run.
 strip() {
-  python3 - "$1" <<'PY'
+  python3 - "$1" "$out" "$data" <<'PY'
 import json, sys
-path = sys.argv[1]
+path, out, data = sys.argv[1:4]
 def clean(x):
     if isinstance(x, dict):
         return {k: clean(v) for k, v in x.items()
                 if not ("seconds" in k or k.startswith("peak_") or k.endswith("_mib") or k in ("hostname",))}
     if isinstance(x, list):
         return [clean(v) for v in x]
+    if isinstance(x, str):
+        return x.replace(out, "OUT").replace(data, "DATA")
     return x
 with open(path) as f:
     d = json.load(f)

@@ -14,8 +14,7 @@ use super::config::Config;
 use super::journal::{JobId, JobRecord, now_usec, sync_dir, write_durable};
 use super::spool::{Spool, publish_dir};
 use crate::error::{Error, ErrorCode};
-use crate::geometry::io::{ReadOptions, read_mesh};
-use crate::geometry::mesh::Geometry;
+use crate::geometry::io::ReadOptions;
 use crate::pipeline::convert::{ConvertOptions, Resolution, convert_file};
 use crate::pipeline::memory::StageMeter;
 use crate::stages::Progress;
@@ -23,8 +22,8 @@ use crate::stages::Progress;
 /// The stages a job goes through, in order (`StageIndex` indexes this).
 pub const STAGES: [&str; 8] = ["read", "repair", "remesh", "surface", "brep", "step", "quality", "publish"];
 
-/// Overall progress at the start of `quality` and `publish` (the conversion chain maps to 0 – 0.9).
-const QUALITY_AT: f64 = 0.9;
+/// Overall progress at the end of the conversion chain (its stages, `quality` last, map to 0 – this) and the
+/// start of `publish`.
 const PUBLISH_AT: f64 = 0.97;
 /// Highest value reported before the job has finished.
 const BEFORE_DONE: f64 = 0.999;
@@ -91,7 +90,7 @@ impl Progress for Reporter<'_> {
             .copied()
             .find(|s| *s == stage_name)
             .unwrap_or(self.state.lock().map(|s| s.1).unwrap_or("read"));
-        self.send(fraction * QUALITY_AT, stage, phase.to_string());
+        self.send(fraction * PUBLISH_AT, stage, phase.to_string());
     }
 
     fn cancelled(&self) -> bool {
@@ -145,11 +144,8 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
     }
     std::fs::create_dir_all(&part).map_err(|e| io_err("cannot create", &part, e))?;
     let cfg = &job.cfg;
-    let resolution = match (rec.options.tolerance.or(cfg.tolerance), rec.options.vertices) {
-        (_, Some(v)) => Resolution::Vertices(v),
-        (Some(t), None) => Resolution::Tolerance(t),
-        (None, None) => Resolution::Vertices(cfg.vertices),
-    };
+    let tolerance = rec.options.tolerance.or(cfg.tolerance).map(Resolution::Tolerance);
+    let resolution = Resolution::choose(rec.options.vertices, tolerance, cfg.vertices);
     let opts = ConvertOptions {
         resolution,
         seed: rec.options.seed.unwrap_or(cfg.seed),
@@ -159,15 +155,8 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
     };
     let read = ReadOptions { memory_budget: cfg.memory_budget };
     let step = part.join(format!("{stem}.step"));
+    // The STEP file, the solid mesh, the error map (its last phase is `quality`) and the report.
     let report = convert_file(&input, &step, &read, &opts, rep)?;
-
-    // Quality artifacts: the solid's distance to the scan as a coloured mesh.
-    crate::stages::check_cancelled(rep)?;
-    rep.send(QUALITY_AT, "quality", "quality/error map".into());
-    let error_map = part.join(format!("{stem}.error-map.ply"));
-    let solid = read_mesh(&report.solid_mesh_file, &read)?;
-    let scan = read_mesh(&input, &read)?;
-    crate::stages::quality::write_error_map(&error_map, &Geometry::Mesh(solid), &Geometry::Mesh(scan))?;
 
     crate::stages::check_cancelled(rep)?;
     rep.send(PUBLISH_AT, "publish", "publish/report and manifest".into());
@@ -185,7 +174,7 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
     let files = [
         ("step", step.clone()),
         ("solid-mesh", report.solid_mesh_file.clone()),
-        ("error-map", error_map),
+        ("error-map", report.error_map_file.clone()),
         ("report", report_path),
     ];
     let mut manifest_files = serde_json::Map::new();
@@ -197,7 +186,7 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
             serde_json::json!({
                 "file": p.file_name().map(|n| n.to_string_lossy().into_owned()),
                 "bytes": f.metadata().map(|m| m.len()).unwrap_or(0),
-                "sha256": crate::pipeline::fea::sha256_file(p)?,
+                "sha256": crate::pipeline::provenance::sha256_file(p)?,
             }),
         );
     }

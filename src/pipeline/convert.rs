@@ -8,10 +8,9 @@ use super::memory::StageMeter;
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
-use crate::geometry::vec3::Aabb;
 use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
-use crate::stages::quality::{CompareOptions, DistanceReport, compare};
+use crate::stages::quality::{CompareOptions, DistanceReport, compare, write_error_map};
 use crate::stages::remesh::{RemeshOptions, RemeshReport, remesh};
 use crate::stages::repair::{RepairOptions, RepairReport, repair};
 use crate::stages::surface::{FitOptions, FitReport, MeshTarget, control_net, fit_control_points};
@@ -25,6 +24,46 @@ pub enum Resolution {
     /// Raise the control-vertex count coarse to fine (×2 per attempt, from [`TOLERANCE_START`] up to
     /// [`TOLERANCE_MAX`]) until the solid's two-sided RMS distance to the input is at most this length.
     Tolerance(f64),
+    /// [`Resolution::Tolerance`] given as a percentage of the input's bounding-box diagonal (`0.05%`); it
+    /// becomes a length once the input is read ([`Resolution::resolved`]).
+    TolerancePct(f64),
+}
+
+/// Control vertices when neither a count nor a tolerance is asked for.
+pub const DEFAULT_VERTICES: usize = 10_000;
+
+impl Resolution {
+    /// The resolution a command line or a job asks for: a vertex count wins over a tolerance; neither gives
+    /// `default_vertices`.
+    pub fn choose(vertices: Option<usize>, tolerance: Option<Resolution>, default_vertices: usize) -> Resolution {
+        match (vertices, tolerance) {
+            (Some(n), _) => Resolution::Vertices(n),
+            (None, Some(t)) => t,
+            (None, None) => Resolution::Vertices(default_vertices),
+        }
+    }
+
+    /// A tolerance as written: a length in the input's units (`0.2`) or a percentage of the bounding-box
+    /// diagonal (`0.05%`).
+    ///
+    /// # Errors
+    /// `input.bad-argument` for anything else.
+    pub fn parse_tolerance(text: &str) -> Result<Resolution> {
+        let t = text.trim();
+        let bad = || Error::new(ErrorCode::InputBadArgument, format!("not a tolerance: {t:?}"));
+        Ok(match t.strip_suffix('%') {
+            Some(pct) => Resolution::TolerancePct(pct.trim().parse().map_err(|_| bad())?),
+            None => Resolution::Tolerance(t.parse().map_err(|_| bad())?),
+        })
+    }
+
+    /// With a percentage turned into a length of the input's bounding-box `diagonal`.
+    pub fn resolved(self, diagonal: f64) -> Resolution {
+        match self {
+            Resolution::TolerancePct(p) => Resolution::Tolerance(p / 100.0 * diagonal),
+            r => r,
+        }
+    }
 }
 
 /// First control-vertex count tried with a tolerance.
@@ -63,13 +102,14 @@ pub fn small_handle_loop(resolution: Resolution, area: f64) -> f64 {
     match resolution {
         Resolution::Vertices(n) => HANDLE_LOOP_SPACINGS * (area / n.max(1) as f64).sqrt(),
         Resolution::Tolerance(t) => std::f64::consts::PI * t,
+        Resolution::TolerancePct(_) => f64::NAN,
     }
 }
 
 impl Default for ConvertOptions {
     fn default() -> Self {
         ConvertOptions {
-            resolution: Resolution::Vertices(10_000),
+            resolution: Resolution::Vertices(DEFAULT_VERTICES),
             repair: RepairOptions::default(),
             remesh: RemeshOptions::convert_default(),
             fit: FitOptions::default(),
@@ -116,6 +156,11 @@ pub struct ConvertReport {
     pub output_file: PathBuf,
     /// The solid's watertight tessellation written beside the STEP file for `fea` (NAME.solid.ply).
     pub solid_mesh_file: PathBuf,
+    /// That tessellation coloured by its distance to the input (NAME.error-map.ply; see
+    /// [`write_error_map`]).
+    pub error_map_file: PathBuf,
+    /// The error map's colour-scale top (red): the 99th percentile of its vertices' distances.
+    pub error_map_scale: f64,
     pub unit: LengthUnit,
     pub input_vertices: usize,
     pub input_faces: usize,
@@ -178,21 +223,23 @@ fn solid_self_intersections(solid: &Solid) -> Result<(usize, Option<[f64; 3]>)> 
     Ok((pairs.len(), pairs.first().map(|&(a, _)| pts[tris[a as usize][0] as usize])))
 }
 
-/// Write the solid's watertight tessellation (each face's knot spans sampled 8 × 8 at most, welded along the
-/// exactly shared edges) beside the STEP file as NAME.solid.ply, its header naming the STEP's sha256 (see
-/// [`super::fea`]). Removes the STEP file again when this fails, so the pair is written or neither.
-fn write_solid_mesh(step: &Path, solid: &Solid) -> Result<PathBuf> {
+/// Write the solid's watertight tessellation (the quality check's, [`tessellate_for_check`]: each face's knot
+/// spans sampled 8 × 8 at most, welded along the exactly shared edges) beside the STEP file as NAME.solid.ply,
+/// its header naming the STEP's sha256 (see [`super::fea`]). Removes the STEP file again when this fails, so
+/// the pair is written or neither.
+fn write_solid_mesh(step: &Path, tessellation: TriMesh) -> Result<(PathBuf, PolyMesh)> {
     let result = (|| {
-        let t = tessellate_for_check(solid, 1_500_000)?;
+        let t = tessellation;
         let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
         let tol = crate::geometry::tolerance::BREP_EDGE_REL * t.bbox().diagonal();
         let (pts, tris, _) = crate::stages::repair::weld::weld(&p, &t.triangles, tol);
         let positions = pts.iter().map(|q| q.map(|x| x as f32)).collect();
         let mesh = TriMesh::new(positions, tris)?;
-        let path = super::fea::solid_artifact_path(step);
-        let comment = format!("{}{}", super::fea::SOLID_OF, super::fea::sha256_file(step)?);
-        crate::geometry::io::write_ply(&path, &PolyMesh::from(mesh), &Default::default(), &[&comment])?;
-        Ok(path)
+        let path = super::provenance::solid_artifact_path(step);
+        let comment = format!("{}{}", super::provenance::SOLID_OF, super::provenance::sha256_file(step)?);
+        let mesh = PolyMesh::from(mesh);
+        crate::geometry::io::write_ply(&path, &mesh, &Default::default(), &[&comment])?;
+        Ok((path, mesh))
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(step);
@@ -207,15 +254,6 @@ fn tessellate_for_check(solid: &Solid, budget: usize) -> Result<TriMesh> {
     solid.tessellate(per)
 }
 
-/// Read `input`, convert it to a solid and write it as STEP to `output` (atomically; nothing is left
-/// behind on failure).
-///
-/// # Errors
-/// Reader errors; `input.no-geometry` for a point cloud (reconstruction is not part of this chain yet);
-/// `repair.failed`; `remesh.*`; `surface.*`; `brep.invalid`; `resource.output` when the output cannot be
-/// written or would overwrite the input; `input.bad-argument` for a bad resolution; `cancelled` when
-/// `progress` asks to stop (checked between stages, so nothing is written).
-///
 /// A progress sink that passes on the largest fraction reported so far (with each new phase).
 struct Monotonic<'a> {
     parent: &'a dyn Progress,
@@ -239,8 +277,68 @@ impl Progress for Monotonic<'_> {
     }
 }
 
+/// One remesh → surface → B-rep chain at one resolution and seed, measured.
+struct SolidTry {
+    quads: PolyMesh,
+    /// Vertices of the control net.
+    control_vertices: usize,
+    remesh: RemeshReport,
+    fit: FitReport,
+    solid: Solid,
+    brep: BrepReport,
+    /// The remesh, surface and brep stages' reports.
+    stages: Vec<StageReport>,
+    /// The solid's two-sided RMS distance to the input.
+    rms: f64,
+    /// The solid's tessellation for the quality check (about 1.5M triangles), also the solid mesh written
+    /// beside the STEP file.
+    tessellation: TriMesh,
+}
+
+/// What every chain of a conversion works from: the input as read, its repaired form, and the settings.
+struct Chain<'a> {
+    input: &'a Path,
+    input_geom: Geometry,
+    repaired: TriMesh,
+    /// The repaired mesh as the surface fit's target.
+    target: MeshTarget,
+    cmp_opts: CompareOptions,
+    opts: &'a ConvertOptions,
+    progress: &'a dyn Progress,
+}
+
+/// Read `input`, convert it to a solid and write it as STEP to `output` (atomically; nothing is left
+/// behind on failure), with the solid's tessellation beside it as NAME.solid.ply (for `fea`), the error map
+/// NAME.error-map.ply (that tessellation coloured by distance to the input) and, when asked, the quad
+/// control net. The CLI and the daemon write this same bundle.
+///
+/// # Errors
+/// Reader errors; `input.no-geometry` for a point cloud (reconstruction is not part of this chain yet);
+/// `repair.failed`; `remesh.*`; `surface.*`; `brep.invalid`; `resource.output` when the output cannot be
+/// written or would overwrite the input; `input.bad-argument` for a bad resolution; `cancelled` when
+/// `progress` asks to stop (checked between stages, so nothing is written).
+///
 /// Progress: one monotonic overall fraction with phases `STAGE/phase`, STAGE one of `read`, `repair`,
-/// `remesh`, `surface`, `brep`, `step` (see [`ProgressSpan`]).
+/// `remesh`, `surface`, `brep`, `step`, `quality` (see [`ProgressSpan`]): read 0–0.02, repair –0.1, then per
+/// resolution attempt remesh –0.5, surface –0.8, brep –0.95 (a tolerance's later attempts do not move it
+/// back), step –0.98, quality (the error map) –1.
+///
+/// Cost: the stages' (a tolerance runs the chain at up to 6 resolutions; a self-crossing solid is built
+/// again up to [`SOLID_RETRIES`] times); memory about [`CHAIN_MEMORY_FACTOR`] times the input mesh's.
+///
+/// # Example
+/// ```no_run
+/// use scanstation::geometry::io::ReadOptions;
+/// use scanstation::pipeline::{ConvertOptions, Resolution, convert_file};
+/// use scanstation::stages::NoProgress;
+/// use std::path::Path;
+///
+/// let opts = ConvertOptions { resolution: Resolution::Vertices(5_000), ..Default::default() };
+/// let report = convert_file(Path::new("examples/spot.ply"), Path::new("out/spot.step"),
+///                           &ReadOptions::default(), &opts, &NoProgress)?;
+/// println!("solid within {:.4} % of the scan", report.attempts[0].solid_rms_pct);
+/// # Ok::<(), scanstation::Error>(())
+/// ```
 pub fn convert_file(
     input: &Path,
     output: &Path,
@@ -252,6 +350,7 @@ pub fn convert_file(
     // the overall fraction must not go back when they do.
     let monotonic = Monotonic { parent: progress, last: std::sync::Mutex::new(0.0) };
     let progress: &dyn Progress = &monotonic;
+    // 1. No output may overwrite the input or another output.
     ensure_not_input(output, &[input])?;
     if let Some(q) = &opts.quads_output {
         ensure_not_input(q, &[input, output])?;
@@ -265,15 +364,96 @@ pub fn convert_file(
         memory_budget: opts.memory_budget,
     };
 
-    // Overall progress: read 0–0.02, repair –0.1, then per resolution attempt remesh –0.5, surface –0.8,
-    // brep –0.95 (a tolerance's later attempts do not move it back), step –1.
+    // 2. Read.
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.0, 0.02, "read");
-    // The chain needs far more than the input mesh itself (repair alone ~420 bytes per face against ~30
-    // for the mesh): an input larger than 1/CHAIN_MEMORY_FACTOR of the budget is refused while reading,
-    // before it is allocated.
+    let input_geom = Geometry::Mesh(read_input(input, read, opts)?);
+    let Geometry::Mesh(mesh) = &input_geom else { return Err(Error::internal("read_mesh returned a cloud")) };
+    let diag = mesh.bbox().diagonal();
+    let (input_vertices, input_faces) = (mesh.positions.len(), mesh.face_count());
+    let resolution = opts.resolution.resolved(diag);
+    stages.push(clock.stop("read", None));
+
+    // 3. Repair (its distance to the input is the stage's).
+    check_cancelled(progress)?;
+    let clock = Clock::start();
+    let span = ProgressSpan::new(progress, 0.02, 0.1, "repair");
+    let repair_opts = repair_options(opts, resolution, mesh, diag, &cmp_opts);
+    let (repaired, repair_report) = repair(mesh, &repair_opts, &span).map_err(|e| e.in_file(input))?;
+    stages.push(clock.stop("repair", Some(repair_report.distance.clone())));
+    let input_volume = repaired.signed_volume();
+
+    // 4. The chain at each resolution until one is fine enough.
+    let targets = resolutions(resolution)?;
+    let chain = Chain { input, target: MeshTarget::new(&repaired), repaired, input_geom, cmp_opts, opts, progress };
+    let mut attempts = Vec::new();
+    let mut best = None;
+    for (k, &n) in targets.iter().enumerate() {
+        let kept = chain.solid_at(n, diag, &mut attempts)?;
+        let done = match resolution {
+            Resolution::Tolerance(t) => kept.rms <= t || k + 1 == targets.len(),
+            _ => true,
+        };
+        tracing::info!(target_vertices = n, rms = kept.rms, "convert attempt");
+        if done {
+            best = Some(kept);
+            break;
+        }
+    }
+    let kept = best.ok_or_else(|| Error::internal("no resolution attempted"))?;
+    stages.extend(kept.stages);
+
+    // 5. Write the STEP file, the solid mesh beside it and the quad net.
+    check_cancelled(progress)?;
+    let clock = Clock::start();
+    ProgressSpan::new(progress, 0.95, 0.98, "step");
+    let name = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
+    write_step(output, &kept.solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
+    let (solid_mesh_file, solid_mesh) = write_solid_mesh(output, kept.tessellation)?;
+    if let Some(q) = &opts.quads_output {
+        super::write_mesh(q, &kept.quads, "quad control net by scanstation")?;
+    }
+    stages.push(clock.stop("step", None));
+
+    // 6. The error map: the solid mesh coloured by its distance to the input.
+    check_cancelled(progress)?;
+    let clock = Clock::start();
+    ProgressSpan::new(progress, 0.98, 1.0, "quality");
+    let error_map_file = super::provenance::error_map_path(output);
+    let error_map_scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh), &chain.input_geom)?;
+    stages.push(clock.stop("quality", None));
+    progress.report(1.0, "quality/done");
+
+    // 7. The report.
+    let volume_error_pct = 100.0 * (kept.brep.volume - input_volume) / input_volume.abs().max(f64::MIN_POSITIVE);
+    Ok(ConvertReport {
+        input_file: input.to_path_buf(),
+        output_file: output.to_path_buf(),
+        solid_mesh_file,
+        error_map_file,
+        error_map_scale,
+        unit: opts.unit,
+        input_vertices,
+        input_faces,
+        bbox_diagonal: diag,
+        stages,
+        repair: repair_report,
+        remesh: kept.remesh,
+        fit: kept.fit,
+        brep: kept.brep,
+        input_volume,
+        volume_error_pct,
+        attempts,
+        total_seconds: t_total.elapsed().as_secs_f64(),
+    })
+}
+
+/// The input mesh, read within 1/[`CHAIN_MEMORY_FACTOR`] of the budget: the chain needs far more than the
+/// mesh itself (repair alone ~420 bytes per face against ~30 for the mesh), so a larger input is refused
+/// while reading, before it is allocated.
+fn read_input(input: &Path, read: &ReadOptions, opts: &ConvertOptions) -> Result<PolyMesh> {
     let read = ReadOptions { memory_budget: read.memory_budget.min(opts.memory_budget / CHAIN_MEMORY_FACTOR) };
-    let input_geom = Geometry::Mesh(read_mesh(input, &read).map_err(|e| {
+    read_mesh(input, &read).map_err(|e| {
         if e.code == ErrorCode::ResourceMemoryBudget {
             e.with_hint(format!(
                 "the conversion needs about {CHAIN_MEMORY_FACTOR}x the input mesh's memory; raise the memory budget or decimate the scan"
@@ -281,31 +461,39 @@ pub fn convert_file(
         } else {
             e
         }
-    })?);
-    let Geometry::Mesh(mesh) = &input_geom else { return Err(Error::internal("read_mesh returned a cloud")) };
-    let bbox: Aabb = mesh.bbox();
-    let diag = bbox.diagonal();
-    stages.push(clock.stop("read", None));
+    })
+}
 
-    check_cancelled(progress)?;
-    let clock = Clock::start();
-    let span = ProgressSpan::new(progress, 0.02, 0.1, "repair");
-    // Every stage gets the chain's budget (each estimates its need before allocating).
-    let mut repair_opts = RepairOptions { memory_budget: opts.memory_budget, ..opts.repair };
+/// Repair's settings in the chain: the chain's budget (each stage estimates its need before allocating), the
+/// chain's distance measure, and handles too narrow for the quad net cut ([`small_handle_loop`]).
+fn repair_options(
+    opts: &ConvertOptions,
+    resolution: Resolution,
+    mesh: &PolyMesh,
+    diag: f64,
+    cmp: &CompareOptions,
+) -> RepairOptions {
+    let mut repair_opts = RepairOptions {
+        memory_budget: opts.memory_budget,
+        compare_samples: cmp.samples,
+        compare_seed: cmp.seed,
+        ..opts.repair
+    };
     if opts.remove_small_handles && repair_opts.max_handle_loop_rel == 0.0 && diag > 0.0 {
-        let loop_len = small_handle_loop(opts.resolution, mesh.triangulate().0.area());
+        let loop_len = small_handle_loop(resolution, mesh.triangulate().0.area());
         if loop_len.is_finite() && loop_len > 0.0 {
             repair_opts.max_handle_loop_rel = loop_len / diag;
         }
     }
-    let (repaired, repair_report) = repair(mesh, &repair_opts, &span).map_err(|e| e.in_file(input))?;
-    let d = compare(&Geometry::Mesh(PolyMesh::from(repaired.clone())), &input_geom, &cmp_opts, &span)?;
-    stages.push(clock.stop("repair", Some(d)));
-    let input_volume = repaired.signed_volume();
+    repair_opts
+}
 
-    // Resolutions to try.
-    let targets: Vec<usize> = match opts.resolution {
+/// The control-vertex counts to try: one for a count; for a tolerance, [`TOLERANCE_START`] doubling up to
+/// [`TOLERANCE_MAX`].
+fn resolutions(resolution: Resolution) -> Result<Vec<usize>> {
+    Ok(match resolution {
         Resolution::Vertices(n) => vec![n],
+        Resolution::TolerancePct(_) => return Err(Error::internal("a tolerance in percent was not resolved")),
         Resolution::Tolerance(t) => {
             if !(t.is_finite() && t > 0.0) {
                 return Err(Error::new(ErrorCode::InputBadArgument, "the tolerance must be a positive length"));
@@ -318,130 +506,107 @@ pub fn convert_file(
             }
             v
         }
-    };
-    let target_bvh = MeshTarget::new(&repaired);
-    let mut attempts = Vec::new();
-    let mut best = None;
-    for (k, &n) in targets.iter().enumerate() {
-        // A solid whose surface crosses itself (a pleat of the fitted surface at a thin part, which depends
-        // on the quad layout there) is built again from another seed's quads, up to SOLID_RETRIES times; the
-        // one with the fewest crossings is kept (the first clean one ends the search).
-        let mut best_try: Option<(PolyMesh, RemeshReport, FitReport, Solid, BrepReport, Vec<StageReport>, f64)> = None;
+    })
+}
+
+impl Chain<'_> {
+    /// The solid at `n` control vertices. A solid whose surface crosses itself (a pleat of the fitted surface
+    /// at a thin part, which depends on the quad layout there) is built again from another seed's quads, up
+    /// to [`SOLID_RETRIES`] times; the one with the fewest crossings is kept (the first clean one ends the
+    /// search). Every try goes into `attempts`.
+    fn solid_at(&self, n: usize, diag: f64, attempts: &mut Vec<Attempt>) -> Result<SolidTry> {
+        let mut best: Option<SolidTry> = None;
         for solid_try in 0..=SOLID_RETRIES {
-            let seed = opts.seed.wrapping_add((solid_try * (REMESH_RETRIES + 1)) as u64);
-            let mut attempt_stages = Vec::new();
-            check_cancelled(progress)?;
-            let clock = Clock::start();
-            let span = ProgressSpan::new(progress, 0.1, 0.5, "remesh");
-            let ropts = RemeshOptions { target_vertices: n, seed, memory_budget: opts.memory_budget, ..opts.remesh };
-            // A quad mesh that folds through itself would give a self-intersecting solid: try other seeds
-            // (up to REMESH_RETRIES) and keep the one with the fewest crossings.
-            let mut best_quads: Option<(PolyMesh, RemeshReport, usize)> = None;
-            for retry in 0..=REMESH_RETRIES {
-                let ropts = RemeshOptions { seed: seed.wrapping_add(retry as u64), ..ropts.clone() };
-                let (q, r) = remesh(&repaired, &ropts, &span).map_err(|e| e.in_file(input))?;
-                let crossings = quad_self_intersections(&q);
-                if crossings > 0 {
-                    tracing::warn!(
-                        crossings,
-                        seed = ropts.seed,
-                        "the quad mesh intersects itself; trying another seed"
-                    );
-                }
-                if best_quads.as_ref().is_none_or(|b| crossings < b.2) {
-                    best_quads = Some((q, r, crossings));
-                }
-                if crossings == 0 {
-                    break;
-                }
-            }
-            let (quads, remesh_report, quad_crossings) = best_quads.expect("at least one remesh ran");
-            let d = compare(&Geometry::Mesh(quads.clone()), &input_geom, &cmp_opts, &span)?;
-            attempt_stages.push(clock.stop("remesh", Some(d)));
-
-            check_cancelled(progress)?;
-            let clock = Clock::start();
-            let span = ProgressSpan::new(progress, 0.5, 0.8, "surface");
-            let (net, pos) = control_net(&quads)?;
-            let (p, surface, fit_report) = fit_control_points(&net, &pos, &target_bvh, &opts.fit, &span)?;
-            attempt_stages.push(clock.stop("surface", None));
-
-            check_cancelled(progress)?;
-            let clock = Clock::start();
-            let span = ProgressSpan::new(progress, 0.8, 0.95, "brep");
-            let p1 = surface.refine.apply(&p);
-            let (solid, mut brep_report) = build_solid(&surface, &p1)?;
-            brep_report.quad_self_intersections = quad_crossings;
-            (brep_report.self_intersections, brep_report.self_intersection_at) = solid_self_intersections(&solid)?;
-            let tess = tessellate_for_check(&solid, 1_500_000)?;
-            let d = compare(&Geometry::Mesh(PolyMesh::from(tess)), &input_geom, &cmp_opts, &span)?;
-            let rms = d.symmetric.rms.value;
-            attempt_stages.push(clock.stop("brep", Some(d)));
-            let crossings = brep_report.self_intersections;
+            let seed = self.opts.seed.wrapping_add((solid_try * (REMESH_RETRIES + 1)) as u64);
+            let t = self.chain(n, seed)?;
+            let crossings = t.brep.self_intersections;
             attempts.push(Attempt {
                 target_vertices: n,
-                control_vertices: net.vertex_count,
+                control_vertices: t.control_vertices,
                 seed,
                 solid_self_intersections: crossings,
-                solid_rms: rms,
-                solid_rms_pct: 100.0 * rms / diag,
+                solid_rms: t.rms,
+                solid_rms_pct: 100.0 * t.rms / diag,
             });
             if crossings > 0 {
                 tracing::warn!(pairs = crossings, seed, "the solid's surface intersects itself; trying another seed");
             }
-            if best_try.as_ref().is_none_or(|b| crossings < b.4.self_intersections) {
-                best_try = Some((quads, remesh_report, fit_report, solid, brep_report, attempt_stages, rms));
+            if best.as_ref().is_none_or(|b| crossings < b.brep.self_intersections) {
+                best = Some(t);
             }
             if crossings == 0 {
                 break;
             }
         }
-        let (quads, remesh_report, fit_report, solid, brep_report, attempt_stages, rms) =
-            best_try.expect("at least one solid was built");
-        let done = match opts.resolution {
-            Resolution::Vertices(_) => true,
-            Resolution::Tolerance(t) => rms <= t || k + 1 == targets.len(),
-        };
-        tracing::info!(target_vertices = n, rms, "convert attempt");
-        if done {
-            best = Some((quads, remesh_report, fit_report, solid, brep_report, attempt_stages));
-            break;
-        }
+        best.ok_or_else(|| Error::internal("no solid was built"))
     }
-    let (quads, remesh_report, fit_report, solid, brep_report, attempt_stages) =
-        best.ok_or_else(|| Error::internal("no resolution attempted"))?;
-    stages.extend(attempt_stages);
 
-    check_cancelled(progress)?;
-    let clock = Clock::start();
-    ProgressSpan::new(progress, 0.95, 1.0, "step");
-    let name = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
-    write_step(output, &solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
-    let solid_mesh_file = write_solid_mesh(output, &solid)?;
-    if let Some(q) = &opts.quads_output {
-        super::write_mesh(q, &quads, "quad control net by scanstation")?;
+    /// One chain: remesh (other seeds while the quad mesh crosses itself), fit the surface, build and measure
+    /// the solid.
+    fn chain(&self, n: usize, seed: u64) -> Result<SolidTry> {
+        let (opts, progress) = (self.opts, self.progress);
+        let mut stages = Vec::new();
+        check_cancelled(progress)?;
+        let clock = Clock::start();
+        let span = ProgressSpan::new(progress, 0.1, 0.5, "remesh");
+        let (quads, remesh_report, quad_crossings) = self.quads(n, seed, &span)?;
+        let d = compare(&Geometry::Mesh(quads.clone()), &self.input_geom, &self.cmp_opts, &span)?;
+        stages.push(clock.stop("remesh", Some(d)));
+
+        check_cancelled(progress)?;
+        let clock = Clock::start();
+        let span = ProgressSpan::new(progress, 0.5, 0.8, "surface");
+        let (net, pos) = control_net(&quads)?;
+        let (p, surface, fit_report) = fit_control_points(&net, &pos, &self.target, &opts.fit, &span)?;
+        stages.push(clock.stop("surface", None));
+
+        check_cancelled(progress)?;
+        let clock = Clock::start();
+        let span = ProgressSpan::new(progress, 0.8, 0.95, "brep");
+        let p1 = surface.refine.apply(&p);
+        let (solid, mut brep_report) = build_solid(&surface, &p1)?;
+        brep_report.quad_self_intersections = quad_crossings;
+        (brep_report.self_intersections, brep_report.self_intersection_at) = solid_self_intersections(&solid)?;
+        let tessellation = tessellate_for_check(&solid, 1_500_000)?;
+        let d =
+            compare(&Geometry::Mesh(PolyMesh::from(tessellation.clone())), &self.input_geom, &self.cmp_opts, &span)?;
+        let rms = d.symmetric.rms.value;
+        stages.push(clock.stop("brep", Some(d)));
+        Ok(SolidTry {
+            quads,
+            control_vertices: net.vertex_count,
+            remesh: remesh_report,
+            fit: fit_report,
+            solid,
+            brep: brep_report,
+            stages,
+            rms,
+            tessellation,
+        })
     }
-    stages.push(clock.stop("step", None));
-    progress.report(1.0, "step/done");
-    let volume_error_pct = 100.0 * (brep_report.volume - input_volume) / input_volume.abs().max(f64::MIN_POSITIVE);
-    Ok(ConvertReport {
-        input_file: input.to_path_buf(),
-        output_file: output.to_path_buf(),
-        solid_mesh_file,
-        unit: opts.unit,
-        input_vertices: mesh.positions.len(),
-        input_faces: mesh.face_count(),
-        bbox_diagonal: diag,
-        stages,
-        repair: repair_report,
-        remesh: remesh_report,
-        fit: fit_report,
-        brep: brep_report,
-        input_volume,
-        volume_error_pct,
-        attempts,
-        total_seconds: t_total.elapsed().as_secs_f64(),
-    })
+
+    /// The quad mesh at `n` vertices: a quad mesh that folds through itself would give a self-intersecting
+    /// solid, so other seeds are tried (up to [`REMESH_RETRIES`]) and the one with the fewest crossings kept.
+    fn quads(&self, n: usize, seed: u64, span: &dyn Progress) -> Result<(PolyMesh, RemeshReport, usize)> {
+        let opts = self.opts;
+        let ropts = RemeshOptions { target_vertices: n, seed, memory_budget: opts.memory_budget, ..opts.remesh };
+        let mut best: Option<(PolyMesh, RemeshReport, usize)> = None;
+        for retry in 0..=REMESH_RETRIES {
+            let ropts = RemeshOptions { seed: seed.wrapping_add(retry as u64), ..ropts.clone() };
+            let (q, r) = remesh(&self.repaired, &ropts, span).map_err(|e| e.in_file(self.input))?;
+            let crossings = quad_self_intersections(&q);
+            if crossings > 0 {
+                tracing::warn!(crossings, seed = ropts.seed, "the quad mesh intersects itself; trying another seed");
+            }
+            if best.as_ref().is_none_or(|b| crossings < b.2) {
+                best = Some((q, r, crossings));
+            }
+            if crossings == 0 {
+                break;
+            }
+        }
+        best.ok_or_else(|| Error::internal("no remesh ran"))
+    }
 }
 
 #[cfg(test)]

@@ -6,19 +6,15 @@
 //! comment `scanstation-solid-of sha256=…` names the STEP bytes it was made from. Given a STEP file, `fea`
 //! reads that artifact and refuses it when the hash does not match (a STEP edited or replaced since).
 
-use std::io::{Read, Write as _};
+use std::io::{Read as _, Write as _};
 use std::path::{Path, PathBuf};
 
-use sha2::{Digest, Sha256};
-
 use super::memory::StageMeter;
+use super::provenance::{SOLID_OF, sha256_file, solid_artifact_path};
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh, write_atomic};
 use crate::stages::Progress;
 use crate::stages::fea::{self, FeaOptions, FeaReport, FeaSpec};
-
-/// Comment key of the solid artifact's PLY header.
-pub const SOLID_OF: &str = "scanstation-solid-of sha256=";
 
 /// What `scanstation fea` reports.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -34,26 +30,6 @@ pub struct FeaFileReport {
     pub seconds: f64,
     #[serde(flatten)]
     pub result: FeaReport,
-}
-
-/// Hex SHA-256 of a file's bytes.
-pub fn sha256_file(path: &Path) -> Result<String> {
-    let mut f = std::fs::File::open(path).map_err(|e| Error::new(ErrorCode::InputIo, e.to_string()).in_file(path))?;
-    let mut h = Sha256::new();
-    let mut buf = vec![0u8; 1 << 16];
-    loop {
-        let n = f.read(&mut buf).map_err(|e| Error::new(ErrorCode::InputIo, e.to_string()).in_file(path))?;
-        if n == 0 {
-            break;
-        }
-        h.update(&buf[..n]);
-    }
-    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
-}
-
-/// The solid artifact path beside a STEP file: `NAME.step` → `NAME.solid.ply`.
-pub fn solid_artifact_path(step: &Path) -> PathBuf {
-    step.with_extension("solid.ply")
 }
 
 fn is_step(path: &Path) -> bool {

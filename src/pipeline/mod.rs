@@ -7,6 +7,7 @@
 pub mod convert;
 pub mod fea;
 pub mod memory;
+pub mod provenance;
 
 pub use convert::{ConvertOptions, ConvertReport, Resolution, convert_file, small_handle_loop};
 

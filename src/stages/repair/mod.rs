@@ -48,6 +48,8 @@ pub struct RepairOptions {
     pub keep_share: f64,
     /// Samples per side for the final distance measurement.
     pub compare_samples: usize,
+    /// Seed of the final distance measurement's samples (`convert` passes its own, and reuses the figure).
+    pub compare_seed: u64,
     /// Move spike vertices to their ring centroid.
     pub remove_spikes: bool,
     /// Taubin λ|μ smoothing iterations (0: none).
@@ -73,6 +75,7 @@ impl Default for RepairOptions {
             weld_rel: WELD_REL,
             keep_share: 0.1,
             compare_samples: 200_000,
+            compare_seed: 0,
             remove_spikes: true,
             smooth_iterations: 0,
             target_vertices: None,
@@ -255,7 +258,12 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         ));
     }
     progress.report(0.8, "measure");
-    let copts = CompareOptions { samples: opts.compare_samples, ..Default::default() };
+    let copts = CompareOptions {
+        samples: opts.compare_samples,
+        seed: opts.compare_seed,
+        memory_budget: opts.memory_budget,
+        ..Default::default()
+    };
     let input_geometry = Geometry::Mesh(mesh.clone());
     let distance = compare(&Geometry::Mesh(out_poly), &input_geometry, &copts, &NoProgress)?;
     let kept = TriMesh { positions: out.positions.clone(), triangles: faces_from_input(&tri, &out) };

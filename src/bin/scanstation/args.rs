@@ -1,0 +1,321 @@
+//! One argument struct per command; each turns itself into the library's options.
+
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use scanstation::geometry::io::ReadOptions;
+use scanstation::pipeline::{self, ConvertOptions, ConvertReport, RemeshFileReport, Resolution};
+use scanstation::stages::NoProgress;
+use scanstation::stages::brep::step::LengthUnit;
+use scanstation::stages::quality::CompareOptions;
+use scanstation::stages::remesh::RemeshOptions;
+use scanstation::stages::repair::RepairOptions;
+use scanstation::{Error, ErrorCode};
+
+/// Arguments of `scanstation inspect`.
+#[derive(Args)]
+pub struct InspectArgs {
+    /// The file to inspect.
+    pub file: PathBuf,
+}
+
+/// Arguments of `scanstation repair`.
+#[derive(Args)]
+pub struct RepairArgs {
+    /// The mesh to repair.
+    pub input: PathBuf,
+    /// Where to write the result (.ply binary, or .obj).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Keep components other than the largest when they hold at least this share of the area.
+    #[arg(long, default_value_t = 0.1)]
+    pub keep_share: f64,
+    /// Do not move spike vertices (far off their neighbours' plane) to their ring centroid.
+    #[arg(long)]
+    pub keep_spikes: bool,
+    /// Taubin (non-shrinking) smoothing iterations.
+    #[arg(long, default_value_t = 0)]
+    pub smooth: usize,
+    /// Decimate the repaired mesh to this many vertices (quadric error metric).
+    #[arg(long)]
+    pub target_vertices: Option<usize>,
+    /// Cut handles (tunnels, bridges) whose shortest loop around them is shorter than this percentage of
+    /// the bounding-box diagonal and fill both sides: topological noise of fused range scans (0: keep all).
+    #[arg(long, default_value_t = 0.0)]
+    pub max_handle_loop_pct: f64,
+}
+
+/// Arguments of `scanstation remesh`.
+#[derive(Args)]
+pub struct RemeshArgs {
+    /// The closed triangle mesh to remesh.
+    pub input: PathBuf,
+    /// Where to write the quad mesh (.obj keeps quads; anything else is binary PLY).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Final vertex count wanted.
+    #[arg(long, conflicts_with = "edge_length", required_unless_present = "edge_length")]
+    pub vertices: Option<usize>,
+    /// Target edge length instead (in the input's units): vertices = area / length².
+    #[arg(long)]
+    pub edge_length: Option<f64>,
+    /// Seed of the random initial fields.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Gauss–Seidel sweeps per hierarchy level for each field.
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().iterations)]
+    pub iterations: usize,
+    /// Only the split route (extraction at a quarter of the count, then a regular split): fewer irregular
+    /// vertices and faster, but features thinner than twice the spacing can be lost.
+    #[arg(long)]
+    pub split_only: bool,
+    /// One spacing everywhere (no finer spacing on thin parts).
+    #[arg(long)]
+    pub uniform_spacing: bool,
+    /// Extract from the position field as it is, without cancelling its singularities in pairs.
+    #[arg(long)]
+    pub keep_singularities: bool,
+    /// Working-mesh vertices per output vertex.
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex)]
+    pub work_per_vertex: f64,
+    /// Working-mesh vertices per output vertex for the direct routes (which extract at the full count).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex_direct)]
+    pub work_per_vertex_direct: f64,
+    /// No refined direct route (a finer spacing where the direct result missed thin parts).
+    #[arg(long)]
+    pub no_refine: bool,
+    /// Rounds of the least-squares fit of the quad mesh to the input (0 = vertices stay on the input).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().fit_rounds)]
+    pub fit_rounds: usize,
+    /// Longest chain of cost-neutral operations (edge rotations, vertex splits, diagonal collapses) that
+    /// moves a dipole (valence 3–5 pair) until it cancels another (0 = no dipole transport).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().dipole_depth)]
+    pub dipole_depth: usize,
+    /// Weight of the pull toward principal curvature directions (0 = off).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight)]
+    pub curvature_weight: f64,
+    /// Extra pull, relative to the curvature weight, where the principal directions agree over the
+    /// whole surface (tori, surfaces of revolution); 0 = off.
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().coherent_pull)]
+    pub coherent_pull: f64,
+}
+
+/// Arguments of `scanstation convert`.
+#[derive(Args)]
+pub struct ConvertArgs {
+    /// The scan (a triangle or polygon mesh).
+    pub input: PathBuf,
+    /// The STEP file to write (written to a temporary name and renamed when complete).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Control vertices of the quad net (default 10000).
+    #[arg(long, conflicts_with = "tolerance")]
+    pub vertices: Option<usize>,
+    /// Refine coarse to fine until the solid's RMS distance to the input is at most this: a length in
+    /// the input's units, or a percentage of the bounding-box diagonal such as 0.05%.
+    #[arg(long)]
+    pub tolerance: Option<String>,
+    /// Write the full report as JSON here.
+    #[arg(long, value_name = "R.json")]
+    pub report: Option<PathBuf>,
+    /// Also write the quad control net (.obj or .ply).
+    #[arg(long)]
+    pub quads: Option<PathBuf>,
+    /// Length unit of the input, written into the STEP file: mm, cm or m.
+    #[arg(long, default_value = "mm")]
+    pub unit: String,
+    /// Seed of remeshing and sampling.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Remesh by the split route only (see `remesh --split-only`): fewer extraordinary vertices, so fewer
+    /// and larger faces, but features thinner than twice the spacing can be lost.
+    #[arg(long)]
+    pub split_only: bool,
+    /// Keep handles (tunnels, bridges) too narrow for the quad net; by default repair cuts those whose
+    /// loop is shorter than two quad spacings (π × the tolerance with --tolerance) and fills both sides.
+    #[arg(long)]
+    pub keep_small_handles: bool,
+}
+
+/// Arguments of `scanstation fea`.
+#[derive(Args)]
+pub struct FeaArgs {
+    /// The solid: a closed tri-mesh (PLY, OBJ, STL, OFF) or a STEP file from `convert`.
+    pub input: PathBuf,
+    /// The spec (TOML): material, loads, supports, resolution, probes.
+    #[arg(long)]
+    pub spec: PathBuf,
+    /// The result directory.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// Arguments of `scanstation status`.
+#[derive(Args)]
+pub struct StatusArgs {
+    /// Use the session bus instead of the system bus.
+    #[arg(long)]
+    pub session: bool,
+}
+
+/// Arguments of `scanstation jobs`.
+#[derive(Args)]
+pub struct JobsArgs {
+    #[arg(long)]
+    pub session: bool,
+}
+
+/// Arguments of `scanstation submit`.
+#[derive(Args)]
+pub struct SubmitArgs {
+    pub file: PathBuf,
+    /// Control vertices of the quad net for this job.
+    #[arg(long)]
+    pub vertices: Option<u32>,
+    /// RMS tolerance (length) for this job instead of a vertex count.
+    #[arg(long)]
+    pub tolerance: Option<f64>,
+    /// Follow the job until it finishes (exit status 1 when it fails).
+    #[arg(long)]
+    pub wait: bool,
+    #[arg(long)]
+    pub session: bool,
+}
+
+/// Arguments of `scanstation cancel`.
+#[derive(Args)]
+pub struct CancelArgs {
+    pub id: String,
+    #[arg(long)]
+    pub session: bool,
+}
+
+/// Arguments of `scanstation watch`.
+#[derive(Args)]
+pub struct WatchArgs {
+    pub id: Option<String>,
+    #[arg(long)]
+    pub session: bool,
+}
+
+/// Arguments of `scanstation compare`.
+#[derive(Args)]
+pub struct CompareArgs {
+    /// The surface to measure.
+    pub test: PathBuf,
+    /// The surface it is measured against (percentages use its bounding-box diagonal).
+    pub reference: PathBuf,
+    /// Area samples per side.
+    #[arg(long, default_value_t = 200_000)]
+    pub samples: usize,
+    /// Sampling seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Write TEST with per-vertex distance and a colour ramp as binary PLY.
+    #[arg(long, value_name = "OUT.ply")]
+    pub error_map: Option<PathBuf>,
+}
+
+impl RepairArgs {
+    /// Repair's settings.
+    pub fn options(&self, memory_budget: u64) -> RepairOptions {
+        RepairOptions {
+            keep_share: self.keep_share,
+            remove_spikes: !self.keep_spikes,
+            smooth_iterations: self.smooth,
+            target_vertices: self.target_vertices,
+            max_handle_loop_rel: self.max_handle_loop_pct / 100.0,
+            memory_budget,
+            ..Default::default()
+        }
+    }
+}
+
+impl RemeshArgs {
+    /// Remesh's settings, the target count aside (see [`Self::run`]).
+    pub fn options(&self, memory_budget: u64) -> RemeshOptions {
+        RemeshOptions {
+            seed: self.seed,
+            iterations: self.iterations,
+            curvature_weight: self.curvature_weight,
+            coherent_pull: self.coherent_pull,
+            work_per_vertex: self.work_per_vertex,
+            work_per_vertex_direct: self.work_per_vertex_direct,
+            refine_missed: !self.no_refine,
+            fit_rounds: self.fit_rounds,
+            dipole_depth: self.dipole_depth,
+            try_direct: !self.split_only,
+            adaptive_spacing: !self.uniform_spacing,
+            cancel_singularities: !self.keep_singularities,
+            memory_budget,
+            ..Default::default()
+        }
+    }
+
+    /// Remeshes the input: `--vertices`, or `--edge-length` L as area / L² vertices.
+    pub fn run(&self, read: &ReadOptions, memory_budget: u64) -> Result<RemeshFileReport, Error> {
+        let target = match (self.vertices, self.edge_length) {
+            (Some(v), _) => v,
+            (None, Some(l)) => {
+                if !(l.is_finite() && l > 0.0) {
+                    return Err(Error::new(ErrorCode::InputBadArgument, "--edge-length must be > 0"));
+                }
+                let mesh = scanstation::geometry::io::read_mesh(&self.input, read)?;
+                let area = scanstation::geometry::topology::TopologyReport::compute(&mesh).area;
+                (area / (l * l)).round().min(1e9) as usize
+            }
+            (None, None) => return Err(Error::new(ErrorCode::InputBadArgument, "give --vertices or --edge-length")),
+        };
+        let opts = RemeshOptions { target_vertices: target, ..self.options(memory_budget) };
+        pipeline::remesh_file(&self.input, &self.output, read, &opts, &NoProgress)
+    }
+}
+
+impl ConvertArgs {
+    /// The conversion's settings.
+    ///
+    /// # Errors
+    /// `input.bad-argument` for an unknown unit or a tolerance that is neither a length nor a percentage.
+    pub fn options(&self, memory_budget: u64) -> Result<ConvertOptions, Error> {
+        let unit = LengthUnit::parse(&self.unit).ok_or_else(|| {
+            Error::new(ErrorCode::InputBadArgument, format!("unknown unit {:?}: use mm, cm or m", self.unit))
+        })?;
+        let tolerance = self.tolerance.as_deref().map(Resolution::parse_tolerance).transpose()?;
+        Ok(ConvertOptions {
+            resolution: Resolution::choose(self.vertices, tolerance, pipeline::convert::DEFAULT_VERTICES),
+            seed: self.seed,
+            unit,
+            quads_output: self.quads.clone(),
+            remove_small_handles: !self.keep_small_handles,
+            memory_budget,
+            remesh: RemeshOptions { try_direct: !self.split_only, ..RemeshOptions::convert_default() },
+            ..Default::default()
+        })
+    }
+
+    /// Converts the input and writes the report where `--report` asks.
+    pub fn run(&self, read: &ReadOptions, memory_budget: u64) -> Result<ConvertReport, Error> {
+        let opts = self.options(memory_budget)?;
+        if let Some(r) = &self.report {
+            scanstation::geometry::io::ensure_not_input(r, &[&self.input, &self.output])?;
+        }
+        let r = pipeline::convert_file(&self.input, &self.output, read, &opts, &NoProgress)?;
+        if let Some(path) = &self.report {
+            write_report(path, &r)?;
+        }
+        Ok(r)
+    }
+}
+
+/// Writes `report` as pretty JSON to `path`, atomically.
+fn write_report(path: &Path, report: &ConvertReport) -> Result<(), Error> {
+    let text = serde_json::to_string_pretty(report).map_err(|e| Error::internal(e.to_string()))?;
+    scanstation::geometry::io::write_atomic(path, |w| std::io::Write::write_all(w, text.as_bytes()))
+}
+
+impl CompareArgs {
+    /// The measurement's settings.
+    pub fn options(&self, memory_budget: u64) -> CompareOptions {
+        CompareOptions { samples: self.samples, seed: self.seed, memory_budget, ..Default::default() }
+    }
+}

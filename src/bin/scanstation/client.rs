@@ -1,0 +1,91 @@
+//! The D-Bus client commands (thin: the work is in `scanstation::daemon::client::ops`).
+
+use std::process::ExitCode;
+
+use scanstation::Error;
+
+use crate::Command;
+use crate::args::{CancelArgs, JobsArgs, StatusArgs, SubmitArgs, WatchArgs};
+use crate::print::{print_json, report_error};
+
+/// Runs a client command against the station's bus; exit status 1 when a followed job failed.
+pub fn run(command: &Command, json: bool) -> ExitCode {
+    use scanstation::daemon::client::ops;
+    let rt = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+        Ok(rt) => rt,
+        Err(e) => return report_error(&Error::internal(format!("cannot start the async runtime: {e}")), json),
+    };
+    let r: Result<bool, Error> = rt.block_on(async {
+        match command {
+            Command::Status(StatusArgs { session }) => {
+                let conn = ops::connect(*session).await?;
+                let s = ops::status(&conn).await?;
+                if json {
+                    print_json(&s);
+                } else {
+                    for (k, v) in s.as_object().into_iter().flatten() {
+                        println!("{k:<14} {v}");
+                    }
+                }
+                Ok(true)
+            }
+            Command::Jobs(JobsArgs { session }) => {
+                let conn = ops::connect(*session).await?;
+                let jobs = ops::jobs(&conn).await?;
+                if json {
+                    print_json(&serde_json::json!({ "jobs": jobs }));
+                } else {
+                    println!("{:<26}  {:<10}  {:>6}  {:<9}  {:<22}  input", "id", "state", "done", "stage", "error");
+                    for j in &jobs {
+                        println!(
+                            "{:<26}  {:<10}  {:>5.1}%  {:<9}  {:<22}  {}",
+                            j["Id"].as_str().unwrap_or(""),
+                            j["State"].as_str().unwrap_or(""),
+                            j["Progress"].as_f64().unwrap_or(0.0) * 100.0,
+                            j["Stage"].as_str().unwrap_or(""),
+                            j["ErrorCode"].as_str().unwrap_or(""),
+                            j["Input"].as_str().unwrap_or("")
+                        );
+                    }
+                }
+                Ok(true)
+            }
+            Command::Submit(SubmitArgs { file, vertices, tolerance, wait, session }) => {
+                let conn = ops::connect(*session).await?;
+                let path = ops::submit(&conn, file, *vertices, *tolerance).await?;
+                if !*wait {
+                    if json {
+                        print_json(&serde_json::json!({ "job": path }));
+                    } else {
+                        println!("{path}");
+                    }
+                    return Ok(true);
+                }
+                let done = ops::watch(&conn, Some(&path), json).await?;
+                if !json {
+                    println!("{} {}", done["Result"], done["ErrorCode"]);
+                }
+                Ok(done["Result"] == "succeeded")
+            }
+            Command::Cancel(CancelArgs { id, session }) => {
+                let conn = ops::connect(*session).await?;
+                ops::cancel(&conn, id).await?;
+                if json {
+                    print_json(&serde_json::json!({ "cancelled": ops::job_path(id) }));
+                }
+                Ok(true)
+            }
+            Command::Watch(WatchArgs { id, session }) => {
+                let conn = ops::connect(*session).await?;
+                let done = ops::watch(&conn, id.as_deref(), json).await?;
+                Ok(id.is_none() || done["Result"] == "succeeded")
+            }
+            _ => Ok(true),
+        }
+    });
+    match r {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::from(1),
+        Err(e) => report_error(&e, json),
+    }
+}

@@ -1,0 +1,120 @@
+//! `scanstation` — the command-line tool: inspect, compare, repair, remesh, convert and fea on files, and the
+//! D-Bus client of `scanstationd`. Thin: parsing (one argument struct per command, [`args`]), output
+//! ([`print`]) and exit codes only; the work is in the library's `pipeline` layer.
+
+mod args;
+mod client;
+mod print;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use scanstation::geometry::io::ReadOptions;
+use scanstation::pipeline;
+use scanstation::stages::NoProgress;
+
+use args::*;
+use print::emit;
+
+#[derive(Parser)]
+#[command(
+    name = "scanstation",
+    version,
+    about = "3D scan to CAD solid: inspect, compare, repair, remesh, convert, fea"
+)]
+struct Cli {
+    /// Print the report as JSON on stdout (errors too, as {"ok": false, "error": {...}}).
+    #[arg(long, global = true)]
+    json: bool,
+    /// Memory budget for reading and measuring, e.g. 512M, 4G.
+    #[arg(long, global = true, default_value = "8G", value_parser = parse_bytes)]
+    memory_budget: u64,
+    /// More log output on stderr (-v info, -vv debug).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Counts, size and topology of a mesh or point cloud (PLY, OBJ, STL, OFF, XYZ/PTS; .gz too).
+    Inspect(InspectArgs),
+    /// Make a mesh a closed, outward-oriented 2-manifold: weld, fix non-manifold parts and orientation, drop
+    /// debris, fill holes (smoothly); report each step and the distance to the input.
+    Repair(RepairArgs),
+    /// Field-aligned pure-quad remeshing of a closed mesh (run `repair` first): orientation and position
+    /// fields, extraction, clean-up to all quads at the requested vertex count, projection onto the input.
+    Remesh(RemeshArgs),
+    /// The whole chain to a CAD solid: repair → quad remesh → fitted Catmull–Clark surface → B-spline B-rep
+    /// → STEP (AP214), with a quality check, time and peak memory after every stage.
+    Convert(ConvertArgs),
+    /// Immersed (meshless) linear statics on a solid: a closed mesh, or a STEP file `convert` wrote (through
+    /// the NAME.solid.ply it writes beside it). Writes result.json and surface.vtu into OUTPUT.
+    Fea(FeaArgs),
+    /// The station daemon's state (D-Bus client of scanstationd).
+    Status(StatusArgs),
+    /// The station's jobs: queued, running and recently finished.
+    Jobs(JobsArgs),
+    /// Queue a file on the station (its absolute path is sent; files outside the inbox are copied).
+    Submit(SubmitArgs),
+    /// Cancel a job (by id or object path).
+    Cancel(CancelArgs),
+    /// Follow progress: one job until it finishes, or every job until interrupted. A progress bar on a
+    /// terminal, JSON lines otherwise (or with --json).
+    Watch(WatchArgs),
+    /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
+    Compare(CompareArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let level = match cli.verbose {
+        0 => tracing::Level::WARN,
+        1 => tracing::Level::INFO,
+        _ => tracing::Level::DEBUG,
+    };
+    tracing_subscriber::fmt().with_writer(std::io::stderr).with_max_level(level).init();
+    let (json, budget) = (cli.json, cli.memory_budget);
+    let read = ReadOptions { memory_budget: budget };
+    let result = match &cli.command {
+        Command::Inspect(a) => pipeline::inspect_file(&a.file, &read).map(|r| emit(json, &r, print::print_inspect)),
+        Command::Repair(a) => pipeline::repair_file(&a.input, &a.output, &read, &a.options(budget), &NoProgress)
+            .map(|r| emit(json, &r, print::print_repair)),
+        Command::Remesh(a) => a.run(&read, budget).map(|r| emit(json, &r, print::print_remesh)),
+        Command::Convert(a) => a.run(&read, budget).map(|r| emit(json, &r, print::print_convert)),
+        Command::Fea(a) => {
+            let opts = scanstation::stages::fea::FeaOptions { memory_budget: budget };
+            pipeline::fea::fea_file(&a.input, &a.spec, &a.output, &read, &opts, &NoProgress)
+                .map(|r| emit(json, &r, print::print_fea))
+        }
+        Command::Compare(a) => pipeline::compare_files(
+            &a.test,
+            &a.reference,
+            &read,
+            &a.options(budget),
+            a.error_map.as_deref(),
+            &NoProgress,
+        )
+        .map(|r| emit(json, &r, print::print_compare)),
+        Command::Status(_) | Command::Jobs(_) | Command::Submit(_) | Command::Cancel(_) | Command::Watch(_) => {
+            return client::run(&cli.command, json);
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => print::report_error(&e, json),
+    }
+}
+
+/// A byte count with an optional K, M or G suffix (powers of 1024).
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let s = s.trim();
+    let (num, mult) = match s.chars().last().map(|c| c.to_ascii_uppercase()) {
+        Some('K') => (&s[..s.len() - 1], 1u64 << 10),
+        Some('M') => (&s[..s.len() - 1], 1 << 20),
+        Some('G') => (&s[..s.len() - 1], 1 << 30),
+        _ => (s, 1),
+    };
+    num.parse::<u64>().ok().and_then(|n| n.checked_mul(mult)).ok_or_else(|| format!("not a size: {s:?}"))
+}

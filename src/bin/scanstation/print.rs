@@ -1,0 +1,314 @@
+//! What the commands print: a text summary of each report, or the report as JSON, and errors with their exit
+//! codes.
+
+use std::process::ExitCode;
+
+use scanstation::pipeline::{self, CompareReport, InspectReport};
+use scanstation::stages::quality::{DistanceStats, Measure};
+use scanstation::{Error, ErrorClass};
+
+/// Prints `report` as JSON (with `"ok": true`) or as `text` does.
+pub fn emit<T: serde::Serialize>(json: bool, report: &T, text: fn(&T)) {
+    if json { print_json(report) } else { text(report) }
+}
+
+pub fn print_fea(r: &pipeline::fea::FeaFileReport) {
+    let f = &r.result;
+    println!(
+        "{}: {} unknowns on a {:?} grid of h = {} ({} active cells, {} cut)",
+        r.input_file.display(),
+        f.grid.unknowns,
+        f.grid.cells,
+        f.grid.cell_size,
+        f.grid.active_cells,
+        f.grid.cut_cells
+    );
+    println!("  volume {:.6} (surface {:.6})", f.volume, f.surface_volume);
+    println!("  max displacement {:.6} at {:?}", f.max_displacement.value, f.max_displacement.at);
+    println!("  max von Mises {:.4} at {:?}", f.max_von_mises.value, f.max_von_mises.at);
+    println!("  reaction {:?} for load {:?} (imbalance {:.2e})", f.reaction, f.total_load, f.imbalance);
+    for p in &f.probes {
+        println!("  probe {}: displacement {:?}, von Mises {:.4}", p.name, p.displacement, p.von_mises);
+    }
+    println!("  {:.2} s, written to {}", r.seconds, r.output_dir.display());
+}
+
+pub fn print_convert(r: &pipeline::ConvertReport) {
+    println!("{} -> {}", r.input_file.display(), r.output_file.display());
+    println!("  stage      seconds  peak MiB   RMS (% diag)   p95 (% diag)   max (% diag)");
+    for s in &r.stages {
+        let mem = s.peak_rss_mib.map(|m| format!("{m:8.0}")).unwrap_or_else(|| "       -".into());
+        match &s.distance {
+            Some(d) => println!(
+                "  {:<9} {:8.2} {}   {:.3e} ({:.4}%)  {:.3e} ({:.4}%)  {:.3e} ({:.4}%)",
+                s.stage,
+                s.seconds,
+                mem,
+                d.symmetric.rms.value,
+                d.symmetric.rms.pct_of_diagonal,
+                d.symmetric.p95.value,
+                d.symmetric.p95.pct_of_diagonal,
+                d.symmetric.max.value,
+                d.symmetric.max.pct_of_diagonal
+            ),
+            None => println!("  {:<9} {:8.2} {}", s.stage, s.seconds, mem),
+        }
+    }
+    let b = &r.brep;
+    println!(
+        "  solid: {} faces ({} packed) from {} patches, {} edges, {} vertices; volume {:.6e} ({:+.3}% vs input), max normal jump {:.3}° (p99 {:.3}°); folded faces {}, crossing pairs {}",
+        b.faces,
+        b.packed_faces,
+        b.patches,
+        b.edges,
+        b.vertices,
+        b.volume,
+        r.volume_error_pct,
+        b.max_normal_jump_deg,
+        b.p99_normal_jump_deg,
+        b.folded_faces,
+        b.self_intersections
+    );
+    println!(
+        "  control net: {} vertices, {:.2}% irregular; fit RMS {:.3e}; total {:.1} s",
+        r.fit.control_points,
+        100.0 * r.remesh.output.irregular_fraction,
+        r.fit.final_rms,
+        r.total_seconds
+    );
+}
+
+pub fn print_remesh(r: &pipeline::RemeshFileReport) {
+    let m = &r.remesh;
+    let o = &m.output;
+    println!("{} -> {}", r.input_file.display(), r.output_file.display());
+    println!(
+        "  input: {} vertices, {} faces, χ = {}; working mesh {} ({} vertices), {} levels",
+        m.input_vertices,
+        m.input_faces,
+        m.input_euler_characteristic,
+        m.working_mesh,
+        m.working_vertices,
+        m.hierarchy_levels
+    );
+    for (i, a) in m.attempts.iter().enumerate() {
+        println!(
+            "  attempt {i} ({:?}): scale {:.5}, {} extracted vertices, faces by degree {:?}, {} unpaired -> {} predicted{}",
+            a.mode,
+            a.scale,
+            a.extracted_vertices,
+            a.extracted_faces_by_degree,
+            a.triangles_unpaired,
+            a.predicted_vertices,
+            if i == m.chosen_attempt { " (kept)" } else { "" }
+        );
+    }
+    println!(
+        "  output: {} vertices ({:+.1}% of target {}), {} faces, {:.1}% quads, closed {}, χ = {}",
+        o.vertices,
+        100.0 * m.vertex_count_error,
+        m.target_vertices,
+        o.faces,
+        100.0 * o.quad_fraction,
+        o.closed,
+        o.euler_characteristic
+    );
+    println!(
+        "  irregular vertices {} ({:.2}%), valences {:?}, flipped faces {}, non-manifold edges {}",
+        o.irregular_vertices,
+        100.0 * o.irregular_fraction,
+        o.valence_histogram,
+        o.flipped_faces,
+        o.nonmanifold_edges
+    );
+    let t = &m.dipole_transport;
+    println!(
+        "  dipole transport: {} chains ({} moves, {} settled), Σ|valence − 4| {} -> {}, vertices +{} -{}",
+        t.chains,
+        t.moves,
+        t.settled_chains,
+        t.irregularity_before,
+        t.irregularity_after,
+        t.vertices_added,
+        t.vertices_removed
+    );
+    println!(
+        "  corner angle deviation mean {:.1}°, p95 {:.1}°; edge length {:.4} (cv {:.2})",
+        o.angle_deviation_mean_deg, o.angle_deviation_p95_deg, o.edge_length_mean, o.edge_length_cv
+    );
+    if let Some(d) = &m.distance {
+        println!(
+            "  distance to input: RMS {} ({:.4}% of diagonal), max {}",
+            d.symmetric.rms.value, d.symmetric.rms.pct_of_diagonal, d.symmetric.max.value
+        );
+    }
+    println!("  seconds: {:?}", m.seconds);
+}
+
+pub fn print_json<T: serde::Serialize>(v: &T) {
+    let mut value = serde_json::to_value(v).expect("reports serialise");
+    if let serde_json::Value::Object(m) = &mut value {
+        m.insert("ok".into(), true.into());
+    }
+    println!("{}", serde_json::to_string_pretty(&value).expect("reports serialise"));
+}
+
+/// Exit codes: 2 bad input, 3 resource limit, 70 internal error (EX_SOFTWARE).
+pub fn report_error(e: &Error, json: bool) -> ExitCode {
+    if json {
+        println!("{}", serde_json::json!({ "ok": false, "error": e, "error_code": e.code.as_str() }));
+    }
+    eprintln!("scanstation: error: {e}");
+    ExitCode::from(match e.class() {
+        ErrorClass::BadInput => 2,
+        ErrorClass::Resource => 3,
+        ErrorClass::Internal => 70,
+    })
+}
+
+pub fn print_inspect(r: &InspectReport) {
+    println!("file:                  {}", r.file.display());
+    println!("kind:                  {}", r.kind);
+    if let Some(c) = &r.cloud {
+        println!("points:                {}", c.vertices);
+        println!("normals / colors:      {} / {}", c.has_normals, c.has_colors);
+        println!("bbox:                  {:?} .. {:?}", c.bbox.min, c.bbox.max);
+        println!("bbox diagonal:         {:.6}", c.bbox_diagonal);
+    }
+    if let Some(m) = &r.mesh {
+        let degrees: Vec<String> = m.faces_by_degree.iter().map(|(d, n)| format!("{n} × {d}-gon")).collect();
+        println!(
+            "vertices:              {} ({} referenced, {} unreferenced)",
+            m.vertices, m.referenced_vertices, m.unreferenced_vertices
+        );
+        println!("faces:                 {} ({})", m.faces, degrees.join(", "));
+        println!("edges:                 {}", m.edges);
+        println!("bbox:                  {:?} .. {:?}", m.bbox.min, m.bbox.max);
+        println!("bbox diagonal:         {:.6}", m.bbox_diagonal);
+        println!("area:                  {:.6}", m.area);
+        match m.volume {
+            Some(v) => println!("volume:                {v:.6}"),
+            None => println!("volume:                - (not closed)"),
+        }
+        println!("closed:                {}", m.closed);
+        println!("boundary loops:        {} ({} boundary edges)", m.boundary_loops, m.boundary_edges);
+        println!("non-manifold:          {} edges, {} vertices", m.nonmanifold_edges, m.nonmanifold_vertices);
+        println!("components:            {}", m.components);
+        println!("degenerate faces:      {}", m.degenerate_faces);
+        println!("coincident vertices:   {}", m.coincident_vertices);
+        println!(
+            "orientation:           {} ({} conflicting directed edges)",
+            if m.consistently_oriented { "consistent" } else { "inconsistent" },
+            m.orientation_conflicts
+        );
+        println!("euler characteristic:  {}", m.euler_characteristic);
+        match m.genus {
+            Some(g) => println!("genus:                 {g}"),
+            None => println!("genus:                 - (not an orientable manifold)"),
+        }
+    }
+    println!("read / analyse:        {:.3} s / {:.3} s", r.read_seconds, r.analyse_seconds);
+}
+
+pub fn fmt_measure(m: &Measure) -> String {
+    let part = m.one_part_in.map_or("-".to_string(), |n| format!("1:{n:.0}"));
+    format!("{:>12.6e} {:>9.4}% {:>10}", m.value, m.pct_of_diagonal, part)
+}
+
+pub fn print_compare(r: &CompareReport) {
+    println!(
+        "test:      {} ({}, {} vertices, {} faces)",
+        r.test.file.display(),
+        r.test.kind,
+        r.test.vertices,
+        r.test.faces
+    );
+    println!(
+        "reference: {} ({}, {} vertices, {} faces)",
+        r.reference.file.display(),
+        r.reference.kind,
+        r.reference.vertices,
+        r.reference.faces
+    );
+    let d = &r.distance;
+    println!(
+        "reference bbox diagonal {:.6}; {} samples per side, seed {}",
+        d.reference_bbox_diagonal, d.samples_per_side, d.seed
+    );
+    println!("{:<18} {:<8} {:>12} {:>10} {:>10}", "direction", "figure", "value", "% diag", "1 part in");
+    let rows: [(&str, &DistanceStats); 3] = [
+        ("test→reference", &d.test_to_reference),
+        ("reference→test", &d.reference_to_test),
+        ("symmetric", &d.symmetric),
+    ];
+    for (name, s) in rows {
+        for (fig, m) in [("rms", &s.rms), ("mean", &s.mean), ("median", &s.median), ("p95", &s.p95), ("max", &s.max)] {
+            println!("{name:<18} {fig:<8} {}", fmt_measure(m));
+        }
+    }
+    if let Some(p) = &r.error_map {
+        println!("error map: {} (colour scale 0 .. {:.6e})", p.display(), r.error_map_scale.unwrap_or(0.0));
+    }
+    println!("read / compare: {:.3} s / {:.3} s", r.read_seconds, r.compare_seconds);
+}
+
+pub fn print_repair(r: &pipeline::RepairFileReport) {
+    let rep = &r.repair;
+    println!("input:   {} ({} vertices, {} faces)", r.input_file.display(), rep.input.vertices, rep.input.faces);
+    let w = &rep.weld;
+    println!(
+        "weld:    {} vertices merged, {} collapsed and {} duplicate faces dropped, {} unreferenced vertices dropped",
+        w.merged_vertices, w.collapsed_faces, w.duplicate_faces, w.unreferenced_vertices
+    );
+    let m = &rep.manifold;
+    println!(
+        "manifold: {} non-manifold edges ({} faces removed), {} faces flipped, {} removed for orientation, {} vertices split",
+        m.nonmanifold_edges,
+        m.faces_removed_at_nonmanifold_edges,
+        m.faces_flipped,
+        m.faces_removed_orientation,
+        m.vertices_split
+    );
+    println!(
+        "components: {} found, {} kept ({:.2} % of the area), {} debris faces removed",
+        m.components_found,
+        m.components_kept,
+        100.0 * m.area_share_kept,
+        m.faces_removed_debris
+    );
+    let h = &rep.holes;
+    println!(
+        "holes:   {} filled (largest {} edges), {} triangles and {} vertices added",
+        h.holes_filled, h.largest_hole_edges, h.triangles_added, h.vertices_added
+    );
+    let hd = &rep.handles;
+    if hd.max_loop > 0.0 {
+        println!(
+            "handles: {} cut (genus −{}; loops under {:.4e}), {} faces removed, {} triangles added; {} seeds, {} \
+             balls searched, {} searches given up",
+            hd.cuts,
+            hd.genus_removed,
+            hd.max_loop,
+            hd.faces_removed,
+            hd.triangles_added,
+            hd.seeds,
+            hd.balls_searched,
+            hd.searches_given_up
+        );
+    }
+    let o = &rep.output;
+    println!(
+        "output:  {} ({} vertices, {} faces, closed {}, genus {:?}, volume {:.6e})",
+        r.output_file.display(),
+        o.vertices,
+        o.faces,
+        o.closed,
+        o.genus,
+        o.volume.unwrap_or(f64::NAN)
+    );
+    let d = &rep.distance.symmetric;
+    println!(
+        "distance to input: rms {:.4e} ({:.4} %), max {:.4e} ({:.4} %); repair took {:.3} s",
+        d.rms.value, d.rms.pct_of_diagonal, d.max.value, d.max.pct_of_diagonal, rep.seconds
+    );
+}
