@@ -97,7 +97,7 @@ impl JobState {
 }
 
 /// One job as the journal keeps it.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct JobRecord {
     pub schema: u32,
     pub id: JobId,

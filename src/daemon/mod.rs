@@ -94,16 +94,16 @@ pub async fn run(cfg: Config) -> Result<(), StartError> {
         )
         .await
         .map_err(export_err)?;
-    let mut station = station::Station::recover(
-        cfg.clone(),
-        spool.clone(),
+    let mut station = station::Station::recover(station::Parts {
+        cfg: cfg.clone(),
+        spool: spool.clone(),
         journal,
-        conn.clone(),
+        conn: conn.clone(),
         access,
-        cmd_tx.clone(),
+        cmd_tx: cmd_tx.clone(),
         worker_tx,
-        manager_view.clone(),
-    )
+        manager_view: manager_view.clone(),
+    })
     .map_err(|e| StartError::State { path: cfg.state.display().to_string(), reason: e.to_string() })?;
     station.export_all().await.map_err(export_err)?;
     watch::start(&spool.inbox, watch_tx)
