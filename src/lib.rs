@@ -29,6 +29,7 @@
 // zipped iterators in the geometry kernels.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop, clippy::collapsible_match)]
 
+#[cfg(feature = "daemon")]
 pub mod daemon;
 pub mod error;
 pub mod geometry;

@@ -453,10 +453,12 @@ fn the_refined_direct_route_recovers_what_the_direct_route_missed() {
 
 /// A quad mesh of the unit sphere with its vertices on the sphere (the remesher without its fit), the
 /// icosphere it came from and area samples of that icosphere for the fit. Built once.
-fn sphere_quads() -> &'static (Vec<[f64; 3]>, Vec<Vec<u32>>, TriMesh, Vec<[f64; 3]>) {
+/// Quad positions, quads, the icosphere and its area samples.
+type SphereQuads = (Vec<[f64; 3]>, Vec<Vec<u32>>, TriMesh, Vec<[f64; 3]>);
+
+fn sphere_quads() -> &'static SphereQuads {
     use scanstation::geometry::sampling::{Rng, sample_area_uniform};
-    static CELL: std::sync::OnceLock<(Vec<[f64; 3]>, Vec<Vec<u32>>, TriMesh, Vec<[f64; 3]>)> =
-        std::sync::OnceLock::new();
+    static CELL: std::sync::OnceLock<SphereQuads> = std::sync::OnceLock::new();
     CELL.get_or_init(|| {
         let s = icosphere(1.0, 5, [0.0; 3]);
         let (q, _) = remesh(&s, &RemeshOptions { fit_rounds: 0, ..opts(2000) }, &NoProgress).unwrap();

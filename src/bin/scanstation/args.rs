@@ -150,6 +150,7 @@ pub struct FeaArgs {
     pub output: PathBuf,
 }
 
+#[cfg(feature = "daemon")]
 /// Arguments of `scanstation status`.
 #[derive(Args)]
 pub struct StatusArgs {
@@ -158,6 +159,7 @@ pub struct StatusArgs {
     pub session: bool,
 }
 
+#[cfg(feature = "daemon")]
 /// Arguments of `scanstation jobs`.
 #[derive(Args)]
 pub struct JobsArgs {
@@ -165,6 +167,7 @@ pub struct JobsArgs {
     pub session: bool,
 }
 
+#[cfg(feature = "daemon")]
 /// Arguments of `scanstation submit`.
 #[derive(Args)]
 pub struct SubmitArgs {
@@ -182,6 +185,7 @@ pub struct SubmitArgs {
     pub session: bool,
 }
 
+#[cfg(feature = "daemon")]
 /// Arguments of `scanstation cancel`.
 #[derive(Args)]
 pub struct CancelArgs {
@@ -190,6 +194,7 @@ pub struct CancelArgs {
     pub session: bool,
 }
 
+#[cfg(feature = "daemon")]
 /// Arguments of `scanstation watch`.
 #[derive(Args)]
 pub struct WatchArgs {

@@ -3,6 +3,7 @@
 //! ([`print`]) and exit codes only; the work is in the library's `pipeline` layer.
 
 mod args;
+#[cfg(feature = "daemon")]
 mod client;
 mod print;
 
@@ -53,15 +54,20 @@ enum Command {
     /// the NAME.solid.ply it writes beside it). Writes result.json and surface.vtu into OUTPUT.
     Fea(FeaArgs),
     /// The station daemon's state (D-Bus client of scanstationd).
+    #[cfg(feature = "daemon")]
     Status(StatusArgs),
     /// The station's jobs: queued, running and recently finished.
+    #[cfg(feature = "daemon")]
     Jobs(JobsArgs),
     /// Queue a file on the station (its absolute path is sent; files outside the inbox are copied).
+    #[cfg(feature = "daemon")]
     Submit(SubmitArgs),
     /// Cancel a job (by id or object path).
+    #[cfg(feature = "daemon")]
     Cancel(CancelArgs),
     /// Follow progress: one job until it finishes, or every job until interrupted. A progress bar on a
     /// terminal, JSON lines otherwise (or with --json).
+    #[cfg(feature = "daemon")]
     Watch(WatchArgs),
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare(CompareArgs),
@@ -97,6 +103,7 @@ fn main() -> ExitCode {
             &NoProgress,
         )
         .map(|r| emit(json, &r, print::print_compare)),
+        #[cfg(feature = "daemon")]
         Command::Status(_) | Command::Jobs(_) | Command::Submit(_) | Command::Cancel(_) | Command::Watch(_) => {
             return client::run(&cli.command, json);
         }

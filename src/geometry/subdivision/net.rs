@@ -7,6 +7,10 @@
 use crate::error::{Error, ErrorCode, Result};
 use std::collections::{HashMap, HashSet};
 
+/// A block of faces as a lattice ([`QuadNet::lattice_block`]): the control grid's vertices, and each face of
+/// the block with the corner at which its frame starts.
+pub type LatticeBlock = (Vec<u32>, Vec<(u32, u8)>);
+
 /// Marks a half-edge without a twin (boundary of a local patch).
 pub const NO_TWIN: u32 = u32::MAX;
 
@@ -297,7 +301,7 @@ impl QuadNet {
     /// the block's own faces row-major over its cells (`cells[w·j + i]`), each with the corner where its
     /// frame (aligned with the block's) starts. `None` when the faces do not form such a block with a
     /// regular one-ring.
-    pub fn lattice_block(&self, f: usize, start: usize, w: usize, h: usize) -> Option<(Vec<u32>, Vec<(u32, u8)>)> {
+    pub fn lattice_block(&self, f: usize, start: usize, w: usize, h: usize) -> Option<LatticeBlock> {
         let (gw, gh) = (w + 3, h + 3);
         let mut grid = vec![u32::MAX; gw * gh];
         let mut seen: HashSet<u32> = HashSet::new();

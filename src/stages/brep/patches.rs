@@ -14,6 +14,7 @@
 //!     one free interior point is fitted to the exact limit: positions, and, along its two edges at the
 //!     vertex, the cross-boundary derivative in the limit's tangent plane, which bounds the normal jump
 //!     between the corner cells of neighbouring faces.
+//!
 //!   The approximated region is 4⁻ᴸ of the face, and the only place a normal jump can remain; the limit's
 //!   normal varies less and less over it as L grows.
 //! - Edge curves ([`EdgeCurve`]): piecewise cubic over breaks along the edge. An edge at an extraordinary
@@ -384,12 +385,12 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
                         0 => {
                             let ends = (vertex[a as usize], normal[a as usize], edge_direction(h));
                             let spans: Vec<[V3; 4]> = (1..n).map(|i| [0, 1, 2, 3].map(|s| cell(i, 0)[s])).collect();
-                            fit_ev_edge(surface, f, ev, p1, true, ends, &spans, levels)
+                            fit_ev_edge(surface, f, ev, p1, true, ends, (&spans, levels))
                         }
                         _ => {
                             let ends = (vertex[b as usize], normal[b as usize], edge_direction(t));
                             let spans: Vec<[V3; 4]> = (1..n).map(|j| [0, 4, 8, 12].map(|s| cell(0, j)[s])).collect();
-                            fit_ev_edge(surface, f, ev, p1, false, ends, &spans, levels).reversed()
+                            fit_ev_edge(surface, f, ev, p1, false, ends, (&spans, levels)).reversed()
                         }
                     }
                 };
@@ -487,13 +488,12 @@ const G1_WEIGHT: f64 = 100.0;
 
 /// The curve of an edge between two extraordinary faces that ends at the extraordinary vertex, running
 /// from that vertex over the face's breaks ([`ev_breaks`]): `exact` are the exact spans from the second on
-/// (the boundary rows of face `f`'s exact cells); the first is `[p0, p0 + α·d, 2·e[0] − e[1], e[0]]`
+/// (the boundary rows of face `f`'s exact cells, `levels` deep); the first is `[p0, p0 + α·d, 2·e[0] − e[1], e[0]]`
 /// (`e` the second span), C¹ to the second, leaving the vertex (`ends`: limit point, limit normal, exact
 /// limit tangent of the edge) along `d`. Only α is fitted, to the exact limit at 15 points of the first
 /// span: positions, and the curve's derivative in the limit's tangent plane (`n · c'(t) = 0`). A fitted α
 /// outside a tenth of the chord to the chord becomes a third of the chord. Without a tangent (a degenerate
 /// vertex), `d` is the inner point's direction projected into the tangent plane.
-#[allow(clippy::too_many_arguments)]
 fn fit_ev_edge(
     surface: &LimitSurface,
     f: usize,
@@ -501,8 +501,7 @@ fn fit_ev_edge(
     p1: &[V3],
     along_u: bool,
     (p0, n0, direction): (V3, V3, Option<V3>),
-    exact: &[[V3; 4]],
-    levels: usize,
+    (exact, levels): (&[[V3; 4]], usize),
 ) -> EdgeCurve {
     let size = 0.5f64.powi(levels as i32);
     let c3 = exact[0][0];

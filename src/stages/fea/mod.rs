@@ -429,7 +429,8 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
         })
         .collect();
     // The largest `key` over the vertices that `keep` admits.
-    let extreme_where = |keep: &dyn Fn(usize) -> bool, key: &dyn Fn(&(V3, f64, [f64; 3])) -> f64| -> Extreme {
+    type Key<'k> = &'k dyn Fn(&(V3, f64, [f64; 3])) -> f64;
+    let extreme_where = |keep: &dyn Fn(usize) -> bool, key: Key| -> Extreme {
         let (i, v) = per_vertex
             .iter()
             .enumerate()
@@ -438,7 +439,7 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
             .fold((0, f64::NEG_INFINITY), |b, x| if x.1 > b.1 { x } else { b });
         Extreme { value: v, at: wide(mesh.positions[i]) }
     };
-    let extreme = |key: &dyn Fn(&(V3, f64, [f64; 3])) -> f64| extreme_where(&|_| true, key);
+    let extreme = |key: Key| extreme_where(&|_| true, key);
     let max_displacement = extreme(&|x| norm(x.0));
     let max_von_mises = extreme(&|x| x.1);
     let exclusion_distance = 2.0 * h;

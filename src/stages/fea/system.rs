@@ -79,6 +79,11 @@ impl Dofs {
     pub fn len(&self) -> usize {
         3 * self.functions.len()
     }
+
+    /// No active function (nothing to solve for).
+    pub fn is_empty(&self) -> bool {
+        self.functions.is_empty()
+    }
 }
 
 /// Fill-reducing order of the active functions by geometric nested dissection of the function grid: split

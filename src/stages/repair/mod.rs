@@ -7,13 +7,13 @@
 //! 2. [`manifold`]: make non-manifold edges and vertices manifold, orient faces consistently, keep the
 //!    components that matter (largest by area, plus any of at least `keep_share` of the area);
 //! 3. [`holes`]: fill every hole (Liepa: minimum-weight triangulation, refinement, thin-plate fairing);
-//! 3b. [`handles`] (optional, `max_handle_loop_rel` > 0): cut handles whose shortest non-separating loop is
-//!    shorter than `max_handle_loop_rel × diagonal` (topological noise of range-scan fusion) and fill both
-//!    sides;
+//!    then, optionally ([`handles`], `max_handle_loop_rel` > 0), cut handles whose shortest non-separating
+//!    loop is shorter than `max_handle_loop_rel × diagonal` (topological noise of range-scan fusion) and fill
+//!    both sides;
 //! 4. [`intersections`]: delete intersecting triangles with a growing neighbourhood and refill, until none
 //!    remain (after the first filling, so that fills are checked too);
 //! 5. [`smooth`]: move spike vertices to their ring centroid; optional Taubin λ|μ smoothing;
-//! 6. [`decimate`] (optional): quadric-error edge collapses to a target vertex count, refusing collapses that
+//! 6. [`decimate`](crate::geometry::decimate) (optional): quadric-error edge collapses to a target vertex count, refusing collapses that
 //!    break the link condition or fold faces; then a self-intersection search and removal;
 //! 7. orient outward (positive signed volume).
 //!
