@@ -144,6 +144,17 @@ pub fn read_geometry(path: &Path, options: &ReadOptions) -> Result<Geometry> {
 ///
 /// # Errors
 /// As [`read_geometry`]; `input.no-geometry` for a point cloud.
+///
+/// # Example
+/// ```
+/// use scanstation::geometry::io::{ReadOptions, read_mesh};
+///
+/// let path = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/spot.ply"));
+/// let mesh = read_mesh(path, &ReadOptions::default())?;
+/// assert!(mesh.face_count() > 1_000);
+/// assert!(mesh.bbox().diagonal() > 0.0);
+/// # Ok::<(), scanstation::Error>(())
+/// ```
 pub fn read_mesh(path: &Path, options: &ReadOptions) -> Result<PolyMesh> {
     match read_geometry(path, options)? {
         Geometry::Mesh(m) => Ok(m),

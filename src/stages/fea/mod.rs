@@ -273,6 +273,37 @@ pub fn closed_solid(mesh: &TriMesh) -> Result<(TriMesh, f64)> {
 /// `fea.open-surface`, `fea.bad-spec`, `fea.empty-selection` (a region that selects no surface, named),
 /// `fea.singular` (no supports, or supports that cannot hold the solid), `fea.not-converged`.
 /// Cost: see [`domain::Domain::new`] and [`system::assemble`]; the solve dominates for large grids.
+///
+/// # Example
+/// ```
+/// use scanstation::geometry::shapes::rod;
+/// use scanstation::stages::{NoProgress, fea::{FeaOptions, FeaSpec, solve}};
+///
+/// // A steel rod (d = 5 mm, L = 100 mm along x) clamped at x = 0, pulled by 100 N at x = 100:
+/// // the tip moves F L / E A = 2.4e-4 mm.
+/// let spec = FeaSpec::from_toml(r#"
+///     [material]
+///     youngs_modulus = 210000.0
+///     poissons_ratio = 0.3
+///     [[supports]]
+///     name = "root"
+///     plane = { point = [0.001, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }
+///     [[loads]]
+///     name = "tip"
+///     plane = { point = [99.999, 0.0, 0.0], normal = [1.0, 0.0, 0.0] }
+///     force = [100.0, 0.0, 0.0]
+///     [resolution]
+///     cell_size = 2.5
+///     [[probes]]
+///     name = "tip centre"
+///     point = [100.0, 0.0, 0.0]
+/// "#)?;
+/// let sol = solve(&rod(2.5, 100.0, 32, 40), &spec, &FeaOptions::default(), &NoProgress)?;
+/// let tip = sol.report.probes[0].displacement[0];
+/// let expected = 100.0 * 100.0 / (210000.0 * std::f64::consts::PI * 2.5 * 2.5);
+/// assert!((tip - expected).abs() < 0.05 * expected, "tip {tip} against {expected}");
+/// # Ok::<(), scanstation::Error>(())
+/// ```
 pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dyn Progress) -> Result<FeaSolution> {
     spec.validate()?;
     let (mesh, surface_volume) = closed_solid(mesh)?;

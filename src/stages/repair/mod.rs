@@ -144,6 +144,23 @@ fn faces_from_input(input: &TriMesh, out: &TriMesh) -> Vec<[u32; 3]> {
 /// cleaning or the result is not a closed oriented 2-manifold. The input is never modified.
 ///
 /// Cost: O(F log F) plus O(n³) per hole of n boundary edges (n ≤ 240, longer loops are ear-clipped first).
+///
+/// # Example
+/// ```
+/// use scanstation::geometry::shapes::icosphere;
+/// use scanstation::stages::{NoProgress, repair::{RepairOptions, repair}};
+/// use scanstation::PolyMesh;
+///
+/// // A sphere with one triangle missing: repair fills the hole and closes it.
+/// let mut sphere = icosphere(1.0, 3, [0.0; 3]);
+/// sphere.triangles.pop();
+/// let opts = RepairOptions { compare_samples: 2_000, ..Default::default() };
+/// let (closed, report) = repair(&PolyMesh::from(sphere), &opts, &NoProgress)?;
+/// assert!(report.output.closed);
+/// assert_eq!(report.holes.holes_filled, 1);
+/// assert!(closed.signed_volume() > 0.0);
+/// # Ok::<(), scanstation::Error>(())
+/// ```
 pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) -> Result<(TriMesh, RepairReport)> {
     let t0 = Instant::now();
     if mesh.face_count() == 0 {

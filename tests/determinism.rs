@@ -1,0 +1,64 @@
+//! Same input, same settings, any thread count: the same bytes. The remesh docs promise it (the fields are
+//! updated by colour classes, sums are taken in order); these tests run the stage and the whole chain in a
+//! 1-thread and a 2-thread rayon pool and compare the outputs bit for bit.
+
+mod common;
+
+use std::path::Path;
+
+use scanstation::geometry::io::{ReadOptions, read_mesh};
+use scanstation::geometry::shapes::torus;
+use scanstation::pipeline::{ConvertOptions, Resolution, convert_file};
+use scanstation::stages::NoProgress;
+use scanstation::stages::remesh::{RemeshOptions, remesh};
+
+const SPOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/spot.ply");
+
+fn pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a rayon pool")
+}
+
+#[test]
+fn remesh_gives_the_same_quads_on_one_and_two_threads() {
+    // The torus runs the cancellation tries (split route) and the spot scan the full cascade.
+    let spot = read_mesh(Path::new(SPOT), &ReadOptions::default()).expect("examples/spot.ply").triangulate().0;
+    for (name, mesh, target) in [("torus", torus(1.0, 0.4, 120, 48), 1500), ("spot", spot, 2000)] {
+        let opts = RemeshOptions { target_vertices: target, compare_samples: 5_000, ..Default::default() };
+        let run = |threads: usize| pool(threads).install(|| remesh(&mesh, &opts, &NoProgress)).expect(name);
+        let ((one, r1), (two, r2)) = (run(1), run(2));
+        assert_eq!(one.positions, two.positions, "{name}: positions differ between 1 and 2 threads");
+        assert!(one.faces().eq(two.faces()), "{name}: faces differ between 1 and 2 threads");
+        assert_eq!(r1.mode, r2.mode, "{name}: route");
+        assert_eq!(r1.attempts.len(), r2.attempts.len(), "{name}: attempts");
+        let rms = |r: &scanstation::stages::remesh::RemeshReport| r.distance.as_ref().map(|d| d.symmetric.rms.value);
+        assert_eq!(rms(&r1), rms(&r2), "{name}: distance to the input");
+    }
+}
+
+#[test]
+fn convert_writes_the_same_bytes_on_one_and_two_threads() {
+    let dir = common::scratch("determinism-convert");
+    let opts =
+        ConvertOptions { resolution: Resolution::Vertices(1_500), compare_samples: 20_000, ..Default::default() };
+    let outputs: Vec<Vec<Vec<u8>>> = [1, 2]
+        .iter()
+        .map(|&threads| {
+            // Same file name in both runs: the STEP header and the solid mesh's hash comment name it.
+            let sub = dir.join(format!("{threads}-threads"));
+            std::fs::create_dir_all(&sub).unwrap();
+            let step = sub.join("spot.step");
+            let report = pool(threads)
+                .install(|| convert_file(Path::new(SPOT), &step, &ReadOptions::default(), &opts, &NoProgress))
+                .expect("convert examples/spot.ply");
+            [&step, &report.solid_mesh_file, &report.error_map_file]
+                .iter()
+                .map(|p| std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
+                .collect()
+        })
+        .collect();
+    for (k, what) in ["STEP file", "solid mesh", "error map"].iter().enumerate() {
+        let (a, b) = (&outputs[0][k], &outputs[1][k]);
+        assert!(!a.is_empty(), "{what}: empty");
+        assert!(a == b, "{what}: {} bytes on 1 thread and {} on 2 differ", a.len(), b.len());
+    }
+}
