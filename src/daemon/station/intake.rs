@@ -1,4 +1,5 @@
-//! Intake: the inbox scan, files settling, the claim (rename into `work/<id>/`, hash, admit) and `SubmitFile`.
+//! Intake: the inbox scan, files settling, the claim (rename into `work/<id>/`, hash, admit) and
+//! `SubmitFile`.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -1,4 +1,5 @@
-//! The job lifecycle: the job table, starting jobs on the workers, their events, finishing, cancelling, pruning and the history.
+//! The job lifecycle: the job table, starting jobs on the workers, their events, finishing, cancelling,
+//! pruning and the history.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -1,4 +1,5 @@
-//! The D-Bus mirror of the actor's state: exporting job objects, announcing finished jobs, the Manager's properties and signals.
+//! The D-Bus mirror of the actor's state: exporting job objects, announcing finished jobs, the Manager's
+//! properties and signals.
 
 use std::time::Instant;
 
