@@ -27,6 +27,7 @@
 
 // `!(x > 0.0)` is deliberate: it is also true for NaN. Index loops over the 3 coordinates read better than
 // zipped iterators in the geometry kernels.
+#![warn(missing_docs)]
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop, clippy::collapsible_match)]
 
 #[cfg(feature = "daemon")]

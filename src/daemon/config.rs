@@ -12,8 +12,11 @@ use sha2::{Digest, Sha256};
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("config {file}: {key}: {reason}")]
 pub struct ConfigError {
+    /// The configuration file.
     pub file: String,
+    /// The key at fault (`section.key`).
     pub key: String,
+    /// What is wrong with it.
     pub reason: String,
 }
 
@@ -91,7 +94,9 @@ struct RawDbus {
 #[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Bus {
+    /// The system bus (the service's normal place).
     System,
+    /// The session bus (tests, a desk).
     Session,
 }
 
@@ -101,45 +106,69 @@ pub enum Bus {
 pub enum LogFormat {
     /// journald when its socket exists, else `pretty` on stderr.
     Auto,
+    /// To the systemd journal, with structured fields.
     Journald,
+    /// Human-readable lines on stderr.
     Pretty,
+    /// One JSON object per line on stderr.
     Json,
 }
 
 /// The validated configuration (see `config/scanstation.toml` for every key's meaning).
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Config {
+    /// The bus the daemon serves on.
     pub bus: Bus,
+    /// Where and how it logs.
     pub log_format: LogFormat,
     /// Threads of the CPU pool that runs stages (0 in the file = cores − 1, at least 1).
     pub worker_threads: usize,
+    /// Jobs that run at once.
     pub max_parallel_jobs: usize,
+    /// Feed systemd's watchdog.
     pub watchdog: bool,
     #[serde(with = "secs")]
+    /// A running job with no progress for this long counts as stuck (the watchdog is then not fed).
     pub stall_timeout: Duration,
+    /// The spool root (inbox, work, outbox, quarantine).
     pub spool: PathBuf,
+    /// The state directory (the job journal).
     pub state: PathBuf,
     #[serde(with = "secs")]
+    /// How long an inbox file must stay unchanged before it is claimed.
     pub settle: Duration,
     #[serde(with = "secs")]
+    /// How often the inbox is rescanned besides inotify.
     pub reconcile_interval: Duration,
     /// Accepted extensions, lower case, without the dot (".gz" variants are accepted too).
     pub accept: Vec<String>,
+    /// File name suffixes the inbox ignores (partial uploads).
     pub ignore_suffixes: Vec<String>,
     #[serde(with = "secs")]
+    /// Content submitted again within this window is refused as a duplicate (0: never).
     pub dedupe_window: Duration,
+    /// Most bytes a job may allocate.
     pub memory_budget: u64,
+    /// Largest input file accepted, bytes.
     pub max_input_size: u64,
+    /// Finished job objects kept on the bus at most.
     pub keep_finished_jobs: usize,
     #[serde(with = "secs")]
+    /// How long a finished job object stays on the bus.
     pub finished_job_linger: Duration,
     /// Control vertices of the quad net (ignored when `tolerance` is set).
     pub vertices: usize,
+    /// Default RMS tolerance (length) instead of a vertex count.
     pub tolerance: Option<f64>,
+    /// Default seed of remeshing and sampling.
     pub seed: u64,
+    /// Samples per side of every quality measurement.
     pub compare_samples: usize,
+    /// Re-queue jobs a restart interrupted (otherwise quarantine them as `interrupted`).
     pub resume: bool,
+    /// Most `Progress` change signals per second per job.
     pub progress_max_rate_hz: f64,
+    /// The group whose members may submit, cancel and pause.
     pub ops_group: String,
 }
 

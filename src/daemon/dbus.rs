@@ -26,6 +26,7 @@ pub const BUS_NAME: &str = "org.scanstation.Station1";
 pub const MANAGER_PATH: &str = "/org/scanstation/Station1";
 /// Interface names.
 pub const MANAGER_IFACE: &str = "org.scanstation.Station1.Manager";
+/// The job objects' interface name.
 pub const JOB_IFACE: &str = "org.scanstation.Station1.Job";
 
 /// Object path of a job.
@@ -38,6 +39,7 @@ pub fn job_path(id: &JobId) -> OwnedObjectPath {
 #[zbus(prefix = "org.scanstation.Station1.Error")]
 pub enum StationError {
     #[zbus(error)]
+    /// A D-Bus error of zbus itself.
     ZBus(zbus::Error),
     /// A malformed argument (relative path, unknown option, value out of range).
     InvalidArgument(String),
@@ -55,27 +57,43 @@ pub enum StationError {
 
 /// A request to the station actor.
 pub enum Command {
+    /// `SubmitFile`: claim the file at `path` (moved from the inbox, copied from elsewhere) as a job.
     Submit {
+        /// The file (absolute).
         path: PathBuf,
+        /// The job's options.
         options: JobOptions,
+        /// Who submitted it (`dbus:<sender>`).
         source: String,
+        /// The new job's id, or why not.
         reply: oneshot::Sender<Result<JobId, StationError>>,
     },
+    /// `Cancel` on a job.
     Cancel {
+        /// The job's id.
         id: String,
+        /// Done, or why not.
         reply: oneshot::Sender<Result<(), StationError>>,
     },
+    /// `PauseIntake` / `ResumeIntake`.
     SetPaused {
+        /// Pause (true) or resume.
         paused: bool,
+        /// Done.
         reply: oneshot::Sender<()>,
     },
+    /// `GetHistory`.
     History {
+        /// Jobs finished since this time, µs since the epoch.
         since_usec: u64,
+        /// At most this many (0: 100).
         limit: u32,
+        /// The finished jobs, newest first.
         reply: oneshot::Sender<Vec<HashMap<String, OwnedValue>>>,
     },
     /// Liveness probe of the actor loop (the watchdog).
     Ping {
+        /// Answered by the loop.
         reply: oneshot::Sender<()>,
     },
 }
@@ -83,8 +101,11 @@ pub enum Command {
 /// Who may change things.
 #[derive(Clone, Debug)]
 pub struct Access {
+    /// The daemon's own uid (allowed like root).
     pub own_uid: u32,
+    /// The name of the operators' group.
     pub ops_group: String,
+    /// Its gid, when the group exists.
     pub ops_gid: Option<u32>,
 }
 
@@ -168,18 +189,27 @@ async fn ask<T>(
 /// What the Manager's properties show.
 #[derive(Clone, Debug, Default)]
 pub struct ManagerView {
+    /// `idle`, `busy`, `paused` or `degraded`.
     pub state: String,
+    /// Jobs running.
     pub active: Vec<OwnedObjectPath>,
+    /// Jobs waiting.
     pub queued: Vec<OwnedObjectPath>,
+    /// Jobs that succeeded since the start.
     pub succeeded: u64,
+    /// Jobs that failed since the start.
     pub failed: u64,
 }
 
 /// `org.scanstation.Station1.Manager`.
 pub struct ManagerIface {
+    /// The actor's command channel.
     pub tx: mpsc::Sender<Command>,
+    /// The properties as the actor last set them.
     pub view: Arc<Mutex<ManagerView>>,
+    /// The daemon's memory budget (property `MemoryBudget`).
     pub memory_budget: u64,
+    /// Who may call what.
     pub access: Access,
 }
 
@@ -225,248 +255,289 @@ fn parse_options(options: &HashMap<String, OwnedValue>) -> Result<JobOptions, St
     Ok(o)
 }
 
-#[interface(name = "org.scanstation.Station1.Manager")]
-impl ManagerIface {
-    /// Queue a file as a job. `path` must be absolute; a file in the spool's inbox is moved into the job
-    /// (as the watch folder would), any other file is copied. Options: `vertices` (u), `tolerance` (d),
-    /// `seed` (t). The job object exists when this returns.
-    async fn submit_file(
-        &self,
-        path: String,
-        options: HashMap<String, OwnedValue>,
-        #[zbus(header)] hdr: Header<'_>,
-        #[zbus(connection)] conn: &Connection,
-    ) -> Result<OwnedObjectPath, StationError> {
-        authorize(conn, &hdr, &self.access, "SubmitFile").await?;
-        let path = PathBuf::from(path);
-        if !path.is_absolute() {
-            return Err(StationError::InvalidArgument(format!("{} is not an absolute path", path.display())));
+/// `ManagerIface`'s D-Bus methods, properties and signals (a module of its own so that the undocumented helpers
+/// zbus's interface macro adds are allowed, and nothing else).
+pub mod manager_iface {
+    #![allow(missing_docs)]
+    use super::*;
+
+    #[interface(name = "org.scanstation.Station1.Manager")]
+    impl ManagerIface {
+        /// Queue a file as a job. `path` must be absolute; a file in the spool's inbox is moved into the job
+        /// (as the watch folder would), any other file is copied. Options: `vertices` (u), `tolerance` (d),
+        /// `seed` (t). The job object exists when this returns.
+        async fn submit_file(
+            &self,
+            path: String,
+            options: HashMap<String, OwnedValue>,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<OwnedObjectPath, StationError> {
+            authorize(conn, &hdr, &self.access, "SubmitFile").await?;
+            let path = PathBuf::from(path);
+            if !path.is_absolute() {
+                return Err(StationError::InvalidArgument(format!("{} is not an absolute path", path.display())));
+            }
+            let options = parse_options(&options)?;
+            let source = format!("dbus:{}", hdr.sender().map(|s| s.to_string()).unwrap_or_default());
+            let id = ask(&self.tx, |reply| Command::Submit { path, options, source, reply }).await??;
+            Ok(job_path(&id))
         }
-        let options = parse_options(&options)?;
-        let source = format!("dbus:{}", hdr.sender().map(|s| s.to_string()).unwrap_or_default());
-        let id = ask(&self.tx, |reply| Command::Submit { path, options, source, reply }).await??;
-        Ok(job_path(&id))
-    }
 
-    /// Finished jobs (from the journal) since a time (µs since the epoch), newest first, at most `limit`
-    /// (0 = 100). Each entry holds the Job properties by name.
-    async fn get_history(&self, since_usec: u64, limit: u32) -> Result<Vec<HashMap<String, OwnedValue>>, StationError> {
-        ask(&self.tx, |reply| Command::History { since_usec, limit, reply }).await
-    }
+        /// Finished jobs (from the journal) since a time (µs since the epoch), newest first, at most `limit`
+        /// (0 = 100). Each entry holds the Job properties by name.
+        async fn get_history(
+            &self,
+            since_usec: u64,
+            limit: u32,
+        ) -> Result<Vec<HashMap<String, OwnedValue>>, StationError> {
+            ask(&self.tx, |reply| Command::History { since_usec, limit, reply }).await
+        }
 
-    /// Stop claiming new inbox files and refuse `SubmitFile`; running and queued jobs go on.
-    async fn pause_intake(
-        &self,
-        #[zbus(header)] hdr: Header<'_>,
-        #[zbus(connection)] conn: &Connection,
-    ) -> Result<(), StationError> {
-        authorize(conn, &hdr, &self.access, "PauseIntake").await?;
-        ask(&self.tx, |reply| Command::SetPaused { paused: true, reply }).await
-    }
+        /// Stop claiming new inbox files and refuse `SubmitFile`; running and queued jobs go on.
+        async fn pause_intake(
+            &self,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<(), StationError> {
+            authorize(conn, &hdr, &self.access, "PauseIntake").await?;
+            ask(&self.tx, |reply| Command::SetPaused { paused: true, reply }).await
+        }
 
-    /// Claim inbox files again (and rescan the inbox).
-    async fn resume_intake(
-        &self,
-        #[zbus(header)] hdr: Header<'_>,
-        #[zbus(connection)] conn: &Connection,
-    ) -> Result<(), StationError> {
-        authorize(conn, &hdr, &self.access, "ResumeIntake").await?;
-        ask(&self.tx, |reply| Command::SetPaused { paused: false, reply }).await
-    }
+        /// Claim inbox files again (and rescan the inbox).
+        async fn resume_intake(
+            &self,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<(), StationError> {
+            authorize(conn, &hdr, &self.access, "ResumeIntake").await?;
+            ask(&self.tx, |reply| Command::SetPaused { paused: false, reply }).await
+        }
 
-    #[zbus(property(emits_changed_signal = "const"))]
-    fn version(&self) -> String {
-        env!("CARGO_PKG_VERSION").to_string()
-    }
+        #[zbus(property(emits_changed_signal = "const"))]
+        fn version(&self) -> String {
+            env!("CARGO_PKG_VERSION").to_string()
+        }
 
-    /// idle, busy, paused or degraded.
-    #[zbus(property)]
-    fn state(&self) -> String {
-        lock(&self.view).state.clone()
-    }
+        /// idle, busy, paused or degraded.
+        #[zbus(property)]
+        fn state(&self) -> String {
+            lock(&self.view).state.clone()
+        }
 
-    #[zbus(property)]
-    fn active_jobs(&self) -> Vec<OwnedObjectPath> {
-        lock(&self.view).active.clone()
-    }
+        #[zbus(property)]
+        fn active_jobs(&self) -> Vec<OwnedObjectPath> {
+            lock(&self.view).active.clone()
+        }
 
-    #[zbus(property)]
-    fn queued_jobs(&self) -> Vec<OwnedObjectPath> {
-        lock(&self.view).queued.clone()
-    }
+        #[zbus(property)]
+        fn queued_jobs(&self) -> Vec<OwnedObjectPath> {
+            lock(&self.view).queued.clone()
+        }
 
-    /// Jobs that succeeded since the daemon started.
-    #[zbus(property)]
-    fn jobs_succeeded(&self) -> u64 {
-        lock(&self.view).succeeded
-    }
+        /// Jobs that succeeded since the daemon started.
+        #[zbus(property)]
+        fn jobs_succeeded(&self) -> u64 {
+            lock(&self.view).succeeded
+        }
 
-    /// Jobs that failed (or were cancelled) since the daemon started.
-    #[zbus(property)]
-    fn jobs_failed(&self) -> u64 {
-        lock(&self.view).failed
-    }
+        /// Jobs that failed (or were cancelled) since the daemon started.
+        #[zbus(property)]
+        fn jobs_failed(&self) -> u64 {
+            lock(&self.view).failed
+        }
 
-    /// Bytes a job may use (`limits.memory_budget`).
-    #[zbus(property(emits_changed_signal = "const"))]
-    fn memory_budget(&self) -> u64 {
-        self.memory_budget
-    }
+        /// Bytes a job may use (`limits.memory_budget`).
+        #[zbus(property(emits_changed_signal = "const"))]
+        fn memory_budget(&self) -> u64 {
+            self.memory_budget
+        }
 
-    /// A job reached a terminal state (emitted once per job, like its `Completed`).
-    #[zbus(signal)]
-    pub async fn job_finished(
-        emitter: &SignalEmitter<'_>,
-        job: ObjectPath<'_>,
-        result: &str,
-        error_code: &str,
-    ) -> zbus::Result<()>;
+        /// A job reached a terminal state (emitted once per job, like its `Completed`).
+        #[zbus(signal)]
+        pub async fn job_finished(
+            emitter: &SignalEmitter<'_>,
+            job: ObjectPath<'_>,
+            result: &str,
+            error_code: &str,
+        ) -> zbus::Result<()>;
+    }
 }
 
 /// What a Job object's properties show.
 #[derive(Clone, Debug, Default)]
 pub struct JobView {
+    /// Property `Id`.
     pub id: String,
+    /// Property `Input`: the input's file name.
     pub input: String,
+    /// Property `InputSha256`.
     pub input_sha256: String,
+    /// Property `State`.
     pub state: String,
+    /// Property `Stage`.
     pub stage: String,
+    /// Property `StageIndex`.
     pub stage_index: u32,
+    /// Property `StageCount`.
     pub stage_count: u32,
+    /// Property `Progress` (0–1).
     pub progress: f64,
+    /// Property `Message`.
     pub message: String,
+    /// Property `SubmittedTime` (µs since the epoch).
     pub submitted_time: u64,
+    /// Property `StartTime` (µs since the epoch).
     pub start_time: u64,
+    /// Property `FinishTime` (µs since the epoch).
     pub finish_time: u64,
+    /// Property `PeakMemory` (bytes).
     pub peak_memory: u64,
+    /// Property `Cancelable`.
     pub cancelable: bool,
+    /// Property `Result`.
     pub result: String,
+    /// Property `ErrorCode`.
     pub error_code: String,
+    /// Property `Outputs` (kind → path).
     pub outputs: BTreeMap<String, String>,
 }
 
 /// `org.scanstation.Station1.Job`.
 pub struct JobIface {
+    /// The actor's command channel.
     pub tx: mpsc::Sender<Command>,
+    /// The properties as the actor last set them.
     pub view: Arc<Mutex<JobView>>,
+    /// Who may call what.
     pub access: Access,
 }
 
-#[interface(name = "org.scanstation.Station1.Job")]
-impl JobIface {
-    /// Stop the job: a queued job ends at once, a running one at its next checkpoint between stages;
-    /// `Completed("cancelled", "cancelled", …)` follows once the work has really stopped. The input moves
-    /// to quarantine. Fails with `NotCancelable` once the job has finished.
-    async fn cancel(
-        &self,
-        #[zbus(header)] hdr: Header<'_>,
-        #[zbus(connection)] conn: &Connection,
-    ) -> Result<(), StationError> {
-        authorize(conn, &hdr, &self.access, "Cancel").await?;
-        let id = lock(&self.view).id.clone();
-        ask(&self.tx, |reply| Command::Cancel { id, reply }).await?
-    }
+/// `JobIface`'s D-Bus methods, properties and signals (a module of its own so that the undocumented helpers
+/// zbus's interface macro adds are allowed, and nothing else).
+pub use job_iface::JobIfaceSignals;
+pub use manager_iface::ManagerIfaceSignals;
 
-    #[zbus(property(emits_changed_signal = "const"))]
-    fn id(&self) -> String {
-        lock(&self.view).id.clone()
-    }
+pub mod job_iface {
+    #![allow(missing_docs)]
+    use super::*;
 
-    /// The input's file name.
-    #[zbus(property(emits_changed_signal = "const"))]
-    fn input(&self) -> String {
-        lock(&self.view).input.clone()
-    }
+    #[interface(name = "org.scanstation.Station1.Job")]
+    impl JobIface {
+        /// Stop the job: a queued job ends at once, a running one at its next checkpoint between stages;
+        /// `Completed("cancelled", "cancelled", …)` follows once the work has really stopped. The input moves
+        /// to quarantine. Fails with `NotCancelable` once the job has finished.
+        async fn cancel(
+            &self,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<(), StationError> {
+            authorize(conn, &hdr, &self.access, "Cancel").await?;
+            let id = lock(&self.view).id.clone();
+            ask(&self.tx, |reply| Command::Cancel { id, reply }).await?
+        }
 
-    #[zbus(property(emits_changed_signal = "const"), name = "InputSha256")]
-    fn input_sha256(&self) -> String {
-        lock(&self.view).input_sha256.clone()
-    }
+        #[zbus(property(emits_changed_signal = "const"))]
+        fn id(&self) -> String {
+            lock(&self.view).id.clone()
+        }
 
-    /// queued, running, succeeded, failed or cancelled.
-    #[zbus(property)]
-    fn state(&self) -> String {
-        lock(&self.view).state.clone()
-    }
+        /// The input's file name.
+        #[zbus(property(emits_changed_signal = "const"))]
+        fn input(&self) -> String {
+            lock(&self.view).input.clone()
+        }
 
-    /// The stage running now: read, repair, remesh, surface, brep, step, quality, publish.
-    #[zbus(property)]
-    fn stage(&self) -> String {
-        lock(&self.view).stage.clone()
-    }
+        #[zbus(property(emits_changed_signal = "const"), name = "InputSha256")]
+        fn input_sha256(&self) -> String {
+            lock(&self.view).input_sha256.clone()
+        }
 
-    #[zbus(property)]
-    fn stage_index(&self) -> u32 {
-        lock(&self.view).stage_index
-    }
+        /// queued, running, succeeded, failed or cancelled.
+        #[zbus(property)]
+        fn state(&self) -> String {
+            lock(&self.view).state.clone()
+        }
 
-    #[zbus(property(emits_changed_signal = "const"))]
-    fn stage_count(&self) -> u32 {
-        lock(&self.view).stage_count
-    }
+        /// The stage running now: read, repair, remesh, surface, brep, step, quality, publish.
+        #[zbus(property)]
+        fn stage(&self) -> String {
+            lock(&self.view).stage.clone()
+        }
 
-    /// 0–1 over all stages, weighted; never decreases; 1 only when the job has finished.
-    #[zbus(property)]
-    fn progress(&self) -> f64 {
-        lock(&self.view).progress
-    }
+        #[zbus(property)]
+        fn stage_index(&self) -> u32 {
+            lock(&self.view).stage_index
+        }
 
-    #[zbus(property)]
-    fn message(&self) -> String {
-        lock(&self.view).message.clone()
-    }
+        #[zbus(property(emits_changed_signal = "const"))]
+        fn stage_count(&self) -> u32 {
+            lock(&self.view).stage_count
+        }
 
-    /// µs since the epoch.
-    #[zbus(property)]
-    fn submitted_time(&self) -> u64 {
-        lock(&self.view).submitted_time
-    }
+        /// 0–1 over all stages, weighted; never decreases; 1 only when the job has finished.
+        #[zbus(property)]
+        fn progress(&self) -> f64 {
+            lock(&self.view).progress
+        }
 
-    #[zbus(property)]
-    fn start_time(&self) -> u64 {
-        lock(&self.view).start_time
-    }
+        #[zbus(property)]
+        fn message(&self) -> String {
+            lock(&self.view).message.clone()
+        }
 
-    #[zbus(property)]
-    fn finish_time(&self) -> u64 {
-        lock(&self.view).finish_time
-    }
+        /// µs since the epoch.
+        #[zbus(property)]
+        fn submitted_time(&self) -> u64 {
+            lock(&self.view).submitted_time
+        }
 
-    /// Peak resident memory of the daemon while the job ran, bytes.
-    #[zbus(property)]
-    fn peak_memory(&self) -> u64 {
-        lock(&self.view).peak_memory
-    }
+        #[zbus(property)]
+        fn start_time(&self) -> u64 {
+            lock(&self.view).start_time
+        }
 
-    #[zbus(property)]
-    fn cancelable(&self) -> bool {
-        lock(&self.view).cancelable
-    }
+        #[zbus(property)]
+        fn finish_time(&self) -> u64 {
+            lock(&self.view).finish_time
+        }
 
-    /// "" until finished; then succeeded, failed or cancelled.
-    #[zbus(property)]
-    fn result(&self) -> String {
-        lock(&self.view).result.clone()
-    }
+        /// Peak resident memory of the daemon while the job ran, bytes.
+        #[zbus(property)]
+        fn peak_memory(&self) -> u64 {
+            lock(&self.view).peak_memory
+        }
 
-    #[zbus(property)]
-    fn error_code(&self) -> String {
-        lock(&self.view).error_code.clone()
-    }
+        #[zbus(property)]
+        fn cancelable(&self) -> bool {
+            lock(&self.view).cancelable
+        }
 
-    /// Kind → path: step, solid-mesh, report, error-map, manifest, quarantine, error.
-    #[zbus(property)]
-    fn outputs(&self) -> HashMap<String, String> {
-        lock(&self.view).outputs.clone().into_iter().collect()
-    }
+        /// "" until finished; then succeeded, failed or cancelled.
+        #[zbus(property)]
+        fn result(&self) -> String {
+            lock(&self.view).result.clone()
+        }
 
-    /// Emitted exactly once per job, after its work has stopped (also, after a restart, for a job that a
-    /// crash interrupted: `failed`, `interrupted`).
-    #[zbus(signal)]
-    pub async fn completed(
-        emitter: &SignalEmitter<'_>,
-        result: &str,
-        error_code: &str,
-        message: &str,
-    ) -> zbus::Result<()>;
+        #[zbus(property)]
+        fn error_code(&self) -> String {
+            lock(&self.view).error_code.clone()
+        }
+
+        /// Kind → path: step, solid-mesh, report, error-map, manifest, quarantine, error.
+        #[zbus(property)]
+        fn outputs(&self) -> HashMap<String, String> {
+            lock(&self.view).outputs.clone().into_iter().collect()
+        }
+
+        /// Emitted exactly once per job, after its work has stopped (also, after a restart, for a job that a
+        /// crash interrupted: `failed`, `interrupted`).
+        #[zbus(signal)]
+        pub async fn completed(
+            emitter: &SignalEmitter<'_>,
+            result: &str,
+            error_code: &str,
+            message: &str,
+        ) -> zbus::Result<()>;
+    }
 }

@@ -52,6 +52,7 @@ impl JobId {
         (s.len() == 26 && s.bytes().all(|b| CROCKFORD.contains(&b))).then(|| JobId(s.to_string()))
     }
 
+    /// The id as text.
     pub fn as_str(&self) -> &str {
         &self.0
     }
@@ -73,14 +74,20 @@ impl std::fmt::Display for JobId {
 #[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum JobState {
+    /// Waiting for a worker.
     Queued,
+    /// On a worker.
     Running,
+    /// Published to the outbox.
     Succeeded,
+    /// Quarantined with an error.
     Failed,
+    /// Stopped on request and quarantined.
     Cancelled,
 }
 
 impl JobState {
+    /// The state as D-Bus and the journal write it.
     pub fn as_str(self) -> &'static str {
         match self {
             JobState::Queued => "queued",
@@ -91,6 +98,7 @@ impl JobState {
         }
     }
 
+    /// Succeeded, failed or cancelled: never changes again.
     pub fn is_terminal(self) -> bool {
         matches!(self, JobState::Succeeded | JobState::Failed | JobState::Cancelled)
     }
@@ -99,25 +107,39 @@ impl JobState {
 /// One job as the journal keeps it.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct JobRecord {
+    /// Record schema ([`SCHEMA`]).
     pub schema: u32,
+    /// The job's id.
     pub id: JobId,
     /// The input's file name as it arrived.
     pub input: String,
     /// Where it came from: `inbox` or `dbus:<unique name>`.
     pub source: String,
+    /// Hex SHA-256 of the input.
     pub input_sha256: String,
+    /// Input size, bytes.
     pub input_size: u64,
+    /// Options from the sidecar or `SubmitFile`.
     pub options: JobOptions,
+    /// Where it is in its lifecycle.
     pub state: JobState,
+    /// The stage it is in (or ended in).
     pub stage: String,
+    /// When it was queued, µs since the epoch.
     pub submitted_usec: u64,
+    /// When it last started, µs since the epoch (0: never).
     pub start_usec: u64,
+    /// When it ended, µs since the epoch (0: not yet).
     pub finish_usec: u64,
     /// Times this job was started (more than one after a resume).
     pub runs: u32,
+    /// Stable error code when it failed or was cancelled.
     pub error_code: String,
+    /// Human-readable message of that error.
     pub message: String,
+    /// Files it published (kind → path).
     pub outputs: BTreeMap<String, String>,
+    /// Peak memory of its last run, bytes.
     pub peak_memory: u64,
     /// Whether `Completed` was emitted (a terminal record without it is announced after a restart).
     pub announced: bool,

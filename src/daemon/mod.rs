@@ -33,22 +33,44 @@ use dbus::{Access, BUS_NAME, Command, MANAGER_PATH, ManagerIface, ManagerView};
 /// A start-up failure: what could not be set up, for the operator.
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
+    /// A bad configuration file.
     #[error(transparent)]
     Config(#[from] config::ConfigError),
+    /// A spool directory that cannot be used.
     #[error(transparent)]
     Spool(#[from] spool::SpoolError),
+    /// The state directory (journal) cannot be used.
     #[error("state directory {path}: {reason}")]
-    State { path: String, reason: String },
+    State {
+        /// The directory.
+        path: String,
+        /// Why.
+        reason: String,
+    },
+    /// The bus cannot be reached.
     #[error("cannot connect to the {bus} bus: {reason}")]
-    Bus { bus: &'static str, reason: String },
+    Bus {
+        /// `system` or `session`.
+        bus: &'static str,
+        /// Why.
+        reason: String,
+    },
     #[error(
         "cannot take the bus name {BUS_NAME}: {0} (is another scanstationd running, or does the policy forbid it?)"
     )]
+    /// The bus name is taken or forbidden.
     Name(String),
+    /// The objects cannot be exported.
     #[error("cannot export the D-Bus objects: {0}")]
     Export(String),
+    /// The inbox cannot be watched.
     #[error("cannot watch the inbox {path}: {reason}")]
-    Watch { path: String, reason: String },
+    Watch {
+        /// The inbox.
+        path: String,
+        /// Why.
+        reason: String,
+    },
 }
 
 /// Run the daemon until SIGTERM or SIGINT.

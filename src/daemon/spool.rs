@@ -14,10 +14,15 @@ pub const SIDECAR_SUFFIX: &str = ".job.toml";
 /// Paths of the spool.
 #[derive(Clone, Debug)]
 pub struct Spool {
+    /// The spool root.
     pub root: PathBuf,
+    /// Where files are dropped.
     pub inbox: PathBuf,
+    /// Claimed inputs, one directory per job.
     pub work: PathBuf,
+    /// Published results, one directory per job.
     pub outbox: PathBuf,
+    /// Failed and cancelled jobs, one directory per job.
     pub quarantine: PathBuf,
 }
 
@@ -25,7 +30,9 @@ pub struct Spool {
 #[derive(Debug, thiserror::Error)]
 #[error("spool {path}: {reason}")]
 pub struct SpoolError {
+    /// The directory at fault.
     pub path: String,
+    /// What is wrong with it.
     pub reason: String,
 }
 
@@ -76,10 +83,12 @@ impl Spool {
         self.outbox.join(format!(".{stem}-{id}.part"))
     }
 
+    /// `quarantine/<stem>-<id>/`.
     pub fn quarantine_dir(&self, stem: &str, id: &JobId) -> PathBuf {
         self.quarantine.join(format!("{stem}-{id}"))
     }
 
+    /// `quarantine/.<stem>-<id>.part/`, where a quarantine is built before its rename.
     pub fn quarantine_part(&self, stem: &str, id: &JobId) -> PathBuf {
         self.quarantine.join(format!(".{stem}-{id}.part"))
     }

@@ -31,8 +31,24 @@ const BEFORE_DONE: f64 = 0.999;
 /// What the worker tells the station.
 #[derive(Debug)]
 pub enum WorkerEvent {
-    Progress { id: JobId, fraction: f64, stage: &'static str, message: String },
-    Done { id: JobId, outcome: Outcome },
+    /// Progress of a running job.
+    Progress {
+        /// The job.
+        id: JobId,
+        /// Overall fraction, 0–1.
+        fraction: f64,
+        /// Its stage ([`STAGES`]).
+        stage: &'static str,
+        /// The phase, `stage/phase`.
+        message: String,
+    },
+    /// The job ended.
+    Done {
+        /// The job.
+        id: JobId,
+        /// How.
+        outcome: Outcome,
+    },
 }
 
 /// How a job ended.
@@ -42,21 +58,29 @@ pub struct Outcome {
     pub error: Option<Error>,
     /// The stage that was running when it ended.
     pub stage: String,
+    /// Files published (kind → path).
     pub outputs: BTreeMap<String, String>,
+    /// Peak memory of the run, bytes.
     pub peak_memory: u64,
 }
 
 /// Everything a job's run needs.
 pub struct JobRun {
+    /// The job's record as it starts.
     pub record: JobRecord,
+    /// The settings.
     pub cfg: Arc<Config>,
+    /// Digest of the settings (written into reports).
     pub config_digest: String,
+    /// The spool.
     pub spool: Spool,
     /// An error decided before the work (duplicate, too large, bad sidecar): quarantine at once.
     pub preset_error: Option<Error>,
+    /// Set to stop the job at its next checkpoint.
     pub cancel: Arc<AtomicBool>,
     /// µs of the last progress report (the watchdog only pets while this moves).
     pub heartbeat: Arc<AtomicU64>,
+    /// Where progress and the outcome go.
     pub events: mpsc::UnboundedSender<WorkerEvent>,
 }
 

@@ -38,11 +38,13 @@ pub struct DecimateReport {
     pub target_vertices: usize,
     /// Vertices before and after.
     pub vertices_before: usize,
+    /// Vertices after.
     pub vertices_after: usize,
     /// Edge collapses done.
     pub collapses: usize,
     /// Collapses refused by the link condition, and by the fold-over/degeneracy test.
     pub refused_link: usize,
+    /// Collapses refused by the fold-over/degeneracy test.
     pub refused_fold: usize,
     /// Collapses refused because a changed face would cross another face.
     pub refused_intersection: usize,

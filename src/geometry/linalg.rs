@@ -30,7 +30,9 @@ pub fn solve_dense<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Opt
 /// row by row (rows are sparse: `(unknown, coefficient)` pairs).
 #[derive(Clone, Debug)]
 pub struct NormalEquations<const N: usize> {
+    /// AᵀWA, accumulated.
     pub ata: [[f64; N]; N],
+    /// AᵀWr, accumulated.
     pub atb: [f64; N],
 }
 

@@ -8,10 +8,12 @@ use std::collections::HashMap;
 use crate::geometry::vec3::{self, V3, add, cross, scale};
 
 #[inline]
+/// The undirected edge (a, b) as a key: the smaller index first.
 pub fn key(a: u32, b: u32) -> (u32, u32) {
     (a.min(b), a.max(b))
 }
 
+/// The undirected edges of a polygon mesh, as [`key`]s.
 pub fn edge_set(faces: &[Vec<u32>]) -> std::collections::HashSet<(u32, u32)> {
     unique_edges(faces.iter().map(Vec::as_slice)).into_iter().collect()
 }

@@ -10,30 +10,37 @@ pub fn wide(p: [f32; 3]) -> V3 {
     [p[0] as f64, p[1] as f64, p[2] as f64]
 }
 #[inline]
+/// a − b.
 pub fn sub(a: V3, b: V3) -> V3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 #[inline]
+/// a + b.
 pub fn add(a: V3, b: V3) -> V3 {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
 #[inline]
+/// s · a.
 pub fn scale(a: V3, s: f64) -> V3 {
     [a[0] * s, a[1] * s, a[2] * s]
 }
 #[inline]
+/// a · b.
 pub fn dot(a: V3, b: V3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 #[inline]
+/// a × b.
 pub fn cross(a: V3, b: V3) -> V3 {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 #[inline]
+/// |a|².
 pub fn norm2(a: V3) -> f64 {
     dot(a, a)
 }
 #[inline]
+/// |a|.
 pub fn norm(a: V3) -> f64 {
     dot(a, a).sqrt()
 }
@@ -48,7 +55,9 @@ pub fn unit_or(a: V3, fallback: V3) -> V3 {
 /// An axis-aligned box in f64. An empty box has `min > max`.
 #[derive(Copy, Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Aabb {
+    /// Smallest corner.
     pub min: V3,
+    /// Largest corner.
     pub max: V3,
 }
 

@@ -74,19 +74,26 @@ pub const TOLERANCE_MAX: usize = 80_000;
 /// Settings of a conversion.
 #[derive(Clone, Debug)]
 pub struct ConvertOptions {
+    /// How fine the quad control net is.
     pub resolution: Resolution,
+    /// Repair's settings (the chain sets the budget, the distance measure and the handle cut).
     pub repair: RepairOptions,
+    /// Remesh's settings (the chain sets the target, the seed and the budget).
     pub remesh: RemeshOptions,
+    /// The surface fit's settings.
     pub fit: FitOptions,
     /// Samples per side for every quality check.
     pub compare_samples: usize,
+    /// Seed of remeshing and sampling; other seeds follow it when a chain is built again.
     pub seed: u64,
+    /// Length unit written into the STEP file.
     pub unit: LengthUnit,
     /// Also write the quad control net here (OBJ or PLY).
     pub quads_output: Option<PathBuf>,
     /// Let repair cut handles too narrow for the quad net ([`small_handle_loop`]) unless
     /// `repair.max_handle_loop_rel` is set already.
     pub remove_small_handles: bool,
+    /// Most bytes any stage may allocate (each checks its estimate first).
     pub memory_budget: u64,
 }
 
@@ -126,7 +133,9 @@ impl Default for ConvertOptions {
 /// Time, memory and (where it applies) distance to the input after one stage.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct StageReport {
+    /// `read`, `repair`, `remesh`, `surface`, `brep`, `step` or `quality`.
     pub stage: &'static str,
+    /// Wall seconds of the stage.
     pub seconds: f64,
     /// Peak resident memory of the process during the stage (Linux: the reset high-water mark where
     /// allowed, and a 5 ms `VmRSS` sampler; `null` elsewhere), MiB.
@@ -138,21 +147,27 @@ pub struct StageReport {
 /// One resolution tried.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Attempt {
+    /// Control vertices asked for.
     pub target_vertices: usize,
+    /// Control vertices of the net made.
     pub control_vertices: usize,
     /// The remesh seed of this try.
     pub seed: u64,
     /// Crossing triangle pairs of the solid's tessellation (a try with any is built again from another
     /// seed, up to [`SOLID_RETRIES`] times).
     pub solid_self_intersections: usize,
+    /// Two-sided RMS distance of the solid to the input, model units.
     pub solid_rms: f64,
+    /// The same in percent of the input's bounding-box diagonal.
     pub solid_rms_pct: f64,
 }
 
 /// What `scanstation convert` reports.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct ConvertReport {
+    /// The scan converted.
     pub input_file: PathBuf,
+    /// The STEP file written.
     pub output_file: PathBuf,
     /// The solid's watertight tessellation written beside the STEP file for `fea` (NAME.solid.ply).
     pub solid_mesh_file: PathBuf,
@@ -161,14 +176,23 @@ pub struct ConvertReport {
     pub error_map_file: PathBuf,
     /// The error map's colour-scale top (red): the 99th percentile of its vertices' distances.
     pub error_map_scale: f64,
+    /// Length unit of the STEP file.
     pub unit: LengthUnit,
+    /// Vertices of the input mesh.
     pub input_vertices: usize,
+    /// Faces of the input mesh.
     pub input_faces: usize,
+    /// Bounding-box diagonal of the input, model units.
     pub bbox_diagonal: f64,
+    /// Time, memory and distance after every stage.
     pub stages: Vec<StageReport>,
+    /// What repair did.
     pub repair: RepairReport,
+    /// What remesh did on the kept chain.
     pub remesh: RemeshReport,
+    /// What the surface fit did on the kept chain.
     pub fit: FitReport,
+    /// The solid's figures.
     pub brep: BrepReport,
     /// Volume of the repaired input mesh (closed).
     pub input_volume: f64,
@@ -176,6 +200,7 @@ pub struct ConvertReport {
     pub volume_error_pct: f64,
     /// Resolutions tried (one without a tolerance).
     pub attempts: Vec<Attempt>,
+    /// Wall seconds of the whole conversion.
     pub total_seconds: f64,
 }
 

@@ -19,16 +19,24 @@ use crate::stages::fea::{self, FeaOptions, FeaReport, FeaSpec};
 /// What `scanstation fea` reports.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct FeaFileReport {
+    /// The solid as given (a mesh or a STEP file).
     pub input_file: PathBuf,
     /// The mesh the solid was taken from (the input, or the STEP's solid artifact).
     pub solid_mesh_file: PathBuf,
+    /// The spec file.
     pub spec_file: PathBuf,
+    /// The spec as read.
     pub spec: FeaSpec,
+    /// The result directory.
     pub output_dir: PathBuf,
+    /// The files written into it.
     pub outputs: Vec<PathBuf>,
+    /// Peak resident memory of the solve, MiB (`null` where it cannot be read).
     pub peak_rss_mib: Option<f64>,
+    /// Wall seconds of the whole command.
     pub seconds: f64,
     #[serde(flatten)]
+    /// The solve's report (flattened into this one).
     pub result: FeaReport,
 }
 

@@ -70,6 +70,7 @@ pub struct Station {
     manager_view: Arc<Mutex<ManagerView>>,
     /// sha256 → (job, submitted µs) of jobs that count for de-duplication.
     seen: HashMap<String, (JobId, u64)>,
+    /// Time of the last progress, µs since the epoch (the watchdog reads it).
     pub heartbeat: Arc<AtomicU64>,
     /// Claims waiting for their hash, in claim order, and the channel their hashes come back on.
     hashing: VecDeque<intake::Hashing>,
@@ -79,21 +80,32 @@ pub struct Station {
 
 /// Channels the actor listens on.
 pub struct Inputs {
+    /// D-Bus commands.
     pub commands: mpsc::Receiver<Command>,
+    /// Inbox events.
     pub watch: mpsc::UnboundedReceiver<WatchEvent>,
+    /// Worker events.
     pub worker: mpsc::UnboundedReceiver<WorkerEvent>,
 }
 
 /// What the station is built from: its settings, the spool and journal, the bus, the access rules, the
 /// channels back to itself and the Manager's shared view.
 pub struct Parts {
+    /// The settings.
     pub cfg: Arc<Config>,
+    /// The spool.
     pub spool: Spool,
+    /// The job journal.
     pub journal: Journal,
+    /// The bus connection.
     pub conn: Connection,
+    /// Who may call what.
     pub access: Access,
+    /// The command channel (for the job objects).
     pub cmd_tx: mpsc::Sender<Command>,
+    /// The worker event channel (for the workers).
     pub worker_tx: mpsc::UnboundedSender<WorkerEvent>,
+    /// The Manager's properties, shared with its interface.
     pub manager_view: Arc<Mutex<ManagerView>>,
 }
 
@@ -211,6 +223,7 @@ impl Station {
         Ok(())
     }
 
+    /// Serve until `shutdown`: commands, worker and inbox events, rescans, settling, pruning and the delayed announcement.
     pub async fn run(mut self, mut inputs: Inputs, shutdown: impl std::future::Future<Output = ()>) {
         tokio::pin!(shutdown);
         let mut reconcile = tokio::time::interval(self.cfg.reconcile_interval);

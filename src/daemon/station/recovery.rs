@@ -40,8 +40,11 @@ pub struct SpoolFacts {
 /// A `work/<id>/` directory no record names, with the files in it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Orphan {
+    /// The id its name carries.
     pub id: JobId,
+    /// The directory.
     pub dir: PathBuf,
+    /// The files in it.
     pub files: Vec<PathBuf>,
 }
 
@@ -51,15 +54,39 @@ pub enum Action {
     /// Remove a directory tree (a terminal job's `work/<id>/`, a half-built directory).
     RemoveDir(PathBuf),
     /// Count this input's hash for de-duplication (first record of a hash wins).
-    Seen { sha256: String, id: JobId, submitted_usec: u64 },
+    Seen {
+        /// The input's hash.
+        sha256: String,
+        /// The job.
+        id: JobId,
+        /// When it was submitted, µs since the epoch.
+        submitted_usec: u64,
+    },
     /// Show the job (the record as planned); save it to the journal first when `save`; queue it when `queue`.
-    Restore { rec: JobRecord, save: bool, queue: bool },
+    Restore {
+        /// The record as planned.
+        rec: JobRecord,
+        /// Save it to the journal first.
+        save: bool,
+        /// Queue it.
+        queue: bool,
+    },
     /// Quarantine the running job as `interrupted` (resume is off), then save and show it.
     Quarantine(JobRecord),
     /// Put these files back into the inbox and remove the empty `dir`.
-    ReturnToInbox { files: Vec<PathBuf>, dir: PathBuf },
+    ReturnToInbox {
+        /// The files (a sidecar at most).
+        files: Vec<PathBuf>,
+        /// The work directory to remove.
+        dir: PathBuf,
+    },
     /// Make a queued job of this claimed input that had no record (hash it, admit it, save, queue).
-    Adopt { id: JobId, input: PathBuf },
+    Adopt {
+        /// The id its directory carries.
+        id: JobId,
+        /// The claimed input.
+        input: PathBuf,
+    },
 }
 
 /// The facts for every record that is not terminal, and the orphan work directories, read from the spool.

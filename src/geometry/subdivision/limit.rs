@@ -136,8 +136,11 @@ pub struct EvPatch {
 /// Weights of a surface point and its two parameter derivatives.
 #[derive(Clone, Debug, Default)]
 pub struct PointWeights {
+    /// Weights of the position.
     pub pos: Vec<(u32, f64)>,
+    /// Weights of the derivative in u.
     pub du: Vec<(u32, f64)>,
+    /// Weights of the derivative in v.
     pub dv: Vec<(u32, f64)>,
 }
 

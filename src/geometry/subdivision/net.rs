@@ -17,7 +17,9 @@ pub const NO_TWIN: u32 = u32::MAX;
 /// Sparse rows: row `r` is `entries[offsets[r]..offsets[r + 1]]`, each `(column, weight)`.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Stencils {
+    /// Start of each row in `entries`; one more than the rows.
     pub offsets: Vec<u32>,
+    /// (column, weight) of every row, row after row.
     pub entries: Vec<(u32, f64)>,
 }
 
@@ -84,7 +86,9 @@ pub fn combine(row: &[(u32, f64)], p: &[[f64; 3]]) -> [f64; 3] {
 /// evaluate near extraordinary vertices) may have boundary half-edges.
 #[derive(Clone, Debug)]
 pub struct QuadNet {
+    /// Corners of each face, counter-clockwise seen from outside.
     pub faces: Vec<[u32; 4]>,
+    /// Vertices the faces index into.
     pub vertex_count: usize,
     /// Twin of each half-edge, or [`NO_TWIN`].
     pub twin: Vec<u32>,

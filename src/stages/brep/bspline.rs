@@ -28,10 +28,15 @@ pub fn bezier_point(c: &[V3; 4], t: f64) -> V3 {
 /// (first and last knot repeated 4 times).
 #[derive(Clone, Debug, PartialEq)]
 pub struct BsplineSurface {
+    /// Poles along u.
     pub nu: usize,
+    /// Poles along v.
     pub nv: usize,
+    /// Poles, u fastest (`poles[j · nu + i]`).
     pub poles: Vec<V3>,
+    /// Clamped knot vector in u (`nu + 4` knots).
     pub knots_u: Vec<f64>,
+    /// Clamped knot vector in v (`nv + 4` knots).
     pub knots_v: Vec<f64>,
 }
 

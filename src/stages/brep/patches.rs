@@ -124,7 +124,9 @@ pub fn rotate_once(b: &[V3; 16]) -> [V3; 16] {
 /// `points[3i..=3i+3]`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct EdgeCurve {
+    /// Breaks, ascending.
     pub knots: Vec<f64>,
+    /// Bézier points, 3 per span plus one.
     pub points: Vec<V3>,
 }
 
@@ -649,13 +651,17 @@ pub fn bezier_eval(b: &[V3; 16], u: f64, v: f64) -> (V3, V3) {
 /// that edge touches an extraordinary patch, and the 99th percentile over edges of the per-edge largest.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct NormalJumps {
+    /// The largest jump, degrees.
     pub max_deg: f64,
+    /// Where it is.
     pub max_at: V3,
+    /// That edge touches an extraordinary patch.
     pub max_at_extraordinary: bool,
     /// Fraction along the edge (from its start vertex) where the largest jump is.
     pub max_at_fraction: f64,
     /// Valences (on the refined net) of the start and end vertex of that edge.
     pub max_at_valences: [usize; 2],
+    /// 99th percentile over edges of the per-edge largest jump, degrees.
     pub p99_deg: f64,
 }
 

@@ -12,8 +12,11 @@ use crate::geometry::vec3::{self, V3};
 /// parameter points of the coedge's start and end on the face surface (edges are iso-parameter lines).
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct Coedge {
+    /// Index of the edge.
     pub edge: u32,
+    /// The loop runs along the edge curve's direction.
     pub forward: bool,
+    /// Parameter points of the coedge's start and end on the face surface.
     pub uv: [[f64; 2]; 2],
 }
 
@@ -22,9 +25,13 @@ pub struct Coedge {
 /// refined edges it runs along; a face loop's coedge maps it linearly onto its `uv` segment.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Edge {
+    /// Index of the start vertex.
     pub start: u32,
+    /// Index of the end vertex.
     pub end: u32,
+    /// Bézier points, 3 per span plus one.
     pub curve: Vec<V3>,
+    /// Breaks, ascending, from 0.
     pub knots: Vec<f64>,
 }
 
@@ -51,31 +58,41 @@ impl Edge {
 /// A face: a B-spline surface bounded by one outer loop.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Face {
+    /// The face's surface.
     pub surface: BsplineSurface,
+    /// The outer loop, counter-clockwise in (u, v).
     pub bound: Vec<Coedge>,
 }
 
 /// A closed solid bounded by one shell.
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct Solid {
+    /// Vertex positions.
     pub vertices: Vec<V3>,
+    /// Edges, each used once in each direction by the faces' loops.
     pub edges: Vec<Edge>,
+    /// Faces of the one shell.
     pub faces: Vec<Face>,
 }
 
 /// Numbers that describe a built solid.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct BrepReport {
+    /// Faces of the solid.
     pub faces: usize,
     /// Faces that are packed blocks of more than one refined face.
     pub packed_faces: usize,
     /// Refined faces (one Bézier patch each before packing).
     pub patches: usize,
+    /// Refined faces at an extraordinary vertex (fitted corner cells).
     pub extraordinary_patches: usize,
+    /// Edges of the solid.
     pub edges: usize,
+    /// Vertices of the solid.
     pub vertices: usize,
     /// Enclosed volume (Gauss quadrature on the exact surfaces; exact up to rounding).
     pub volume: f64,
+    /// Surface area (Gauss quadrature on the exact surfaces).
     pub area: f64,
     /// Largest normal jump across patch edges, degrees (11 samples per edge).
     pub max_normal_jump_deg: f64,
@@ -83,9 +100,11 @@ pub struct BrepReport {
     pub p99_normal_jump_deg: f64,
     /// Where the largest jump is, and whether that edge touches an extraordinary patch.
     pub max_normal_jump_at: V3,
+    /// That edge touches an extraordinary patch.
     pub max_normal_jump_at_extraordinary: bool,
     /// Fraction along that edge and the valences of its two vertices (refined net).
     pub max_normal_jump_at_fraction: f64,
+    /// Valences of that edge's two vertices (refined net).
     pub max_normal_jump_at_valences: [usize; 2],
     /// Largest distance between an edge curve and the face boundaries that use it, model units.
     pub max_edge_deviation: f64,

@@ -19,8 +19,11 @@ use std::path::Path;
 #[serde(rename_all = "snake_case")]
 pub enum LengthUnit {
     #[default]
+    /// mm.
     Millimetre,
+    /// cm.
     Centimetre,
+    /// m.
     Metre,
 }
 
@@ -49,6 +52,7 @@ impl LengthUnit {
 pub struct StepOptions {
     /// Product name (and file name in the header).
     pub name: String,
+    /// Length unit of the model's coordinates.
     pub unit: LengthUnit,
     /// Write both faces' parameter-space curves for every edge (exact; spares readers a projection).
     pub pcurves: bool,

@@ -35,8 +35,11 @@ pub fn full_moments() -> Moments {
 /// A uniform grid of cubic cells of side `h` from `origin`, `n` cells per axis.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Grid {
+    /// Corner of cell (0, 0, 0).
     pub origin: V3,
+    /// Cell side.
     pub h: f64,
+    /// Cells per axis.
     pub n: [usize; 3],
 }
 
@@ -81,6 +84,7 @@ impl Grid {
 
 /// Cells that hold part of the solid, with their moments.
 pub struct Domain {
+    /// The grid the cells belong to.
     pub grid: Grid,
     /// Linear cell index → inside moments, only for cells with inside volume.
     pub cells: Vec<(usize, CellFill)>,

@@ -43,13 +43,16 @@ impl Default for FeaOptions {
 /// A value with the place it occurs.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Extreme {
+    /// The value.
     pub value: f64,
+    /// Where it occurs (a surface vertex).
     pub at: V3,
 }
 
 /// What one load or support region selected.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct SelectionReport {
+    /// The region's name from the spec.
     pub name: String,
     /// Selected surface area.
     pub area: f64,
@@ -62,9 +65,13 @@ pub struct SelectionReport {
 /// Results at a probe.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct ProbeReport {
+    /// The probe's name from the spec.
     pub name: String,
+    /// Where it is.
     pub point: V3,
+    /// Displacement there.
     pub displacement: V3,
+    /// Von Mises stress there.
     pub von_mises: f64,
     /// Principal stresses, largest first.
     pub principal_stress: [f64; 3],
@@ -75,11 +82,17 @@ pub struct ProbeReport {
 /// The grid as solved.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct GridReport {
+    /// Cell side.
     pub cell_size: f64,
+    /// Cells per axis.
     pub cells: [usize; 3],
+    /// Cells with part of the solid inside.
     pub active_cells: usize,
+    /// Of those, cells the surface cuts.
     pub cut_cells: usize,
+    /// Active B-spline functions.
     pub functions: usize,
+    /// Unknowns (3 per function).
     pub unknowns: usize,
     /// Lines through cut cells whose surface crossings were odd (0 for a closed surface).
     pub odd_lines: usize,
@@ -88,13 +101,17 @@ pub struct GridReport {
 /// The whole FEA report (the JSON `fea --json` prints).
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct FeaReport {
+    /// The grid as solved.
     pub grid: GridReport,
     /// Volume of the immersed domain (integrated inside moments).
     pub volume: f64,
     /// Volume enclosed by the surface (divergence theorem).
     pub surface_volume: f64,
+    /// How the linear solve went.
     pub solver: SolverReport,
+    /// What each support selected.
     pub supports: Vec<SelectionReport>,
+    /// What each load selected.
     pub loads: Vec<SelectionReport>,
     /// Sum of applied forces: loads plus self-weight.
     pub total_load: V3,
@@ -102,15 +119,20 @@ pub struct FeaReport {
     pub reaction: V3,
     /// |reaction + total_load| / |total_load|.
     pub imbalance: f64,
+    /// Largest displacement magnitude over the surface vertices.
     pub max_displacement: Extreme,
+    /// Largest von Mises stress over the surface vertices.
     pub max_von_mises: Extreme,
     /// Largest von Mises stress farther than `exclusion_distance` from every support point: the maximum that
     /// converges where clamps make the stress singular (CalculiX reference runs report it the same way).
     pub max_von_mises_away_from_supports: Extreme,
     /// The distance used for it: two cells.
     pub exclusion_distance: f64,
+    /// Largest principal stress over the surface vertices.
     pub max_principal_stress: Extreme,
+    /// Smallest principal stress over the surface vertices.
     pub min_principal_stress: Extreme,
+    /// Results at the spec's probes.
     pub probes: Vec<ProbeReport>,
     /// Seconds per phase: domain, assemble, solve, results.
     pub seconds: std::collections::BTreeMap<&'static str, f64>,
@@ -118,15 +140,21 @@ pub struct FeaReport {
 
 /// Fields on the surface's vertices, for the VTU file.
 pub struct SurfaceFields {
+    /// Displacement per vertex.
     pub displacement: Vec<V3>,
+    /// Von Mises stress per vertex.
     pub von_mises: Vec<f64>,
+    /// Principal stresses per vertex, largest first.
     pub principal_stress: Vec<[f64; 3]>,
 }
 
 /// A solved problem: report, the surface as solved (oriented outward) and the fields on its vertices.
 pub struct FeaSolution {
+    /// The report.
     pub report: FeaReport,
+    /// The surface as solved (oriented outward).
     pub surface: TriMesh,
+    /// Fields on its vertices.
     pub fields: SurfaceFields,
 }
 

@@ -62,7 +62,9 @@ pub struct Region {
 #[derive(Clone, Debug, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Sphere {
+    /// Centre.
     pub center: V3,
+    /// Radius.
     pub radius: f64,
 }
 
@@ -70,7 +72,9 @@ pub struct Sphere {
 #[derive(Clone, Debug, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct HalfSpace {
+    /// A point on the plane.
     pub point: V3,
+    /// Outward normal: the half-space is the side it points to.
     pub normal: V3,
 }
 
@@ -184,7 +188,9 @@ impl Default for Resolution {
 #[derive(Clone, Debug, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Probe {
+    /// The probe's name.
     pub name: String,
+    /// Where results are reported.
     pub point: V3,
 }
 

@@ -141,6 +141,7 @@ pub fn cell_coords(grid: &Grid, c: usize) -> [usize; 3] {
 
 /// Upper-half block rows of the stiffness: `blocks[rank · SLOTS + slot][p · 3 + q]` = K_{(f, p), (g, q)}.
 pub struct Stiffness {
+    /// The blocks, 3×3 row-major.
     pub blocks: Vec<[f64; 9]>,
 }
 
@@ -232,15 +233,21 @@ impl Stiffness {
 /// A point of surface quadrature: position, weight (area), outward unit normal.
 #[derive(Clone, Copy, Debug)]
 pub struct SurfacePoint {
+    /// Position.
     pub p: V3,
+    /// Weight (area).
     pub w: f64,
+    /// Outward unit normal.
     pub n: V3,
 }
 
 /// Everything assembled: the active cells, functions, stiffness and load vector.
 pub struct System {
+    /// The active functions and their unknowns.
     pub dofs: Dofs,
+    /// The stiffness matrix (upper half).
     pub stiffness: Stiffness,
+    /// The load vector.
     pub rhs: Vec<f64>,
     /// Cut cells (partly inside).
     pub cut_cells: usize,
@@ -576,9 +583,13 @@ impl System {
 /// Nitsche stability factor.
 #[derive(Clone, Copy, Debug)]
 pub struct Elastic {
+    /// Lamé's λ.
     pub lambda: f64,
+    /// Lamé's μ (shear modulus).
     pub mu: f64,
+    /// Fictitious stiffness factor of the outside part of cut cells.
     pub alpha: f64,
+    /// Nitsche stability factor.
     pub stability: f64,
 }
 

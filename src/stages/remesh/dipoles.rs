@@ -80,13 +80,17 @@ pub struct TransportCounts {
     pub settled_chains: usize,
     /// The chains' final operations, by kind.
     pub cancelling_rotations: usize,
+    /// Chains ending in a diagonal collapse.
     pub cancelling_collapses: usize,
+    /// Chains ending in a vertex split.
     pub cancelling_splits: usize,
     /// Vertices added by splits and removed by collapses, over all chains.
     pub vertices_added: usize,
+    /// Vertices removed by collapses.
     pub vertices_removed: usize,
     /// Σ|valence − 4| before and after.
     pub irregularity_before: usize,
+    /// Σ|valence − 4| after.
     pub irregularity_after: usize,
 }
 

@@ -28,8 +28,11 @@ pub const SNAP: f64 = 0.3;
 /// The extracted polygon mesh (positions not yet on the input surface).
 #[derive(Clone, Debug, Default)]
 pub struct Extracted {
+    /// Vertex positions.
     pub positions: Vec<V3>,
+    /// Vertex normals.
     pub normals: Vec<V3>,
+    /// Faces (quad-dominant polygons).
     pub faces: Vec<Vec<u32>>,
     /// Output vertices removed because fewer than 3 edges met there.
     pub low_valence_removed: usize,

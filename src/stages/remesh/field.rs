@@ -125,14 +125,14 @@ pub fn middle_point(p0: V3, n0: V3, p1: V3, n1: V3) -> V3 {
 /// `x.floor() as i64`, bit for bit (NaN → 0, saturating), without the libm call that `f64::floor` is on
 /// baseline x86-64 (3.6 % of the dragon's remesh in a profile).
 #[inline]
-pub fn floor_i64(x: f64) -> i64 {
+pub(crate) fn floor_i64(x: f64) -> i64 {
     let t = x as i64;
     if (t as f64) > x { t.saturating_sub(1) } else { t }
 }
 
 /// `x.round() as i64` (half away from zero), bit for bit (NaN → 0, saturating), without the libm call.
 #[inline]
-pub fn round_i64(x: f64) -> i64 {
+pub(crate) fn round_i64(x: f64) -> i64 {
     let t = x as i64;
     // Exact: the fractional part of a float is a float (and 0 where |x| ≥ 2⁵², ±∞ only for ±∞).
     let frac = x - t as f64;
@@ -160,9 +160,13 @@ fn lattice_point(o: V3, q: V3, t: V3, c: [i64; 2], s: f64) -> V3 {
 /// The vertex data one position-compatibility test needs.
 #[derive(Copy, Clone, Debug)]
 pub struct Frame {
+    /// Position.
     pub p: V3,
+    /// Normal.
     pub n: V3,
+    /// Orientation field's representative direction.
     pub q: V3,
+    /// Position field's lattice origin.
     pub o: V3,
     /// Lattice spacing at this vertex (varies slowly where the spacing adapts to thin parts).
     pub s: f64,
@@ -313,4 +317,23 @@ pub fn level_spacings(levels: &[Level], s0: Vec<f64>) -> Vec<Vec<f64>> {
         all.push(next);
     }
     all
+}
+
+#[cfg(test)]
+mod tests {
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The field's inline floor and round are `f64::floor` / `f64::round` then `as i64`, bit for bit,
+        /// from tiny to saturating magnitudes, halves and NaN included.
+        #[test]
+        fn inline_floor_and_round_match_std(m in -1.0e6f64..1.0e6, e in -30i32..70, half in any::<bool>()) {
+            use crate::stages::remesh::field::{floor_i64, round_i64};
+            let x = if half { (m.trunc() + 0.5).copysign(m) } else { m * 2f64.powi(e) };
+            for y in [x, -x, f64::NAN, f64::INFINITY, -f64::INFINITY, 0.49999999999999994, -0.5, -0.0] {
+                prop_assert_eq!(floor_i64(y), y.floor() as i64, "floor {}", y);
+                prop_assert_eq!(round_i64(y), y.round() as i64, "round {}", y);
+            }
+        }
+    }
 }

@@ -30,7 +30,9 @@ use crate::geometry::vec3::V3;
 /// dislocation instead of a partner of opposite sign).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Reach {
+    /// Largest path cost allowed.
     pub max_path_cost: f64,
+    /// Paths may end in a cone (a triangle where the cross field turns).
     pub into_cones: bool,
 }
 

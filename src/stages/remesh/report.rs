@@ -16,7 +16,9 @@ use crate::stages::quality::DistanceReport;
 /// Quality figures of a quad(-dominant) mesh.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct QuadStats {
+    /// Referenced vertices.
     pub vertices: usize,
+    /// Faces.
     pub faces: usize,
     /// Faces by degree, e.g. `{"4": 9998}`.
     pub faces_by_degree: BTreeMap<usize, usize>,
@@ -30,20 +32,29 @@ pub struct QuadStats {
     pub irregular_fraction: f64,
     /// Smallest valence.
     pub min_valence: usize,
+    /// Every edge is used by exactly two faces.
     pub closed: bool,
+    /// Edges used by one face.
     pub boundary_edges: usize,
+    /// Chains of boundary edges.
     pub boundary_loops: usize,
+    /// Edges used by more than two faces.
     pub nonmanifold_edges: usize,
+    /// Vertices whose faces do not form one fan.
     pub nonmanifold_vertices: usize,
+    /// Face-connected pieces.
     pub components: usize,
+    /// χ = V − E + F.
     pub euler_characteristic: i64,
     /// Faces whose normal points against the input surface's normal at the face centre.
     pub flipped_faces: usize,
     /// |corner angle − 90°| over all quad corners: mean and 95th percentile, degrees.
     pub angle_deviation_mean_deg: f64,
+    /// 95th percentile of the same, degrees.
     pub angle_deviation_p95_deg: f64,
     /// Edge length: mean and coefficient of variation.
     pub edge_length_mean: f64,
+    /// Coefficient of variation of the edge length.
     pub edge_length_cv: f64,
 }
 
@@ -73,6 +84,7 @@ impl Mode {
 /// One extraction while the vertex count was matched.
 #[derive(Clone, Debug, Serialize)]
 pub struct Attempt {
+    /// The route of this extraction.
     pub mode: Mode,
     /// Lattice spacing of the quad-dominant mesh.
     pub scale: f64,
@@ -109,10 +121,15 @@ pub enum Refine {
 /// Figures of the candidate not kept (when both routes ran).
 #[derive(Clone, Debug, Serialize)]
 pub struct Alternative {
+    /// The route of that result.
     pub mode: Mode,
+    /// Its two-sided RMS distance to the input, percent of the diagonal.
     pub rms_pct_of_diagonal: f64,
+    /// Its share of irregular vertices.
     pub irregular_fraction: f64,
+    /// Its Euler characteristic.
     pub euler_characteristic: i64,
+    /// Its faces flipped against the input.
     pub flipped_faces: usize,
     /// Fraction of the route's working vertices farther than [`MISS_SPACINGS`] final spacings from it.
     pub missed_fraction: f64,
@@ -121,11 +138,13 @@ pub struct Alternative {
 /// One re-extraction of a route's kept attempt with its position singularities cancelled.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct CancelTrial {
+    /// The route whose attempt was extracted again.
     pub mode: Option<Mode>,
     /// Largest path cost allowed ([`integer::TRIES`]).
     pub path_cost: f64,
     /// Paths could end in a cone (a triangle where the cross field turns).
     pub into_cones: bool,
+    /// Position singularities before and after the cancellation.
     pub counts: integer::CancelCounts,
     /// Position fields re-solved at a finer spacing to bring the count back.
     pub rescales: usize,
@@ -150,10 +169,15 @@ pub struct CancelTrial {
 /// What [`remesh`] did and measured. Keys are the JSON keys.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct RemeshReport {
+    /// Vertices asked for.
     pub target_vertices: usize,
+    /// Referenced vertices of the input.
     pub input_vertices: usize,
+    /// Faces of the input.
     pub input_faces: usize,
+    /// Surface area of the input.
     pub input_area: f64,
+    /// Euler characteristic of the input.
     pub input_euler_characteristic: i64,
     /// Face-connected pieces of the input; the output has as many (extra pieces the extraction pinches off
     /// are dropped and counted in `cleanup.components_dropped`).
@@ -162,6 +186,7 @@ pub struct RemeshReport {
     pub working_vertices: usize,
     /// "as-is", "decimated" or "subdivided ×k".
     pub working_mesh: String,
+    /// Levels of the multi-resolution hierarchy.
     pub hierarchy_levels: usize,
     /// Working vertices within reach of a thin part or a narrow gap (measured only when the adaptive split
     /// route ran; 0 otherwise).
@@ -206,13 +231,19 @@ pub struct RemeshReport {
     pub mode: Option<Mode>,
     /// Re-extractions of each split route's kept attempt with position singularities cancelled.
     pub cancellation: Vec<CancelTrial>,
+    /// Every extraction, in the order made.
     pub attempts: Vec<Attempt>,
     /// Index of the attempt kept.
     pub chosen_attempt: usize,
+    /// Extracted vertices snapped together.
     pub snapped_vertices: usize,
+    /// Extracted vertices of valence below 3 removed.
     pub low_valence_vertices_removed: usize,
+    /// Dangling extracted edges removed.
     pub dangling_edges_removed: usize,
+    /// Extracted vertices that pinched two faces, removed.
     pub pinch_vertices_removed: usize,
+    /// What the clean-up changed on the kept result.
     pub cleanup: quadify::CleanupCounts,
     /// The final pure-quad mesh.
     pub output: QuadStats,

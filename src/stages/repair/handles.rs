@@ -61,6 +61,7 @@ pub struct HandleReport {
     pub genus_removed: usize,
     /// Faces deleted, and triangles the fills added.
     pub faces_removed: usize,
+    /// Triangles added by filling the cuts.
     pub triangles_added: usize,
     /// Radius of each cut's ball (input units).
     pub cut_radii: Vec<f64>,

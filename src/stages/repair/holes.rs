@@ -44,6 +44,7 @@ pub struct HoleReport {
     pub vertices_added: usize,
     /// Fairing: CG iterations used and final relative residual.
     pub fair_iterations: usize,
+    /// Largest residual of the fairing solve.
     pub fair_residual: f64,
     /// Per hole: the largest distance of a new patch vertex from a quadric height field fitted to the two
     /// rings of mesh vertices around the hole (input units). Small when the fill continues the surrounding

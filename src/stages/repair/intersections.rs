@@ -40,6 +40,7 @@ pub struct IntersectionReport {
     pub pairs_remaining: usize,
     /// Refill vertices moved back onto the deleted surface, and those kept where the move would intersect.
     pub vertices_restored: usize,
+    /// Refill vertices left where they were (moving them back would cross).
     pub vertices_not_restored: usize,
 }
 

@@ -29,6 +29,7 @@ pub struct ManifoldReport {
     pub vertices_split: usize,
     /// Components found, and kept.
     pub components_found: usize,
+    /// Components kept.
     pub components_kept: usize,
     /// Faces removed with dropped components.
     pub faces_removed_debris: usize,

@@ -15,6 +15,7 @@ use crate::geometry::vec3::{self, V3};
 pub const SPIKE_FACTOR: f64 = 2.0;
 /// Taubin's smoothing and inflation factors.
 pub const TAUBIN_LAMBDA: f64 = 0.5;
+/// Taubin's μ (the inflating step; λ is [`TAUBIN_LAMBDA`]).
 pub const TAUBIN_MU: f64 = -0.53;
 
 /// What the step changed.

@@ -56,7 +56,9 @@ const CREASE_COS: f64 = 0.7;
 /// A sphere as target (analytic oracle for tests).
 #[derive(Copy, Clone, Debug)]
 pub struct SphereTarget {
+    /// Centre.
     pub center: V3,
+    /// Radius.
     pub radius: f64,
 }
 
@@ -105,15 +107,20 @@ pub struct RoundReport {
     pub rms_before: f64,
     /// The same after the solve (targets held fixed).
     pub rms_after: f64,
+    /// Conjugate-gradient iterations of the solve.
     pub cg_iterations: usize,
 }
 
 /// Summary of a fit.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct FitReport {
+    /// Control points fitted.
     pub control_points: usize,
+    /// Limit-surface samples per round.
     pub samples: usize,
+    /// Faces at an extraordinary vertex.
     pub extraordinary_faces: usize,
+    /// Each closest-point round.
     pub rounds: Vec<RoundReport>,
     /// Area-weighted RMS sample-to-target distance after the last round (targets re-projected).
     pub final_rms: f64,
@@ -121,6 +128,7 @@ pub struct FitReport {
     pub flipped_samples: usize,
     /// Largest sample-to-target distance after the last round, and where it is.
     pub final_max: f64,
+    /// Where that largest distance is.
     pub final_max_at: V3,
 }
 

@@ -12,7 +12,7 @@ use crate::geometry::vec3::{self, V3, sub};
 /// manifold mesh is the same as through shared edges. A closed piece of a few quads that the extraction
 /// pinched off a thin part is not part of the shape's boundary: written as a second shell inside one solid it
 /// makes the STEP file invalid. Cost O(corners · α).
-pub fn keep_largest_components(faces: &mut Vec<Vec<u32>>, keep: usize, counts: &mut CleanupCounts) {
+pub(crate) fn keep_largest_components(faces: &mut Vec<Vec<u32>>, keep: usize, counts: &mut CleanupCounts) {
     let keep = keep.max(1);
     let nv = faces.iter().flatten().map(|&v| v as usize + 1).max().unwrap_or(0);
     let mut uf = crate::geometry::topology::UnionFind::new(nv);
@@ -45,7 +45,7 @@ pub fn keep_largest_components(faces: &mut Vec<Vec<u32>>, keep: usize, counts: &
 }
 
 /// Split faces that visit a vertex twice into simple cycles.
-pub fn split_pinched(faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
+pub(crate) fn split_pinched(faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
     let mut out = Vec::with_capacity(faces.len());
     let mut stack: Vec<Vec<u32>> = std::mem::take(faces);
     while let Some(f) = stack.pop() {
@@ -77,7 +77,7 @@ pub fn split_pinched(faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
 }
 
 /// Cut faces of degree ≥ 6 into quads (plus at most one triangle or pentagon) along short diagonals.
-pub fn cut_large_faces(p: &[V3], faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
+pub(crate) fn cut_large_faces(p: &[V3], faces: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
     let mut edges = edge_set(faces);
     let mut out = Vec::with_capacity(faces.len());
     for f in faces.drain(..) {
@@ -109,7 +109,7 @@ pub fn cut_large_faces(p: &[V3], faces: &mut Vec<Vec<u32>>, counts: &mut Cleanup
 }
 
 /// Cut pentagons into a quad and a triangle along their shortest diagonal.
-pub fn cut_pentagons(p: &[V3], faces: &mut [Vec<u32>], extra: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
+pub(crate) fn cut_pentagons(p: &[V3], faces: &mut [Vec<u32>], extra: &mut Vec<Vec<u32>>, counts: &mut CleanupCounts) {
     let mut edges = edge_set(faces);
     for f in faces.iter_mut() {
         if f.len() != 5 {

@@ -14,10 +14,11 @@ mod pairing;
 mod surface;
 mod valence;
 
-pub use faces::{cut_large_faces, cut_pentagons, keep_largest_components, split_pinched};
-pub use pairing::{pair_triangles, pair_triangles_along_paths, remove_doublets};
-pub use surface::{collapse_quads, flipped_faces, flipped_faces_hinted, relax_and_project, untangle};
-pub use valence::{ValenceCounts, optimize_valence};
+pub(crate) use faces::{cut_large_faces, cut_pentagons, keep_largest_components, split_pinched};
+pub(crate) use pairing::{pair_triangles, pair_triangles_along_paths, remove_doublets};
+pub(crate) use surface::{collapse_quads, flipped_faces, flipped_faces_hinted, relax_and_project, untangle};
+pub use valence::ValenceCounts;
+pub(crate) use valence::optimize_valence;
 
 /// Counts of what the clean-up changed.
 #[derive(Clone, Debug, Default, serde::Serialize)]
@@ -38,11 +39,16 @@ pub struct CleanupCounts {
     pub doublets_removed: usize,
     /// Triangle pairs joined along bent paths, and the steps walked.
     pub path_pairs: usize,
+    /// Steps walked by those paths.
     pub path_steps: usize,
     /// Extra pieces the extraction pinched off (a thin part cut through), dropped so the result has as many
     /// components as the input, and the faces they held.
     pub components_dropped: usize,
+    /// Faces those pieces held.
     pub component_faces_dropped: usize,
     /// Quads still flipped after unfolding, collapsed along a diagonal ([`collapse_quads`]).
     pub flipped_quads_collapsed: usize,
 }
+
+#[cfg(test)]
+mod tests;

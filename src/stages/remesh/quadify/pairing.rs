@@ -35,7 +35,12 @@ fn strip_quads(a: u32, b: u32, x: &[u32], y: &[u32]) -> Vec<Vec<u32>> {
 /// that the two triangles and the k quads between them become k + 1 quads. Euler characteristic and all
 /// other faces are unchanged; two vertices at the strip's ends lose one edge each (the variant whose ends
 /// have the higher valence is chosen, and no vertex drops below valence 3). Returns the triangles left.
-pub fn pair_triangles(faces: &mut Vec<Vec<u32>>, max_len: usize, rounds: usize, counts: &mut CleanupCounts) -> usize {
+pub(crate) fn pair_triangles(
+    faces: &mut Vec<Vec<u32>>,
+    max_len: usize,
+    rounds: usize,
+    counts: &mut CleanupCounts,
+) -> usize {
     for _ in 0..rounds {
         let mut half: HashMap<(u32, u32), u32> = HashMap::with_capacity(faces.len() * 4);
         let mut valence: HashMap<u32, u32> = HashMap::new();
@@ -175,7 +180,7 @@ fn variant_b(s: &Strip) -> Vec<Vec<u32>> {
 
 /// Remove valence-2 vertices shared by exactly two faces ("doublets"): the two faces merge into one.
 /// Returns how many were removed.
-pub fn remove_doublets(faces: &mut Vec<Vec<u32>>) -> usize {
+pub(crate) fn remove_doublets(faces: &mut Vec<Vec<u32>>) -> usize {
     let mut removed = 0;
     loop {
         let mut vf: HashMap<u32, Vec<u32>> = HashMap::new();
@@ -233,7 +238,7 @@ pub fn remove_doublets(faces: &mut Vec<Vec<u32>>) -> usize {
 /// pentagon it forms with the next quad so that the triangle ends up on that quad's far side; when the two
 /// triangles meet they merge into a quad. Every step keeps a closed, oriented polygon mesh with the same
 /// Euler characteristic. Returns the triangles left.
-pub fn pair_triangles_along_paths(
+pub(crate) fn pair_triangles_along_paths(
     p: &[V3],
     faces: &mut Vec<Vec<u32>>,
     max_len: usize,

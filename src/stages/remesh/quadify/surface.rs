@@ -11,7 +11,7 @@ use crate::geometry::vec3::{self, V3, add, dot, scale, sub};
 /// relaxation (Jacobi, step `lambda`) each followed by re-projection. After the first round a vertex is
 /// projected onto the nearest input triangle that faces the same way as the mesh at that vertex, so that
 /// vertices on thin parts do not jump to the opposite sheet (which would flip faces).
-pub fn relax_and_project(p: &mut [V3], faces: &[Vec<u32>], bvh: &TriangleBvh, iterations: usize, lambda: f64) {
+pub(crate) fn relax_and_project(p: &mut [V3], faces: &[Vec<u32>], bvh: &TriangleBvh, iterations: usize, lambda: f64) {
     // Each vertex's last input triangle: the next query starts from it (same answers, fewer boxes).
     let mut hint: Vec<Option<u32>> = p
         .par_iter_mut()
@@ -53,7 +53,7 @@ pub fn relax_and_project(p: &mut [V3], faces: &[Vec<u32>], bvh: &TriangleBvh, it
 
 /// Faces whose (Newell) normal points against `surface_normal` of the nearest input triangle to their centre,
 /// ascending.
-pub fn flipped_faces(
+pub(crate) fn flipped_faces(
     p: &[V3],
     faces: &[Vec<u32>],
     bvh: &TriangleBvh,
@@ -64,7 +64,7 @@ pub fn flipped_faces(
 
 /// [`flipped_faces`], each face's query started from `hints[face]` (an input triangle near its centre; the
 /// same answer, fewer boxes searched; faces past the end of `hints` start without one).
-pub fn flipped_faces_hinted(
+pub(crate) fn flipped_faces_hinted(
     p: &[V3],
     faces: &[Vec<u32>],
     bvh: &TriangleBvh,
@@ -97,7 +97,7 @@ fn face_flipped(
 /// the same call. The other two corners lose an edge each and may be left with valence 2: run
 /// [`remove_doublets`] afterwards. For folds that relaxation cannot undo (a sliver quad turned over on a
 /// sharp bend). Merged-away vertices are removed and `faces` renumbered. Returns the collapses made.
-pub fn collapse_quads(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, which: &[usize]) -> usize {
+pub(crate) fn collapse_quads(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, which: &[usize]) -> usize {
     let nbrs = neighbour_lists(p.len(), faces);
     let val = |v: u32| nbrs[v as usize].len();
     let mut batch = Batch::new(p.len(), faces.len());
@@ -132,7 +132,7 @@ pub fn collapse_quads(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, which: &[usize
 /// tangentially) and back onto the surface, for at most `rounds` rounds; the positions with the fewest
 /// flipped faces seen are kept, so the result is never worse than the input. Returns the faces still
 /// flipped.
-pub fn untangle(
+pub(crate) fn untangle(
     p: &mut [V3],
     faces: &[Vec<u32>],
     bvh: &TriangleBvh,

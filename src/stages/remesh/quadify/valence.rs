@@ -64,6 +64,7 @@ pub struct ValenceCounts {
     pub edge_rotations: usize,
     /// Σ|valence − 4| before and after.
     pub irregularity_before: usize,
+    /// Σ|valence − 4| after.
     pub irregularity_after: usize,
 }
 
@@ -74,7 +75,7 @@ pub struct ValenceCounts {
 /// - **edge rotation**: the edge shared by two quads is replaced by another diagonal of their hexagon.
 ///
 /// Merged vertices are removed from `p` and `faces` renumbered. At most `passes` passes.
-pub fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usize) -> ValenceCounts {
+pub(crate) fn optimize_valence(p: &mut Vec<V3>, faces: &mut Vec<Vec<u32>>, passes: usize) -> ValenceCounts {
     let mut counts = ValenceCounts::default();
     let cost = |v: i64| (v - 4).unsigned_abs() as usize;
     for pass in 0..passes {
