@@ -81,23 +81,8 @@ fn q_eval(q: &Quadric, p: V3) -> f64 {
 /// The minimiser of `q`, if the 3×3 system is well conditioned.
 fn q_optimum(q: &Quadric) -> Option<V3> {
     let a = [[q[0], q[1], q[2]], [q[1], q[4], q[5]], [q[2], q[5], q[7]]];
-    let b = [-q[3], -q[6], -q[8]];
-    let det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-        + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
     let scale = (q[0] + q[4] + q[7]).powi(3);
-    if !(det.abs() > 1e-10 * scale) {
-        return None;
-    }
-    let solve = |k: usize| {
-        let mut m = a;
-        for r in 0..3 {
-            m[r][k] = b[r];
-        }
-        (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]))
-            / det
-    };
-    Some([solve(0), solve(1), solve(2)])
+    crate::geometry::linalg::solve3(a, [-q[3], -q[6], -q[8]], |det| !(det.abs() > 1e-10 * scale))
 }
 
 /// Bounding box of triangle `t`.

@@ -1,4 +1,6 @@
-//! Small dense linear algebra for local least-squares fits (a few unknowns per patch or hole).
+//! Small dense linear algebra, one module for every stage: Gaussian elimination for local least-squares fits
+//! (a few unknowns per patch or hole), Cramer's rule for 3×3 systems (quadric optima, shape operators), and
+//! the eigenvector of a symmetric 3×3 matrix (normals of point neighbourhoods).
 
 /// Solve `a x = b` by Gaussian elimination with partial pivoting; `None` when a pivot is below 10⁻³⁰⁰ or
 /// not a number (singular). Cost: O(N³).
@@ -57,6 +59,93 @@ impl<const N: usize> NormalEquations<N> {
     pub fn solve(&self) -> Option<[f64; N]> {
         solve_dense(self.ata, self.atb)
     }
+}
+
+/// Eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix (cyclic Jacobi rotations).
+pub fn smallest_eigenvector(mut a: [[f64; 3]; 3]) -> [f64; 3] {
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    for _ in 0..32 {
+        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
+        let scale = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
+        if off <= 1e-15 * scale || off == 0.0 {
+            break;
+        }
+        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
+            if a[p][q].abs() < 1e-300 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let t = if theta == 0.0 { 1.0 } else { t };
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            // A ← Jᵀ A J for the rotation J in the (p, q) plane.
+            for k in 0..3 {
+                let (akp, akq) = (a[k][p], a[k][q]);
+                a[k][p] = c * akp - s * akq;
+                a[k][q] = s * akp + c * akq;
+            }
+            for k in 0..3 {
+                let (apk, aqk) = (a[p][k], a[q][k]);
+                a[p][k] = c * apk - s * aqk;
+                a[q][k] = s * apk + c * aqk;
+            }
+            for row in &mut v {
+                let (vp, vq) = (row[p], row[q]);
+                row[p] = c * vp - s * vq;
+                row[q] = s * vp + c * vq;
+            }
+        }
+    }
+    let k = (0..3).min_by(|&i, &j| a[i][i].total_cmp(&a[j][j])).unwrap();
+    [v[0][k], v[1][k], v[2][k]]
+}
+
+/// Determinant of a 3×3 matrix (cofactors along the first row).
+pub fn det3(m: [[f64; 3]; 3]) -> f64 {
+    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+}
+
+/// Solve `a x = b` for a 3×3 `a` by Cramer's rule, `None` when `singular(det a)` says so (each caller
+/// scales its own threshold: the quadric optimum to its trace, the shape-operator fit to its largest entry).
+/// Cost: four 3×3 determinants.
+pub fn solve3(a: [[f64; 3]; 3], b: [f64; 3], singular: impl FnOnce(f64) -> bool) -> Option<[f64; 3]> {
+    let det = det3(a);
+    if singular(det) {
+        return None;
+    }
+    let column = |k: usize| {
+        let mut m = a;
+        for r in 0..3 {
+            m[r][k] = b[r];
+        }
+        det3(m) / det
+    };
+    Some([column(0), column(1), column(2)])
+}
+
+/// Eigenvalues of the symmetric 3×3 matrix `[s0 s3 s5; s3 s1 s4; s5 s4 s2]`, largest first (closed form, Smith
+/// 1961). Cost: a few dozen flops.
+pub fn symmetric_eigenvalues(s: &[f64; 6]) -> [f64; 3] {
+    let p1 = s[3] * s[3] + s[4] * s[4] + s[5] * s[5];
+    let q = (s[0] + s[1] + s[2]) / 3.0;
+    if p1 <= 1e-30 * (q * q + 1e-300) {
+        let mut e = [s[0], s[1], s[2]];
+        e.sort_by(|a, b| b.total_cmp(a));
+        return e;
+    }
+    let p2 = (s[0] - q).powi(2) + (s[1] - q).powi(2) + (s[2] - q).powi(2) + 2.0 * p1;
+    let p = (p2 / 6.0).sqrt();
+    let b = [(s[0] - q) / p, (s[1] - q) / p, (s[2] - q) / p, s[3] / p, s[4] / p, s[5] / p];
+    // det(B)/2 with B symmetric: [b0 b3 b5; b3 b1 b4; b5 b4 b2].
+    let det =
+        b[0] * (b[1] * b[2] - b[4] * b[4]) - b[3] * (b[3] * b[2] - b[4] * b[5]) + b[5] * (b[3] * b[4] - b[1] * b[5]);
+    let r = (det / 2.0).clamp(-1.0, 1.0);
+    let phi = r.acos() / 3.0;
+    let e1 = q + 2.0 * p * phi.cos();
+    let e3 = q + 2.0 * p * (phi + 2.0 * std::f64::consts::PI / 3.0).cos();
+    [e1, 3.0 * q - e1 - e3, e3]
 }
 
 #[cfg(test)]

@@ -19,6 +19,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::linalg;
 use crate::geometry::mesh::{PolyMesh, TriMesh};
 use crate::geometry::topology::TopologyReport;
 use crate::geometry::vec3::{V3, add, cross, norm, scale, sub, wide};
@@ -245,26 +246,10 @@ pub fn von_mises(s: &[f64; 6]) -> f64 {
         .sqrt()
 }
 
-/// Eigenvalues of the symmetric stress tensor, largest first (closed form, Smith 1961).
+/// Principal stresses: the eigenvalues of the symmetric stress tensor (σxx, σyy, σzz, σxy, σyz, σzx),
+/// largest first ([`linalg::symmetric_eigenvalues`]).
 pub fn principal(s: &[f64; 6]) -> [f64; 3] {
-    let p1 = s[3] * s[3] + s[4] * s[4] + s[5] * s[5];
-    let q = (s[0] + s[1] + s[2]) / 3.0;
-    if p1 <= 1e-30 * (q * q + 1e-300) {
-        let mut e = [s[0], s[1], s[2]];
-        e.sort_by(|a, b| b.total_cmp(a));
-        return e;
-    }
-    let p2 = (s[0] - q).powi(2) + (s[1] - q).powi(2) + (s[2] - q).powi(2) + 2.0 * p1;
-    let p = (p2 / 6.0).sqrt();
-    let b = [(s[0] - q) / p, (s[1] - q) / p, (s[2] - q) / p, s[3] / p, s[4] / p, s[5] / p];
-    // det(B)/2 with B symmetric: [b0 b3 b5; b3 b1 b4; b5 b4 b2].
-    let det =
-        b[0] * (b[1] * b[2] - b[4] * b[4]) - b[3] * (b[3] * b[2] - b[4] * b[5]) + b[5] * (b[3] * b[4] - b[1] * b[5]);
-    let r = (det / 2.0).clamp(-1.0, 1.0);
-    let phi = r.acos() / 3.0;
-    let e1 = q + 2.0 * p * phi.cos();
-    let e3 = q + 2.0 * p * (phi + 2.0 * std::f64::consts::PI / 3.0).cos();
-    [e1, 3.0 * q - e1 - e3, e3]
+    linalg::symmetric_eigenvalues(s)
 }
 
 /// Check that `mesh` bounds a solid: closed, consistently oriented 2-manifold with non-zero volume. Returns

@@ -6,8 +6,8 @@ use std::time::Instant;
 use super::settings::*;
 use super::{field, hierarchy};
 use crate::geometry::decimate::{Crossings, decimate};
-use crate::geometry::polygon;
 use crate::geometry::vec3::{self, V3, cross, dot, sub};
+use crate::geometry::{linalg, polygon};
 
 /// Mesh `p`, `tris` decimated (QEM) or midpoint-subdivided toward `want` vertices, and how ("as-is",
 /// "decimated" or "subdivided ×k"). Cost: O(F log F) for the decimation.
@@ -131,7 +131,9 @@ pub(super) fn curvature_directions(level: &hierarchy::Level, weight: f64, cohere
             if count < 3 {
                 return (x, 0.0, 0.0);
             }
-            let Some([a, b, c]) = solve3(m, r) else { return (x, 0.0, 0.0) };
+            let largest = m.iter().flatten().map(|x| x.abs()).fold(0.0, f64::max);
+            let singular = |d: f64| d.abs() <= 1e-12 * largest.powi(3) || d == 0.0;
+            let Some([a, b, c]) = linalg::solve3(m, r, singular) else { return (x, 0.0, 0.0) };
             // Eigen-decomposition of [a b; b c].
             let half_diff = 0.5 * (a - c);
             let disc = (half_diff * half_diff + b * b).sqrt();
@@ -167,27 +169,6 @@ pub(super) fn curvature_directions(level: &hierarchy::Level, weight: f64, cohere
     let trust = ((coherence - COHERENCE_TRUST_MIN) / (1.0 - COHERENCE_TRUST_MIN)).clamp(0.0, 1.0);
     let out = dirs.into_iter().map(|(d, a2, b2)| (d, weight * (a2 + coherent_pull * trust * b2))).collect();
     (out, coherence)
-}
-
-pub(super) fn solve3(m: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
-    let det = |m: [[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det(m);
-    let scale_ = m.iter().flatten().map(|x| x.abs()).fold(0.0, f64::max);
-    if d.abs() <= 1e-12 * scale_.powi(3) || d == 0.0 {
-        return None;
-    }
-    let mut out = [0.0; 3];
-    for k in 0..3 {
-        let mut mk = m;
-        for row in 0..3 {
-            mk[row][k] = r[row];
-        }
-        out[k] = det(mk) / d;
-    }
-    Some(out)
 }
 
 #[cfg(test)]
