@@ -198,7 +198,12 @@ fn convert_writes_a_step_solid_of_the_bundled_sample() {
     let written: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
     assert_eq!(written["brep"]["faces"], v["brep"]["faces"]);
     let stages: Vec<&str> = v["stages"].as_array().unwrap().iter().map(|s| s["stage"].as_str().unwrap()).collect();
-    assert_eq!(stages, ["read", "repair", "remesh", "surface", "brep", "step"]);
+    assert_eq!(stages, ["read", "repair", "remesh", "surface", "brep", "step", "quality"]);
+    // The bundle: the error map is the solid mesh coloured by its distance to the input.
+    let map = common::read_mesh(std::path::Path::new(v["error_map_file"].as_str().unwrap()));
+    let solid = common::read_mesh(std::path::Path::new(v["solid_mesh_file"].as_str().unwrap()));
+    assert_eq!(map.positions.len(), solid.positions.len(), "error map and solid mesh vertices");
+    assert!(v["error_map_scale"].as_f64().unwrap() > 0.0, "{}", v["error_map_scale"]);
     let brep = v["stages"][4]["distance"]["symmetric"]["rms"]["pct_of_diagonal"].as_f64().unwrap();
     assert!(brep <= 0.05, "solid RMS {brep} % of the diagonal");
     assert!(v["volume_error_pct"].as_f64().unwrap().abs() <= 0.5, "{}", v["volume_error_pct"]);
