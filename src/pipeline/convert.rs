@@ -104,7 +104,8 @@ pub const HANDLE_LOOP_SPACINGS: f64 = 2.0;
 
 /// The longest handle loop `convert` removes before remeshing a surface of `area` at `resolution`:
 /// [`HANDLE_LOOP_SPACINGS`] · √(area / n) for a vertex count n; π · t for a tolerance t (a tunnel narrower
-/// than the tolerance, whose filling moves the surface by less than about t).
+/// than the tolerance, whose filling moves the surface by less than about t); NaN (no cut) for a percentage
+/// not yet [`Resolution::resolved`] against the input's diagonal.
 pub fn small_handle_loop(resolution: Resolution, area: f64) -> f64 {
     match resolution {
         Resolution::Vertices(n) => HANDLE_LOOP_SPACINGS * (area / n.max(1) as f64).sqrt(),
