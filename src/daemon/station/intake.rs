@@ -20,10 +20,15 @@ pub struct Hashed {
     pub sha256: Result<String, Error>,
 }
 
-/// A claimed inbox file waiting for its hash; claims are admitted in the order they were made.
+/// A claimed file waiting for its hash (and, for a file submitted from outside the inbox, its copy); claims
+/// are admitted in the order they were made.
 pub(super) struct Hashing {
     id: JobId,
     dest: PathBuf,
+    /// `inbox`, or `dbus:<sender>` for `SubmitFile`.
+    source: String,
+    /// `SubmitFile`'s options (they override a sidecar's) and its pending answer; `None` for an inbox claim.
+    submitted: Option<(JobOptions, tokio::sync::oneshot::Sender<Result<JobId, StationError>>)>,
     sha256: Option<Result<String, Error>>,
 }
 
@@ -103,41 +108,57 @@ impl Station {
         (rec, preset)
     }
 
-    pub(super) async fn submit(
+    /// `SubmitFile`: claim `path` as a job and answer `reply` with its id once it is hashed and queued. A file
+    /// in the inbox is renamed into `work/<id>/` here; one from elsewhere is copied, and the copy and the hash
+    /// (each reading the whole file) run off the actor's task, so D-Bus calls are answered meanwhile. A claim
+    /// interrupted before it is queued is left in `work/<id>/` and recovered as an orphan at the next start.
+    pub(super) fn submit(
         &mut self,
         path: &Path,
         options: JobOptions,
         source: String,
-    ) -> Result<JobId, StationError> {
+        reply: tokio::sync::oneshot::Sender<Result<JobId, StationError>>,
+    ) {
         if self.paused {
-            return Err(StationError::IntakePaused("intake is paused (ResumeIntake to continue)".into()));
+            let _ = reply.send(Err(StationError::IntakePaused("intake is paused (ResumeIntake to continue)".into())));
+            return;
         }
         if !path.is_file() {
-            return Err(StationError::NotFound(format!("{} is not a readable file", path.display())));
+            let _ = reply.send(Err(StationError::NotFound(format!("{} is not a readable file", path.display()))));
+            return;
         }
         let in_inbox = path.parent().is_some_and(|p| same_dir(p, &self.spool.inbox));
         let id = JobId::new();
         let work = self.spool.work_dir(&id);
         let name = path.file_name().map(|n| n.to_os_string()).unwrap_or_default();
         let dest = work.join(&name);
-        let io = |e: std::io::Error| StationError::Internal(format!("cannot claim {}: {e}", path.display()));
-        std::fs::create_dir_all(&work).map_err(io)?;
+        let what = format!("cannot claim {}", path.display());
+        if let Err(e) = std::fs::create_dir_all(&work) {
+            let _ = reply.send(Err(StationError::Internal(format!("{what}: {e}"))));
+            return;
+        }
         if in_inbox {
-            std::fs::rename(path, &dest).map_err(io)?;
-        } else {
-            let tmp = work.join(".copy.part");
-            std::fs::copy(path, &tmp).map_err(io)?;
-            std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(io)?;
-            std::fs::rename(&tmp, &dest).map_err(io)?;
+            if let Err(e) = std::fs::rename(path, &dest).and_then(|()| sync_dir(&work)) {
+                let _ = std::fs::remove_dir(&work);
+                let _ = reply.send(Err(StationError::Internal(format!("{what}: {e}"))));
+                return;
+            }
         }
-        sync_dir(&work).map_err(io)?;
-        let rec = self.new_record(id.clone(), &dest, source).map_err(io)?;
-        let (mut rec, preset) = self.admit(rec, &dest);
-        if options != JobOptions::default() {
-            rec.options = options;
-        }
-        self.enqueue(rec, preset).await.map_err(|e| StationError::Internal(e.to_string()))?;
-        Ok(id)
+        self.hashing.push_back(Hashing {
+            id: id.clone(),
+            dest: dest.clone(),
+            source,
+            submitted: Some((options, reply)),
+            sha256: None,
+        });
+        let (tx, src) = (self.intake_tx.clone(), path.to_path_buf());
+        tokio::task::spawn_blocking(move || {
+            let copied = if in_inbox { Ok(()) } else { copy_durably(&src, &dest, &work) };
+            let sha256 = copied
+                .map_err(|e| Error::new(ErrorCode::InputIo, format!("{what}: {e}")))
+                .and_then(|()| crate::pipeline::provenance::sha256_file(&dest));
+            let _ = tx.send(Hashed { id, sha256 });
+        });
     }
 
     pub(super) async fn enqueue(&mut self, rec: JobRecord, preset: Option<Error>) -> std::io::Result<()> {
@@ -179,7 +200,13 @@ impl Station {
         let _ = sync_dir(&self.spool.inbox);
         // Hashing reads the whole file: off the actor's task, so D-Bus calls are answered meanwhile. A claim
         // interrupted here is left in work/<id>/ and recovered as an orphan at the next start.
-        self.hashing.push_back(Hashing { id: id.clone(), dest: dest.clone(), sha256: None });
+        self.hashing.push_back(Hashing {
+            id: id.clone(),
+            dest: dest.clone(),
+            source: "inbox".into(),
+            submitted: None,
+            sha256: None,
+        });
         let tx = self.intake_tx.clone();
         tokio::task::spawn_blocking(move || {
             let sha256 = crate::pipeline::provenance::sha256_file(&dest);
@@ -187,24 +214,47 @@ impl Station {
         });
     }
 
-    /// A claim's hash arrived: admit and queue the claims whose hashes are in, in the order of the claims.
+    /// A claim's hash arrived: admit and queue the claims whose hashes are in, in the order of the claims,
+    /// answering `SubmitFile` for those it made.
     pub(super) async fn hashed(&mut self, h: Hashed) {
         if let Some(p) = self.hashing.iter_mut().find(|p| p.id == h.id) {
             p.sha256 = Some(h.sha256);
         }
         while self.hashing.front().is_some_and(|p| p.sha256.is_some()) {
-            let Some(Hashing { id, dest, sha256: Some(sha256) }) = self.hashing.pop_front() else { break };
+            let Some(Hashing { id, dest, source, submitted, sha256: Some(sha256) }) = self.hashing.pop_front() else {
+                break;
+            };
+            let (options, reply) = submitted.map_or((None, None), |(o, r)| (Some(o), Some(r)));
+            let answer = |r: Result<JobId, StationError>| {
+                if let Some(reply) = reply {
+                    let _ = reply.send(r);
+                }
+            };
             let sha = match sha256 {
                 Ok(s) => s,
                 Err(e) => {
                     tracing::error!(job_id = %id, error = %e, "cannot hash the claimed input");
+                    if options.is_some() {
+                        // Nothing was taken from the submitter's directory: drop the partial copy.
+                        let _ = std::fs::remove_dir_all(self.spool.work_dir(&id));
+                    }
+                    answer(Err(StationError::Internal(e.to_string())));
                     continue;
                 }
             };
-            let rec = Self::record(id.clone(), &dest, "inbox".into(), sha);
-            let (rec, preset) = self.admit(rec, &dest);
-            if let Err(e) = self.enqueue(rec, preset).await {
-                tracing::error!(job_id = %id, error = %e, "cannot record the job");
+            let rec = Self::record(id.clone(), &dest, source, sha);
+            let (mut rec, preset) = self.admit(rec, &dest);
+            if let Some(o) = options
+                && o != JobOptions::default()
+            {
+                rec.options = o;
+            }
+            match self.enqueue(rec, preset).await {
+                Ok(()) => answer(Ok(id)),
+                Err(e) => {
+                    tracing::error!(job_id = %id, error = %e, "cannot record the job");
+                    answer(Err(StationError::Internal(e.to_string())));
+                }
             }
         }
     }
@@ -295,6 +345,15 @@ impl Station {
             }
         }
     }
+}
+
+/// Copy `src` to `dest` through a temporary name in `work`, synced, so `dest` is whole or absent.
+fn copy_durably(src: &Path, dest: &Path, work: &Path) -> std::io::Result<()> {
+    let tmp = work.join(".copy.part");
+    std::fs::copy(src, &tmp)?;
+    std::fs::File::open(&tmp).and_then(|f| f.sync_all())?;
+    std::fs::rename(&tmp, dest)?;
+    sync_dir(work)
 }
 
 fn same_dir(a: &Path, b: &Path) -> bool {

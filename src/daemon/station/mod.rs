@@ -263,10 +263,7 @@ impl Station {
 
     async fn command(&mut self, cmd: Command) {
         match cmd {
-            Command::Submit { path, options, source, reply } => {
-                let r = self.submit(&path, options, source).await;
-                let _ = reply.send(r);
-            }
+            Command::Submit { path, options, source, reply } => self.submit(&path, options, source, reply),
             Command::Cancel { id, reply } => {
                 let _ = reply.send(self.cancel(&id).await);
             }
