@@ -22,6 +22,9 @@ pub enum ErrorClass {
     Resource,
     /// A bug in scanstation: an invariant did not hold.
     Internal,
+    /// The work ran to its end, but its result failed a quality gate (`quality.*`): it is not published as
+    /// a success.
+    Quality,
 }
 
 /// Stable error codes. The string form (`ErrorCode::as_str`) never changes once released.
@@ -96,6 +99,15 @@ pub enum ErrorCode {
     Cancelled,
     /// The process stopped (crash, `kill -9`, power loss) while the job ran, and it was not resumed.
     Interrupted,
+    /// Quality gate: the solid's surface crosses itself (pairs of its tessellation's triangles intersect).
+    QualitySelfIntersecting,
+    /// Quality gate: faces of the solid fold over (their normal turns by more than 90° inside the face).
+    QualityFolded,
+    /// Quality gate: the solid's volume misses the input's by more than its bound.
+    QualityVolume,
+    /// Quality gate: the solid's RMS distance to the input misses its bound (the tolerance, or the default
+    /// accuracy goal).
+    QualityRms,
 }
 
 impl ErrorCode {
@@ -136,6 +148,10 @@ impl ErrorCode {
             ErrorCode::DaemonRefused => "daemon.refused",
             ErrorCode::Cancelled => "cancelled",
             ErrorCode::Interrupted => "interrupted",
+            ErrorCode::QualitySelfIntersecting => "quality.self-intersecting",
+            ErrorCode::QualityFolded => "quality.folded",
+            ErrorCode::QualityVolume => "quality.volume",
+            ErrorCode::QualityRms => "quality.rms",
         }
     }
 
@@ -150,6 +166,10 @@ impl ErrorCode {
             | ErrorCode::Interrupted
             | ErrorCode::DaemonUnavailable => ErrorClass::Resource,
             ErrorCode::InternalBug | ErrorCode::BrepInvalid => ErrorClass::Internal,
+            ErrorCode::QualitySelfIntersecting
+            | ErrorCode::QualityFolded
+            | ErrorCode::QualityVolume
+            | ErrorCode::QualityRms => ErrorClass::Quality,
             _ => ErrorClass::BadInput,
         }
     }

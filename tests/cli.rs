@@ -260,6 +260,34 @@ fn convert_with_a_tolerance_refines_until_it_is_met() {
     assert!(out.is_file());
 }
 
+/// The quality gates: a solid that misses its accuracy bound (here the default 0.05 % of the diagonal, which
+/// no 300-vertex net of spot meets) exits 4 with `quality.rms` naming the measured value; its report (the
+/// JSON on stdout) says `"status": "failed"` and lists every gate, and the rejected files stay for
+/// inspection. `--accept-degraded` publishes the same solid with exit 0 and `"status": "degraded"`.
+#[test]
+fn a_solid_that_misses_a_quality_gate_exits_4_unless_accepted_as_degraded() {
+    let dir = scratch("cli_convert_gate");
+    let out = dir.join("coarse.step");
+    let (code, stdout, stderr) = run(&["convert", SPOT, "-o", out.to_str().unwrap(), "--vertices", "300", "--json"]);
+    assert_eq!(code, 4, "{stdout}\n{stderr}");
+    let v: Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(v["status"], "failed", "{v}");
+    let gates: Vec<&str> = v["gates"].as_array().unwrap().iter().map(|g| g["name"].as_str().unwrap()).collect();
+    assert_eq!(gates, ["crossings", "folds", "volume", "rms"]);
+    let rms = v["gates"].as_array().unwrap().iter().find(|g| g["name"] == "rms").unwrap();
+    let measured = rms["value"].as_f64().unwrap();
+    assert!(measured > 0.05 && rms["bound"] == 0.05 && rms["passed"] == false, "{rms}");
+    assert!(stderr.contains("[quality.rms]") && stderr.contains(&format!("{measured:.4} %")), "{stderr}");
+    assert!(out.is_file() && dir.join("coarse.solid.ply").is_file(), "the rejected solid is kept for inspection");
+
+    let (code, v) =
+        json(&["convert", SPOT, "-o", out.to_str().unwrap(), "--vertices", "300", "--accept-degraded", "--json"]);
+    assert_eq!(code, 0, "{v}");
+    assert_eq!(v["status"], "degraded", "{v}");
+    let (code, v) = json(&["convert", SPOT, "-o", out.to_str().unwrap(), "--max-rms=-1", "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (2, Some("input.bad-argument")), "{v}");
+}
+
 const ROD: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rod.ply");
 const ROD_SPEC: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/fea/cantilever-rod.toml");
 

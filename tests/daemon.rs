@@ -144,11 +144,15 @@ reconcile_interval = "1s"
 [pipeline]
 vertices = 100
 compare_samples = 5000
+{gate}
 {extra}
 "#,
                 if system { "system" } else { "session" },
                 dir.join("spool").display(),
-                dir.join("state").display()
+                dir.join("state").display(),
+                // 100-vertex nets keep these tests fast; they are coarse by design (RMS about 0.1 % of the
+                // sphere's diagonal), so the accuracy gate is loosened unless a test sets its own.
+                gate = if extra.contains("max_rms_pct") { "" } else { "max_rms_pct = 1.0" },
             ),
         )
         .unwrap();
@@ -814,6 +818,54 @@ fn packaging_matches_the_code() {
     let mem_high = unit.lines().find_map(|l| l.strip_prefix("MemoryHigh=")).unwrap();
     let high = scanstation::daemon::config::parse_size(mem_high).unwrap();
     assert!(cfg.memory_budget < high, "the memory budget must stay below MemoryHigh");
+}
+
+/// The trust issue's gate: a solid that misses its accuracy bound is never published as a success. The job
+/// fails with `quality.rms`, and its quarantine entry holds the input, every artifact (STEP, solid mesh,
+/// error map, report with `"status": "failed"`) and `error.json`; the same scan with `accept_degraded = true`
+/// in its sidecar is published, its report saying `degraded`.
+#[test]
+fn a_solid_that_misses_a_quality_gate_is_quarantined_with_its_artifacts() {
+    need("busctl", "systemd");
+    let dir = common::scratch("daemon-quality");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    // No 100-vertex solid of a sphere is within 0.0001 % of its diagonal.
+    let mut st = Station::new(&dir, &bus, false, "max_rms_pct = 0.0001");
+    st.start();
+    drop_renamed(&st.inbox(), "coarse.ply", &sphere_bytes(&dir, 1.0));
+    std::fs::write(st.inbox().join("kept.job.toml"), "accept_degraded = true\n").unwrap();
+    drop_renamed(&st.inbox(), "kept.ply", &sphere_bytes(&dir, 1.2));
+    st.wait_done(2, Duration::from_secs(120));
+
+    let q = visible(&st.spool("quarantine"));
+    assert_eq!(q.len(), 1, "quarantine: {q:?}\n{}", st.log());
+    let entry = st.spool("quarantine").join(&q[0]);
+    assert!(q[0].starts_with("coarse-"), "{q:?}");
+    assert_eq!(error_code_of(&entry), "quality.rms");
+    let files = visible(&entry);
+    for f in
+        ["coarse.ply", "coarse.step", "coarse.solid.ply", "coarse.error-map.ply", "coarse.report.json", "error.json"]
+    {
+        assert!(files.iter().any(|x| x == f), "quarantine lacks {f}: {files:?}");
+    }
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(entry.join("coarse.report.json")).unwrap()).unwrap();
+    assert_eq!(report["status"], "failed");
+    let rms = report["convert"]["gates"].as_array().unwrap().iter().find(|g| g["name"] == "rms").unwrap().clone();
+    assert_eq!(rms["passed"], false, "{rms}");
+    assert!(rms["value"].as_f64().unwrap() > 0.0001, "{rms}");
+    let error: serde_json::Value = serde_json::from_slice(&std::fs::read(entry.join("error.json")).unwrap()).unwrap();
+    assert!(error["message"].as_str().unwrap().contains("bound 0.0001 %"), "{error}");
+
+    let out = visible(&st.spool("outbox"));
+    assert_eq!(out.len(), 1, "outbox: {out:?}");
+    assert!(out[0].starts_with("kept-"), "{out:?}");
+    let published = st.spool("outbox").join(&out[0]);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(published.join("kept.report.json")).unwrap()).unwrap();
+    assert_eq!(report["status"], "degraded", "{}", report["convert"]["gates"]);
+    assert_eq!(st.property("Manager", ROOT, "JobsFailed").as_deref(), Some("t 1"));
+    assert_eq!(st.property("Manager", ROOT, "JobsSucceeded").as_deref(), Some("t 1"));
 }
 
 #[test]

@@ -81,6 +81,9 @@ struct RawPipeline {
     seed: Option<u64>,
     compare_samples: Option<usize>,
     resume: Option<bool>,
+    max_rms_pct: Option<f64>,
+    max_volume_error_pct: Option<f64>,
+    accept_degraded: Option<bool>,
 }
 
 #[derive(Deserialize, Default)]
@@ -166,6 +169,9 @@ pub struct Config {
     pub compare_samples: usize,
     /// Re-queue jobs a restart interrupted (otherwise quarantine them as `interrupted`).
     pub resume: bool,
+    /// The quality gates' bounds, and whether a job whose solid misses one is published (as `degraded`)
+    /// instead of quarantined.
+    pub gates: crate::pipeline::GateOptions,
     /// Most `Progress` change signals per second per job.
     pub progress_max_rate_hz: f64,
     /// The group whose members may submit, cancel and pause.
@@ -319,6 +325,17 @@ impl Config {
         if !(1_000..=100_000_000).contains(&compare_samples) {
             return Err(err("pipeline.compare_samples", "must be between 1000 and 100000000".into()));
         }
+        let gates = crate::pipeline::GateOptions {
+            max_rms_pct: raw.pipeline.max_rms_pct.unwrap_or(crate::pipeline::gates::DEFAULT_MAX_RMS_PCT),
+            max_volume_error_pct: raw
+                .pipeline
+                .max_volume_error_pct
+                .unwrap_or(crate::pipeline::gates::DEFAULT_MAX_VOLUME_ERROR_PCT),
+            accept_degraded: raw.pipeline.accept_degraded.unwrap_or(false),
+        };
+        if let Err(e) = gates.validated() {
+            return Err(err("pipeline.max_rms_pct / max_volume_error_pct", e.message));
+        }
         let progress_max_rate_hz = raw.dbus.progress_max_rate_hz.unwrap_or(4.0);
         if !(progress_max_rate_hz.is_finite() && (0.1..=100.0).contains(&progress_max_rate_hz)) {
             return Err(err("dbus.progress_max_rate_hz", "must be between 0.1 and 100".into()));
@@ -355,6 +372,7 @@ impl Config {
             seed: raw.pipeline.seed.unwrap_or(0),
             compare_samples,
             resume: raw.pipeline.resume.unwrap_or(true),
+            gates,
             progress_max_rate_hz,
             ops_group: raw.dbus.ops_group.unwrap_or_else(|| "scanstation".into()),
         })
@@ -382,6 +400,8 @@ pub struct JobOptions {
     pub tolerance: Option<f64>,
     /// Seed of the randomised steps.
     pub seed: Option<u64>,
+    /// Publish a solid that misses a quality gate anyway, as `degraded` (otherwise the job is quarantined).
+    pub accept_degraded: Option<bool>,
 }
 
 impl JobOptions {

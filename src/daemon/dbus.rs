@@ -218,7 +218,8 @@ pub(crate) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// Parse the `a{sv}` of `SubmitFile`: `vertices` (integer), `tolerance` (double), `seed` (integer).
+/// Parse the `a{sv}` of `SubmitFile`: `vertices` (integer), `tolerance` (double), `seed` (integer),
+/// `accept_degraded` (boolean).
 fn parse_options(options: &HashMap<String, OwnedValue>) -> Result<JobOptions, StationError> {
     fn int(v: &Value<'_>) -> Option<u64> {
         match v {
@@ -244,9 +245,13 @@ fn parse_options(options: &HashMap<String, OwnedValue>) -> Result<JobOptions, St
                 Value::F64(x) => o.tolerance = Some(*x),
                 _ => return Err(bad()),
             },
+            "accept_degraded" => match &**v {
+                Value::Bool(b) => o.accept_degraded = Some(*b),
+                _ => return Err(bad()),
+            },
             _ => {
                 return Err(StationError::InvalidArgument(format!(
-                    "unknown option {k:?} (known: vertices, tolerance, seed)"
+                    "unknown option {k:?} (known: vertices, tolerance, seed, accept_degraded)"
                 )));
             }
         }
@@ -265,7 +270,7 @@ pub mod manager_iface {
     impl ManagerIface {
         /// Queue a file as a job. `path` must be absolute; a file in the spool's inbox is moved into the job
         /// (as the watch folder would), any other file is copied. Options: `vertices` (u), `tolerance` (d),
-        /// `seed` (t). The job object exists when this returns.
+        /// `seed` (t), `accept_degraded` (b). The job object exists when this returns.
         async fn submit_file(
             &self,
             path: String,

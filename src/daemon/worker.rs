@@ -1,6 +1,7 @@
 //! One job's work, run on the CPU pool (never on the async runtime): the conversion chain on the claimed
 //! input, the quality artifacts, then publication of `outbox/<stem>-<id>/` (manifest last, one rename) — or,
-//! on any error, the input moved to `quarantine/<stem>-<id>/` with `error.json`. Progress goes back to the
+//! on any error, the input moved to `quarantine/<stem>-<id>/` with `error.json` (and, when the solid failed a
+//! quality gate, its artifacts and report beside it). Progress goes back to the
 //! station as one monotonic, weighted fraction.
 
 use std::collections::BTreeMap;
@@ -15,6 +16,7 @@ use super::journal::{JobId, JobRecord, now_usec, sync_dir, write_durable};
 use super::spool::{Spool, publish_dir};
 use crate::error::{Error, ErrorCode};
 use crate::geometry::io::ReadOptions;
+use crate::pipeline::GateOptions;
 use crate::pipeline::convert::{ConvertOptions, Resolution, convert_file};
 use crate::pipeline::memory::StageMeter;
 use crate::stages::Progress;
@@ -175,6 +177,10 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
         seed: rec.options.seed.unwrap_or(cfg.seed),
         compare_samples: cfg.compare_samples,
         memory_budget: cfg.memory_budget,
+        gates: GateOptions {
+            accept_degraded: rec.options.accept_degraded.unwrap_or(cfg.gates.accept_degraded),
+            ..cfg.gates
+        },
         ..Default::default()
     };
     let read = ReadOptions { memory_budget: cfg.memory_budget };
@@ -182,8 +188,6 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
     // The STEP file, the solid mesh, the error map (its last phase is `quality`) and the report.
     let report = convert_file(&input, &step, &read, &opts, rep)?;
 
-    crate::stages::check_cancelled(rep)?;
-    rep.send(PUBLISH_AT, "publish", "publish/report and manifest".into());
     let report_path = part.join(format!("{stem}.report.json"));
     let report_json = serde_json::json!({
         "job_id": rec.id,
@@ -191,8 +195,18 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
         "input_sha256": rec.input_sha256,
         "config_digest": job.config_digest,
         "daemon_version": env!("CARGO_PKG_VERSION"),
+        "status": report.status,
         "convert": report,
     });
+    // A solid that failed a quality gate is not published: the job goes to quarantine, and its artifacts and
+    // report with it ([`quarantine_record`] moves them).
+    if let Err(e) = report.verdict() {
+        write_durable(&report_path, serde_json::to_string_pretty(&report_json).unwrap_or_default().as_bytes())
+            .map_err(|e| io_err("cannot write", &report_path, e))?;
+        return Err(e);
+    }
+    crate::stages::check_cancelled(rep)?;
+    rep.send(PUBLISH_AT, "publish", "publish/report and manifest".into());
     write_durable(&report_path, serde_json::to_string_pretty(&report_json).unwrap_or_default().as_bytes())
         .map_err(|e| io_err("cannot write", &report_path, e))?;
     let files = [
@@ -294,12 +308,21 @@ pub fn quarantine_record(
     let stem = rec.stem();
     let part = spool.quarantine_part(&stem, &rec.id);
     let public = spool.quarantine_dir(&stem, &rec.id);
-    // Remove any half-built outbox directory of this job.
+    // A solid that failed a quality gate keeps its artifacts (STEP, solid mesh, error map, report) beside
+    // the input; any other half-built outbox directory of this job is removed.
     let out_part = spool.outbox_part(&stem, &rec.id);
+    std::fs::create_dir_all(&part).map_err(|x| io_err("cannot create", &part, x))?;
     if out_part.exists() {
+        if e.class() == crate::error::ErrorClass::Quality
+            && let Ok(rd) = std::fs::read_dir(&out_part)
+        {
+            for f in rd.flatten().filter(|f| f.path().is_file()) {
+                let to = part.join(f.file_name());
+                std::fs::rename(f.path(), &to).map_err(|x| io_err("cannot move", &f.path(), x))?;
+            }
+        }
         let _ = std::fs::remove_dir_all(&out_part);
     }
-    std::fs::create_dir_all(&part).map_err(|x| io_err("cannot create", &part, x))?;
     let work = spool.work_dir(&rec.id);
     if let Ok(rd) = std::fs::read_dir(&work) {
         for f in rd.flatten() {

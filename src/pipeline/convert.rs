@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use super::gates::{Gate, GateOptions, Measured, Status, judge};
 use super::memory::StageMeter;
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh};
@@ -95,6 +96,8 @@ pub struct ConvertOptions {
     pub remove_small_handles: bool,
     /// Most bytes any stage may allocate (each checks its estimate first).
     pub memory_budget: u64,
+    /// The quality gates' bounds, and whether a solid that misses one is still published ([`super::gates`]).
+    pub gates: GateOptions,
 }
 
 /// Handle loops shorter than this many quad spacings √(area / n) are topological noise to `convert`: the
@@ -127,6 +130,7 @@ impl Default for ConvertOptions {
             quads_output: None,
             remove_small_handles: true,
             memory_budget: 8 << 30,
+            gates: GateOptions::default(),
         }
     }
 }
@@ -201,8 +205,24 @@ pub struct ConvertReport {
     pub volume_error_pct: f64,
     /// Resolutions tried (one without a tolerance).
     pub attempts: Vec<Attempt>,
+    /// `ok` when the solid meets every gate; `failed` when it misses one (see [`ConvertReport::verdict`]);
+    /// `degraded` when it misses one and was published anyway ([`GateOptions::accept_degraded`]).
+    pub status: Status,
+    /// Every quality gate with its measured value and bound ([`super::gates`]).
+    pub gates: Vec<Gate>,
     /// Wall seconds of the whole conversion.
     pub total_seconds: f64,
+}
+
+impl ConvertReport {
+    /// `Ok` unless the solid failed a quality gate: then the `quality.*` error of the first gate missed, with
+    /// its measured value. A caller that publishes the files `convert_file` wrote must check this first.
+    ///
+    /// # Errors
+    /// `quality.self-intersecting`, `quality.folded`, `quality.volume` or `quality.rms`.
+    pub fn verdict(&self) -> Result<()> {
+        super::gates::verdict(self.status, &self.gates)
+    }
 }
 
 /// Time and memory of a stage, turned into its report.
@@ -228,6 +248,13 @@ pub const REMESH_RETRIES: usize = 3;
 /// Whole remesh → surface → brep chains built again from other seeds when the solid's surface crosses
 /// itself.
 pub const SOLID_RETRIES: usize = 2;
+
+/// Pairs of intersecting triangles of a (welded) triangle mesh.
+fn mesh_self_intersections(mesh: &PolyMesh) -> usize {
+    let (t, _) = mesh.triangulate();
+    let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
+    crate::geometry::intersect::self_intersections(&p, &t.triangles).len()
+}
 
 /// Pairs of non-adjacent triangles of the (fan-triangulated) quad mesh that intersect.
 fn quad_self_intersections(quads: &PolyMesh) -> usize {
@@ -316,6 +343,8 @@ struct SolidTry {
     stages: Vec<StageReport>,
     /// The solid's two-sided RMS distance to the input.
     rms: f64,
+    /// The one-sided RMS distance input → solid (the measure for an open input).
+    input_to_solid_rms: f64,
     /// The solid's tessellation for the quality check (about 1.5M triangles), also the solid mesh written
     /// beside the STEP file.
     tessellation: TriMesh,
@@ -337,6 +366,10 @@ struct Chain<'a> {
 /// behind on failure), with the solid's tessellation beside it as NAME.solid.ply (for `fea`), the error map
 /// NAME.error-map.ply (that tessellation coloured by distance to the input) and, when asked, the quad
 /// control net. The CLI and the daemon write this same bundle.
+///
+/// The solid is then judged by the quality gates ([`super::gates`]): crossings, folds, volume and RMS. A solid
+/// that misses one is still written (for inspection or quarantine), but its report's `status` is `failed`
+/// and [`ConvertReport::verdict`] gives the `quality.*` error: check it before publishing the files.
 ///
 /// # Errors
 /// Reader errors; `input.no-geometry` for a point cloud (reconstruction is not part of this chain yet);
@@ -362,6 +395,7 @@ struct Chain<'a> {
 /// let opts = ConvertOptions { resolution: Resolution::Vertices(5_000), ..Default::default() };
 /// let report = convert_file(Path::new("examples/spot.ply"), Path::new("out/spot.step"),
 ///                           &ReadOptions::default(), &opts, &NoProgress)?;
+/// report.verdict()?; // a solid that crosses itself, folds, or misses its accuracy is not a success
 /// println!("solid within {:.4} % of the scan", report.attempts[0].solid_rms_pct);
 /// # Ok::<(), scanstation::Error>(())
 /// ```
@@ -376,7 +410,8 @@ pub fn convert_file(
     // the overall fraction must not go back when they do.
     let monotonic = Monotonic { parent: progress, last: std::sync::Mutex::new(0.0) };
     let progress: &dyn Progress = &monotonic;
-    // 1. No output may overwrite the input or another output.
+    // 1. No output may overwrite the input or another output; the gates' bounds make sense.
+    opts.gates.validated()?;
     ensure_not_input(output, &[input])?;
     if let Some(q) = &opts.quads_output {
         ensure_not_input(q, &[input, output])?;
@@ -428,6 +463,7 @@ pub fn convert_file(
     }
     let kept = best.ok_or_else(|| Error::internal("no resolution attempted"))?;
     stages.extend(kept.stages);
+    let (kept_rms, kept_input_to_solid_rms, kept_folds) = (kept.rms, kept.input_to_solid_rms, kept.brep.folded_faces);
 
     // 5. Write the STEP file, the solid mesh beside it and the quad net.
     check_cancelled(progress)?;
@@ -436,6 +472,8 @@ pub fn convert_file(
     let name = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
     write_step(output, &kept.solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
     let (solid_mesh_file, solid_mesh) = write_solid_mesh(output, kept.tessellation)?;
+    // The crossings gate: the coarse check that chose the chain, and the fine tessellation written.
+    let kept_crossings = kept.brep.self_intersections.max(mesh_self_intersections(&solid_mesh));
     if let Some(q) = &opts.quads_output {
         super::write_mesh(q, &kept.quads, "quad control net by scanstation")?;
     }
@@ -450,8 +488,24 @@ pub fn convert_file(
     stages.push(clock.stop("quality", None));
     progress.report(1.0, "quality/done");
 
-    // 7. The report.
+    // 7. The quality gates and the report.
     let volume_error_pct = 100.0 * (kept.brep.volume - input_volume) / input_volume.abs().max(f64::MIN_POSITIVE);
+    let open_input = repair_report.holes.holes_filled > 0;
+    let measured = Measured {
+        crossings: kept_crossings,
+        folded_faces: kept_folds,
+        volume_error_pct,
+        rms_pct: 100.0 * if open_input { kept_input_to_solid_rms } else { kept_rms } / diag,
+        rms_one_sided: open_input,
+        tolerance_pct: match resolution {
+            Resolution::Tolerance(t) => Some(100.0 * t / diag),
+            _ => None,
+        },
+    };
+    let (status, gates) = judge(&measured, &opts.gates);
+    for g in gates.iter().filter(|g| !g.passed) {
+        tracing::warn!(gate = g.name, value = g.value, bound = g.bound, ?status, "quality gate missed");
+    }
     Ok(ConvertReport {
         input_file: input.to_path_buf(),
         output_file: output.to_path_buf(),
@@ -470,6 +524,8 @@ pub fn convert_file(
         input_volume,
         volume_error_pct,
         attempts,
+        status,
+        gates,
         total_seconds: t_total.elapsed().as_secs_f64(),
     })
 }
@@ -596,7 +652,7 @@ impl Chain<'_> {
         let tessellation = tessellate_for_check(&solid, 1_500_000)?;
         let d =
             compare(&Geometry::Mesh(PolyMesh::from(tessellation.clone())), &self.input_geom, &self.cmp_opts, &span)?;
-        let rms = d.symmetric.rms.value;
+        let (rms, input_to_solid_rms) = (d.symmetric.rms.value, d.reference_to_test.rms.value);
         stages.push(clock.stop("brep", Some(d)));
         Ok(SolidTry {
             quads,
@@ -607,6 +663,7 @@ impl Chain<'_> {
             brep: brep_report,
             stages,
             rms,
+            input_to_solid_rms,
             tessellation,
         })
     }

@@ -6,10 +6,12 @@
 
 pub mod convert;
 pub mod fea;
+pub mod gates;
 pub mod memory;
 pub mod provenance;
 
 pub use convert::{ConvertOptions, ConvertReport, Resolution, convert_file, small_handle_loop};
+pub use gates::{Gate, GateOptions, Status};
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

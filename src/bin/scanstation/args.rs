@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use scanstation::geometry::io::ReadOptions;
-use scanstation::pipeline::{self, ConvertOptions, ConvertReport, RemeshFileReport, Resolution};
+use scanstation::pipeline::{self, ConvertOptions, ConvertReport, GateOptions, RemeshFileReport, Resolution};
 use scanstation::stages::NoProgress;
 use scanstation::stages::brep::step::LengthUnit;
 use scanstation::stages::quality::CompareOptions;
@@ -135,6 +135,17 @@ pub struct ConvertArgs {
     /// loop is shorter than two quad spacings (π × the tolerance with --tolerance) and fills both sides.
     #[arg(long)]
     pub keep_small_handles: bool,
+    /// Quality gate: the most RMS distance of the solid to the scan, % of the diagonal, when no --tolerance
+    /// is given (a tolerance is its own bound).
+    #[arg(long, value_name = "PCT", default_value_t = pipeline::gates::DEFAULT_MAX_RMS_PCT)]
+    pub max_rms: f64,
+    /// Quality gate: the most |volume error| of the solid against the input, %.
+    #[arg(long, value_name = "PCT", default_value_t = pipeline::gates::DEFAULT_MAX_VOLUME_ERROR_PCT)]
+    pub max_volume_error: f64,
+    /// Publish a solid that misses a quality gate anyway (exit 0, `"status": "degraded"` in the report);
+    /// without it such a solid exits 4 with the gate's `quality.*` code.
+    #[arg(long)]
+    pub accept_degraded: bool,
 }
 
 /// Arguments of `scanstation fea`.
@@ -294,6 +305,12 @@ impl ConvertArgs {
             remove_small_handles: !self.keep_small_handles,
             memory_budget,
             remesh: RemeshOptions { try_direct: !self.split_only, ..RemeshOptions::convert_default() },
+            gates: GateOptions {
+                max_rms_pct: self.max_rms,
+                max_volume_error_pct: self.max_volume_error,
+                accept_degraded: self.accept_degraded,
+            }
+            .validated()?,
             ..Default::default()
         })
     }

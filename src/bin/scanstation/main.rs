@@ -88,7 +88,16 @@ fn main() -> ExitCode {
         Command::Repair(a) => pipeline::repair_file(&a.input, &a.output, &read, &a.options(budget), &NoProgress)
             .map(|r| emit(json, &r, print::print_repair)),
         Command::Remesh(a) => a.run(&read, budget).map(|r| emit(json, &r, print::print_remesh)),
-        Command::Convert(a) => a.run(&read, budget).map(|r| emit(json, &r, print::print_convert)),
+        Command::Convert(a) => match a.run(&read, budget) {
+            Ok(r) => {
+                emit(json, &r, print::print_convert);
+                return match r.verdict() {
+                    Ok(()) => ExitCode::SUCCESS,
+                    Err(e) => print::report_quality_failure(&e, &r),
+                };
+            }
+            Err(e) => Err(e),
+        },
         Command::Fea(a) => {
             let opts = scanstation::stages::fea::FeaOptions { memory_budget: budget };
             pipeline::fea::fea_file(&a.input, &a.spec, &a.output, &read, &opts, &NoProgress)

@@ -76,6 +76,23 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
         r.fit.final_rms,
         r.total_seconds
     );
+    let status = match r.status {
+        pipeline::Status::Ok => "ok",
+        pipeline::Status::Degraded => "DEGRADED (published on request)",
+        pipeline::Status::Failed => "FAILED",
+    };
+    println!("  quality: {status}");
+    for g in &r.gates {
+        let num = |x: f64| if g.unit == "%" { format!("{x:.4}") } else { format!("{x:.0}") };
+        println!(
+            "    {:<10} {:>10} {:<6} bound {:<8} {}",
+            g.name,
+            num(g.value),
+            g.unit,
+            num(g.bound),
+            if g.passed { "ok" } else { "MISSED" }
+        );
+    }
 }
 
 pub fn print_remesh(r: &pipeline::RemeshFileReport) {
@@ -153,17 +170,36 @@ pub fn print_json<T: serde::Serialize>(v: &T) {
     println!("{}", serde_json::to_string_pretty(&value).expect("reports serialise"));
 }
 
-/// Exit codes: 2 bad input, 3 resource limit, 70 internal error (EX_SOFTWARE).
+/// Exit codes: 2 bad input, 3 resource limit, 4 a failed quality gate, 70 internal error (EX_SOFTWARE).
 pub fn report_error(e: &Error, json: bool) -> ExitCode {
     if json {
         println!("{}", serde_json::json!({ "ok": false, "error": e, "error_code": e.code.as_str() }));
     }
     eprintln!("scanstation: error: {e}");
+    exit_code(e)
+}
+
+/// The exit status of an error's class.
+pub fn exit_code(e: &Error) -> ExitCode {
     ExitCode::from(match e.class() {
         ErrorClass::BadInput => 2,
         ErrorClass::Resource => 3,
+        ErrorClass::Quality => 4,
         ErrorClass::Internal => 70,
     })
+}
+
+/// A conversion whose solid failed a quality gate: its report was printed (with `"status": "failed"`), so
+/// only the error goes to stderr; the files stay where they were written, for inspection.
+pub fn report_quality_failure(e: &Error, r: &pipeline::ConvertReport) -> ExitCode {
+    eprintln!("scanstation: error: {e}");
+    eprintln!(
+        "scanstation: the rejected solid is kept for inspection: {}, {}, {}",
+        r.output_file.display(),
+        r.solid_mesh_file.display(),
+        r.error_map_file.display()
+    );
+    exit_code(e)
 }
 
 pub fn print_inspect(r: &InspectReport) {
