@@ -13,6 +13,13 @@
 //!    so the fill continues the surrounding curvature instead of lying flat. The boundary rows take their
 //!    fixed positions from a quadric fitted around the loop ([`rim_anchors`]), so rim noise does not ripple
 //!    into the fill.
+//!
+//! **Planar caps.** A large hole whose rim lies in a plane and whose surroundings meet that plane at a steep
+//! angle is a cut, not a gap in a smooth surface: the open base of a statue scanned standing, a bust's cut.
+//! Thin-plate fairing would continue the walls past the rim into a bulge (3.7 % of the diagonal below a
+//! lion's base). Such a hole ([`planar_rim`]) is triangulated and refined as above, then its new vertices
+//! are put into the rim's least-squares plane and relaxed there (umbrella steps, projected), so the cap
+//! stays in the plane; it is not faired. Each cap is reported ([`PlanarCap`]).
 
 use std::collections::{HashMap, HashSet};
 
@@ -60,7 +67,41 @@ pub struct HoleReport {
     /// (its boundary loop and new vertices): whether the fill itself lies on a smooth surface. A flat fan
     /// has no new vertices (0 here) and shows in `patch_quadric_deviation` instead.
     pub patch_smoothness: Vec<f64>,
+    /// The holes closed by a planar cap instead of a faired fill.
+    pub planar_caps: Vec<PlanarCap>,
 }
+
+/// A hole closed by a flat cap in its rim's plane.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PlanarCap {
+    /// Boundary edges of the hole.
+    pub edges: usize,
+    /// A point of the plane: the rim's centroid.
+    pub point: V3,
+    /// The plane's unit normal, pointing out of the mesh.
+    pub normal: V3,
+    /// Largest distance of a rim vertex from the plane (the fit residual), input units.
+    pub rim_residual: f64,
+    /// Mean distance of the rim vertices from their centroid, input units.
+    pub rim_radius: f64,
+    /// The cap's area.
+    pub area: f64,
+    /// Its triangles.
+    pub triangles: usize,
+}
+
+/// Fewest boundary edges of a hole that may get a planar cap: smaller holes keep the faired fill.
+pub const PLANAR_CAP_MIN_EDGES: usize = 16;
+/// Largest rim-to-plane distance of a planar cap's rim, as a fraction of the rim's radius. The falcon
+/// statue's open base: 0.0079 (0.0020 of a 0.254 radius); a circular hole in a sphere's side is exactly
+/// planar too, which is why the angle test below is needed.
+pub const PLANAR_CAP_MAX_RESIDUAL: f64 = 0.03;
+/// Largest mean |cos| between the plane's normal and the normals of the faces along the rim: the walls must
+/// meet the plane at a steep angle on average (a cut). cos 30°: a hole in a smooth surface has its
+/// surroundings nearly tangent to the rim's plane (mean |cos| near 1). The falcon statue's base: 0.63.
+pub const PLANAR_CAP_MAX_MEAN_COS: f64 = 0.866;
+/// Relaxation steps of a planar cap's vertices.
+const CAP_RELAX_STEPS: usize = 30;
 
 /// Boundary loops as vertex sequences v0, v1, … where the mesh has the half-edges v_i → v_{i+1}.
 pub fn boundary_loops(tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
@@ -536,6 +577,98 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32], anchors: &HashMap<u32, V3
     (iters, worst)
 }
 
+/// The plane of a hole that should be capped flat ([`PLANAR_CAP_MIN_EDGES`], [`PLANAR_CAP_MAX_RESIDUAL`],
+/// [`PLANAR_CAP_MAX_MEAN_COS`]), or `None` for a hole the faired fill suits. `outside[i]` is the normal of
+/// the face across the loop edge i. The cap's normal points away from those faces' side of the plane (out of
+/// the mesh once closed). Cost: O(loop length).
+fn planar_rim(p: &[V3], lp: &[u32], outside: &[Option<V3>]) -> Option<PlanarCap> {
+    let n = lp.len();
+    if n < PLANAR_CAP_MIN_EDGES {
+        return None;
+    }
+    let pts: Vec<V3> = lp.iter().map(|&v| p[v as usize]).collect();
+    let c = vec3::scale(pts.iter().fold([0.0; 3], |a, &q| vec3::add(a, q)), 1.0 / n as f64);
+    let mut cov = [[0.0; 3]; 3];
+    for q in &pts {
+        let d = vec3::sub(*q, c);
+        for i in 0..3 {
+            for j in 0..3 {
+                cov[i][j] += d[i] * d[j];
+            }
+        }
+    }
+    let mut normal = crate::geometry::linalg::smallest_eigenvector(cov);
+    let len = vec3::norm(normal);
+    if !(len > 0.0) {
+        return None;
+    }
+    normal = vec3::scale(normal, 1.0 / len);
+    let radius = pts.iter().map(|q| vec3::norm(vec3::sub(*q, c))).sum::<f64>() / n as f64;
+    let residual = pts.iter().map(|q| vec3::dot(vec3::sub(*q, c), normal).abs()).fold(0.0, f64::max);
+    if !(radius > 0.0) || residual > PLANAR_CAP_MAX_RESIDUAL * radius {
+        return None;
+    }
+    let normals: Vec<V3> = outside.iter().flatten().copied().collect();
+    if normals.len() < n / 2 {
+        return None;
+    }
+    let mean_cos = normals.iter().map(|m| vec3::dot(*m, normal).abs()).sum::<f64>() / normals.len() as f64;
+    if mean_cos > PLANAR_CAP_MAX_MEAN_COS {
+        return None;
+    }
+    // Out of the mesh: away from the walls' centroid, which lies on the mesh's side of the cut. The loop's
+    // own orientation gives it too (the cap closes the mesh, so its area vector is −Σ of the loop's).
+    let mut area = [0.0; 3];
+    for i in 0..n {
+        area = vec3::add(area, vec3::cross(vec3::sub(pts[i], c), vec3::sub(pts[(i + 1) % n], c)));
+    }
+    // The mesh has the half-edges v_i → v_{i+1}; the cap uses them reversed, so its normal is −area.
+    if vec3::dot(area, normal) > 0.0 {
+        normal = vec3::scale(normal, -1.0);
+    }
+    Some(PlanarCap { edges: n, point: c, normal, rim_residual: residual, rim_radius: radius, area: 0.0, triangles: 0 })
+}
+
+/// Put a planar cap's new vertices (index ≥ `first`) into its plane and relax them there: umbrella steps over
+/// the cap's triangles, each projected back onto the plane, the rim fixed. A step that would turn a cap
+/// triangle over (against the plane's normal) is not taken for that vertex.
+fn flatten_cap(p: &mut [V3], patch: &[[u32; 3]], first: usize, cap: &PlanarCap) {
+    let onto = |q: V3| vec3::sub(q, vec3::scale(cap.normal, vec3::dot(vec3::sub(q, cap.point), cap.normal)));
+    for v in first..p.len() {
+        p[v] = onto(p[v]);
+    }
+    let mut nbrs: HashMap<u32, Vec<u32>> = HashMap::new();
+    let mut faces_of: HashMap<u32, Vec<usize>> = HashMap::new();
+    for (f, t) in patch.iter().enumerate() {
+        for k in 0..3 {
+            if t[k] as usize >= first {
+                let e = nbrs.entry(t[k]).or_default();
+                e.push(t[(k + 1) % 3]);
+                e.push(t[(k + 2) % 3]);
+                faces_of.entry(t[k]).or_default().push(f);
+            }
+        }
+    }
+    let mut verts: Vec<u32> = nbrs.keys().copied().collect();
+    verts.sort_unstable();
+    let upright = |p: &[V3], t: [u32; 3]| {
+        let [a, b, c] = t.map(|i| p[i as usize]);
+        vec3::dot(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)), cap.normal) > 0.0
+    };
+    for _ in 0..CAP_RELAX_STEPS {
+        for &v in &verts {
+            let ns = &nbrs[&v];
+            let mean =
+                vec3::scale(ns.iter().fold([0.0; 3], |a, &u| vec3::add(a, p[u as usize])), 1.0 / ns.len() as f64);
+            let old = p[v as usize];
+            p[v as usize] = onto(mean);
+            if !faces_of[&v].iter().all(|&f| upright(p, patch[f])) {
+                p[v as usize] = old;
+            }
+        }
+    }
+}
+
 /// Fill every hole of the oriented manifold `tris` (in place), adding vertices to `p`. With `measure`, each
 /// patch's smoothness against its surroundings is measured (the `*_quadric_*` fields) and candidate
 /// triangles that would cross the existing surface are excluded (the self-intersection loop, which refills
@@ -577,6 +710,8 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
     let mut patches: Vec<Vec<u32>> = Vec::new();
     let all_sigma = loop_sigma(p, tris, &all_loops);
     let first_new_vertex = p.len();
+    // New vertices of planar caps: already in their plane, not faired.
+    let mut capped: HashSet<u32> = HashSet::new();
     for lp in loops {
         let mut lp = lp;
         report.largest_hole_edges = report.largest_hole_edges.max(lp.len());
@@ -584,6 +719,7 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
         let mut outside: Vec<Option<V3>> =
             (0..n).map(|i| face_of_edge.get(&(lp[i], lp[(i + 1) % n])).and_then(|&t| tri_unit_normal(p, t))).collect();
         let mut sigma: HashMap<u32, f64> = lp.iter().map(|v| (*v, all_sigma[v])).collect();
+        let cap = planar_rim(p, &lp, &outside);
         let mut patch = clip_ears(p, &mut lp, &mut outside, MWT_MAX_LOOP, &mut fixed_edges);
         let crosses = |t: [u32; 3]| {
             let (lo, hi) = box_of(&t.map(|i| p[i as usize]));
@@ -603,6 +739,13 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
         let before = p.len();
         report.vertices_added += refine(p, &mut patch, &mut sigma, &fixed_edges);
         report.triangles_added += patch.len();
+        if let Some(mut cap) = cap {
+            flatten_cap(p, &patch, before, &cap);
+            cap.area = patch.iter().map(|t| tri_area(p, *t)).sum();
+            cap.triangles = patch.len();
+            capped.extend(before as u32..p.len() as u32);
+            report.planar_caps.push(cap);
+        }
         let mut pv = lp.clone();
         pv.extend(patch.iter().flatten().copied().filter(|&v| v as usize >= before || !lp.contains(&v)));
         pv.sort_unstable();
@@ -611,7 +754,7 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
         report.holes_filled += 1;
         tris.extend(patch);
     }
-    let free: Vec<u32> = (first_new_vertex as u32..p.len() as u32).collect();
+    let free: Vec<u32> = (first_new_vertex as u32..p.len() as u32).filter(|v| !capped.contains(v)).collect();
     let (it, res) = fair(p, tris, &free, &anchors);
     report.fair_iterations = it;
     report.fair_residual = res;
