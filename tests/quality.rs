@@ -305,3 +305,30 @@ fn closest_facing_picks_the_sheet_facing_the_same_way() {
     assert!((up.distance - 0.008).abs() < 1e-6, "distance {}", up.distance);
     assert!(bvh.closest_facing(p, [0.0, 0.0, 0.0]).is_none(), "no triangle faces a zero vector");
 }
+
+/// An open scan's measure: points of the whole sphere against the sphere with a hole punched out are split
+/// into those over the hole (their closest scan point on its rim) and the rest. The points over the hole are
+/// the ones farther than the sphere's facet error from the scan, and their share is the hole's share of the
+/// sphere (a cap of half-angle θ has the share (1 − cos θ)/2).
+#[test]
+fn points_over_a_hole_are_told_apart_by_their_closest_rim_point() {
+    use scanstation::stages::quality::split_by_holes;
+    let full = scanstation::geometry::shapes::icosphere(1.0, 5, [0.0; 3]);
+    let mut scan = full.clone();
+    // Remove every triangle with a corner above z = 0.8 (a polar cap of half-angle about 36.9°).
+    scan.triangles.retain(|t| t.iter().all(|&i| full.positions[i as usize][2] <= 0.8));
+    let pts: Vec<[f64; 3]> = full.positions.iter().map(|p| p.map(f64::from)).collect();
+    let split = split_by_holes(&pts, &scan);
+    assert_eq!(split.off_holes.len() + split.over_holes.len(), pts.len());
+    let share = split.over_holes.len() as f64 / pts.len() as f64;
+    let expected = (1.0 - 0.8) / 2.0;
+    assert!((share - expected).abs() < 0.02, "share over the hole {share:.4}, the cap's {expected:.4}");
+    let off_max = split.off_holes.iter().copied().fold(0.0, f64::max);
+    assert!(off_max < 1e-6, "points off the hole lie on the scan: {off_max:e}");
+    let over_max = split.over_holes.iter().copied().fold(0.0, f64::max);
+    // The pole is 1 − 0.8 = 0.2 above the rim's plane, and farther still from the rim itself.
+    assert!(over_max > 0.2, "the pole's distance to the scan {over_max}");
+    // A closed scan has no hole: everything is off.
+    let closed = split_by_holes(&pts, &full);
+    assert!(closed.over_holes.is_empty());
+}

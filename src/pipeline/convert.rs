@@ -205,6 +205,8 @@ pub struct ConvertReport {
     pub volume_error_pct: f64,
     /// Resolutions tried (one without a tolerance).
     pub attempts: Vec<Attempt>,
+    /// For an open input (holes that repair filled): the distances the RMS gate judges it by.
+    pub open_input: Option<OpenInputMeasure>,
     /// `ok` when the solid meets every gate; `failed` when it misses one (see [`ConvertReport::verdict`]);
     /// `degraded` when it misses one and was published anyway ([`GateOptions::accept_degraded`]).
     pub status: Status,
@@ -212,6 +214,58 @@ pub struct ConvertReport {
     pub gates: Vec<Gate>,
     /// Wall seconds of the whole conversion.
     pub total_seconds: f64,
+}
+
+/// How a solid of an open scan is measured: the scan has no surface where repair closed its holes, so the
+/// solid is held to the scan where the scan is (scan → solid, and solid → scan away from the caps), and the
+/// caps' own distance is reported apart. Percentages are of the input's bounding-box diagonal.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct OpenInputMeasure {
+    /// Holes repair filled.
+    pub holes_filled: usize,
+    /// Of those, closed by a planar cap (the rest faired).
+    pub planar_caps: usize,
+    /// RMS distance from the scan to the solid (area samples of the scan).
+    pub scan_to_solid_rms_pct: f64,
+    /// RMS distance from the solid's mesh vertices to the scan, over the vertices whose closest scan point is
+    /// not on a hole's rim.
+    pub solid_to_scan_off_caps_rms_pct: f64,
+    /// RMS distance to the scan of the solid's vertices over the holes (on the caps and fills).
+    pub caps_rms_pct: f64,
+    /// The largest of those.
+    pub caps_max_pct: f64,
+    /// Fraction of the solid's mesh vertices over the holes.
+    pub cap_vertex_fraction: f64,
+    /// What the RMS gate judges: √((scan → solid² + solid → scan off the caps²) / 2).
+    pub rms_pct: f64,
+}
+
+impl OpenInputMeasure {
+    fn measure(
+        solid_mesh: &PolyMesh,
+        scan: &PolyMesh,
+        scan_to_solid_rms: f64,
+        repair: &RepairReport,
+        diag: f64,
+    ) -> Self {
+        let pts: Vec<[f64; 3]> = solid_mesh.positions.iter().map(|q| q.map(f64::from)).collect();
+        let split = crate::stages::quality::split_by_holes(&pts, &scan.triangulate().0);
+        let rms =
+            |d: &[f64]| if d.is_empty() { 0.0 } else { (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt() };
+        let pct = |x: f64| 100.0 * x / diag;
+        let off = rms(&split.off_holes);
+        let total = (split.off_holes.len() + split.over_holes.len()).max(1);
+        OpenInputMeasure {
+            holes_filled: repair.holes.holes_filled,
+            planar_caps: repair.holes.planar_caps.len(),
+            scan_to_solid_rms_pct: pct(scan_to_solid_rms),
+            solid_to_scan_off_caps_rms_pct: pct(off),
+            caps_rms_pct: pct(rms(&split.over_holes)),
+            caps_max_pct: pct(split.over_holes.iter().copied().fold(0.0, f64::max)),
+            cap_vertex_fraction: split.over_holes.len() as f64 / total as f64,
+            rms_pct: pct(((scan_to_solid_rms * scan_to_solid_rms + off * off) / 2.0).sqrt()),
+        }
+    }
 }
 
 impl ConvertReport {
@@ -479,10 +533,14 @@ pub fn convert_file(
     }
     stages.push(clock.stop("step", None));
 
-    // 6. The error map: the solid mesh coloured by its distance to the input.
+    // 6. An open input's measure (before the solid mesh goes to the error map), then the error map: the solid
+    // mesh coloured by its distance to the input.
     check_cancelled(progress)?;
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
+    let Geometry::Mesh(scan) = &chain.input_geom else { return Err(Error::internal("the input is not a mesh")) };
+    let open_input = (repair_report.holes.holes_filled > 0)
+        .then(|| OpenInputMeasure::measure(&solid_mesh, scan, kept_input_to_solid_rms, &repair_report, diag));
     let error_map_file = super::provenance::error_map_path(output);
     let error_map_scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh), &chain.input_geom)?;
     stages.push(clock.stop("quality", None));
@@ -490,13 +548,12 @@ pub fn convert_file(
 
     // 7. The quality gates and the report.
     let volume_error_pct = 100.0 * (kept.brep.volume - input_volume) / input_volume.abs().max(f64::MIN_POSITIVE);
-    let open_input = repair_report.holes.holes_filled > 0;
     let measured = Measured {
         crossings: kept_crossings,
         folded_faces: kept_folds,
         volume_error_pct,
-        rms_pct: 100.0 * if open_input { kept_input_to_solid_rms } else { kept_rms } / diag,
-        rms_one_sided: open_input,
+        rms_pct: open_input.as_ref().map_or(100.0 * kept_rms / diag, |o| o.rms_pct),
+        rms_one_sided: open_input.is_some(),
         tolerance_pct: match resolution {
             Resolution::Tolerance(t) => Some(100.0 * t / diag),
             _ => None,
@@ -524,6 +581,7 @@ pub fn convert_file(
         input_volume,
         volume_error_pct,
         attempts,
+        open_input,
         status,
         gates,
         total_seconds: t_total.elapsed().as_secs_f64(),

@@ -13,8 +13,9 @@
 //! | `volume` | `quality.volume` | \|solid − input\| / input volume, % | [`GateOptions::max_volume_error_pct`] |
 //! | `rms` | `quality.rms` | RMS distance, % of the input's diagonal | the tolerance, or [`GateOptions::max_rms_pct`] |
 //!
-//! The RMS is two-sided for a closed input. For an open input (holes that repair filled) it is one-sided,
-//! scan → solid: the solid's fill has no scan to be measured against.
+//! The RMS is two-sided for a closed input. For an open input (holes that repair filled) the solid's caps and
+//! fills have no scan to be measured against: it is √((scan → solid² + solid → scan away from the caps²) / 2)
+//! ([`OpenInputMeasure`](super::convert::OpenInputMeasure)), and the caps' own distance is reported apart.
 
 use crate::error::{Error, ErrorCode};
 
@@ -135,7 +136,7 @@ pub struct Measured {
     pub volume_error_pct: f64,
     /// The RMS distance the gate judges, % of the diagonal.
     pub rms_pct: f64,
-    /// Whether that RMS is one-sided (scan → solid, for an open input).
+    /// Whether that RMS is an open input's (the caps left out of the solid → scan side).
     pub rms_one_sided: bool,
     /// The RMS bound from a tolerance, % of the diagonal; `None` for the default goal.
     pub tolerance_pct: Option<f64>,
@@ -144,7 +145,7 @@ pub struct Measured {
 /// The gates on `m`, in the order of the table above, and the status they give.
 pub fn judge(m: &Measured, opts: &GateOptions) -> (Status, Vec<Gate>) {
     let rms_what = if m.rms_one_sided {
-        "RMS distance scan → solid (open input), % of the diagonal"
+        "RMS distance solid ↔ scan away from the caps (open input), % of the diagonal"
     } else {
         "RMS distance solid ↔ scan, % of the diagonal"
     };

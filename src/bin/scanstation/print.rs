@@ -81,6 +81,18 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
         pipeline::Status::Degraded => "DEGRADED (published on request)",
         pipeline::Status::Failed => "FAILED",
     };
+    if let Some(o) = &r.open_input {
+        println!(
+            "  open input: {} holes ({} planar caps); scan -> solid RMS {:.4} %, solid -> scan off the caps {:.4} %; caps RMS {:.4} %, max {:.4} % ({:.1} % of the solid's vertices)",
+            o.holes_filled,
+            o.planar_caps,
+            o.scan_to_solid_rms_pct,
+            o.solid_to_scan_off_caps_rms_pct,
+            o.caps_rms_pct,
+            o.caps_max_pct,
+            100.0 * o.cap_vertex_fraction
+        );
+    }
     println!("  quality: {status}");
     for g in &r.gates {
         let num = |x: f64| if g.unit == "%" { format!("{x:.4}") } else { format!("{x:.0}") };

@@ -277,6 +277,58 @@ fn refine_max(mesh: &TriMesh, triangles: &[u32], d: &[f64], to: &Prepared) -> f6
         .reduce(|| 0.0, f64::max)
 }
 
+/// Distances of `points` to an open `scan`, split by where the closest scan point lies: on a boundary edge
+/// of the scan (the point is over one of its holes: on a cap or fill that closes it) or elsewhere.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct HoleSplit {
+    /// Distances of the points whose closest scan point is not on a boundary edge.
+    pub off_holes: Vec<f64>,
+    /// Distances of the points over a hole.
+    pub over_holes: Vec<f64>,
+}
+
+/// Split the distances of `points` to `scan` by whether each point lies over a hole of the scan
+/// ([`HoleSplit`]): its closest scan point is within 10⁻⁷ of an edge's length of a boundary edge (an edge
+/// used by one triangle). For a closed scan everything is `off_holes`.
+///
+/// Cost: O(F log F) for the scan's tree, O(P log F) for the queries (parallel).
+pub fn split_by_holes(points: &[V3], scan: &TriMesh) -> HoleSplit {
+    let mut uses: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
+    for t in &scan.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *uses.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+        }
+    }
+    let bvh = TriangleBvh::new(scan);
+    let pos = |i: u32| wide(scan.positions[i as usize]);
+    let on_rim = |c: &crate::geometry::bvh::Closest| {
+        let t = scan.triangles[c.index as usize];
+        (0..3).any(|k| {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            if uses.get(&(a.min(b), a.max(b))) != Some(&1) {
+                return false;
+            }
+            let (pa, pb) = (pos(a), pos(b));
+            let ab = crate::geometry::vec3::sub(pb, pa);
+            let len2 = crate::geometry::vec3::dot(ab, ab);
+            if !(len2 > 0.0) {
+                return false;
+            }
+            let s = (crate::geometry::vec3::dot(crate::geometry::vec3::sub(c.point, pa), ab) / len2).clamp(0.0, 1.0);
+            let foot = crate::geometry::vec3::add(pa, crate::geometry::vec3::scale(ab, s));
+            crate::geometry::vec3::norm(crate::geometry::vec3::sub(c.point, foot)) <= 1e-7 * len2.sqrt()
+        })
+    };
+    let found: Vec<(bool, f64)> =
+        points.par_iter().filter_map(|&p| bvh.closest(p)).map(|c| (on_rim(&c), c.distance)).collect();
+    let mut split = HoleSplit::default();
+    for (over, d) in found {
+        if over { split.over_holes.push(d) } else { split.off_holes.push(d) }
+    }
+    split
+}
+
 /// Per-vertex distance of `from`'s vertices to `to` (for error maps).
 ///
 /// # Errors
