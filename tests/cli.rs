@@ -239,6 +239,37 @@ fn convert_refuses_bad_input_and_writes_nothing() {
     let (code, v) = json(&["convert", SPOT, "-o", out.to_str().unwrap(), "--unit", "furlong", "--json"]);
     assert_eq!((code, v["error_code"].as_str()), (2, Some("input.bad-argument")), "{v}");
     assert!(!out.exists());
+    // Field failure (hostile-input issue): `convert X.solid.ply -o X.step` wrote its solid artifact onto its own
+    // input and exited 0. Now refused before anything is read, the input untouched.
+    let solid_input = dir.join("x.solid.ply");
+    std::fs::copy(SPOT, &solid_input).unwrap();
+    let before = std::fs::read(&solid_input).unwrap();
+    let (code, v) =
+        json(&["convert", solid_input.to_str().unwrap(), "-o", dir.join("x.step").to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")), "{v}");
+    assert_eq!(std::fs::read(&solid_input).unwrap(), before, "the input was changed");
+    assert!(!dir.join("x.step").exists());
+}
+
+/// Field failure (hostile-input issue): an atomic write renamed its temporary file over a character device,
+/// leaving a regular file where the device was. A FIFO stands in for the device here (making one needs no
+/// privilege): `repair -o FIFO` is refused with `resource.output` and the FIFO stays a FIFO.
+#[test]
+fn an_output_that_is_not_a_regular_file_is_never_replaced() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = scratch("cli_special_output");
+    let fifo = dir.join("pipe");
+    let _ = std::fs::remove_file(&fifo);
+    let ok = std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo (coreutils) runs");
+    assert!(ok.success(), "mkfifo failed");
+    let (code, v) = json(&["repair", SPOT, "-o", fifo.to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")), "{v}");
+    assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo(), "the FIFO was replaced");
+    let (code, v) = json(&["convert", SPOT, "-o", dir.to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")), "a directory as output: {v}");
+    // And an absurd sample count is a resource error, not a `capacity overflow` panic.
+    let (code, v) = json(&["compare", SPOT, SPOT, "--samples", "18446744073709551615", "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.memory")), "{v}");
 }
 
 /// `--tolerance` raises the control-vertex count coarse to fine until the solid's RMS meets it; every

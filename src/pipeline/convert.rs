@@ -467,8 +467,16 @@ pub fn convert_file(
     // 1. No output may overwrite the input or another output; the gates' bounds make sense.
     opts.gates.validated()?;
     ensure_not_input(output, &[input])?;
+    // The artifacts beside the STEP file must not land on the input either (`convert X.solid.ply -o X.step`).
+    let (solid_path, map_path) =
+        (super::provenance::solid_artifact_path(output), super::provenance::error_map_path(output));
+    ensure_not_input(&solid_path, &[input])?;
+    ensure_not_input(&map_path, &[input])?;
+    for p in [output, &solid_path, &map_path] {
+        crate::geometry::io::ensure_replaceable(p)?;
+    }
     if let Some(q) = &opts.quads_output {
-        ensure_not_input(q, &[input, output])?;
+        ensure_not_input(q, &[input, output, &solid_path, &map_path])?;
     }
     let t_total = Instant::now();
     let mut stages = Vec::new();

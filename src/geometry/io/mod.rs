@@ -17,7 +17,9 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
-pub use write::{VertexAttributes, ensure_not_input, write_atomic, write_obj, write_ply, write_ply_cloud};
+pub use write::{
+    VertexAttributes, ensure_not_input, ensure_replaceable, write_atomic, write_obj, write_ply, write_ply_cloud,
+};
 
 use crate::error::{Error, ErrorCode, Location, Result};
 use crate::geometry::mesh::{Geometry, PolyMesh};

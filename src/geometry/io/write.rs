@@ -44,12 +44,32 @@ pub fn ensure_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
     Ok(())
 }
 
+/// Refuse an output path that names a device, a FIFO, a socket or a directory: an atomic write would replace
+/// it with a regular file. A missing path or a regular file (or a link to one) is fine. Callers that work
+/// long before they write check it first.
+///
+/// # Errors
+/// `resource.output` naming the path.
+pub fn ensure_replaceable(path: &Path) -> Result<()> {
+    match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() => {
+            Err(Error::new(ErrorCode::ResourceOutput, "refusing to replace a device, FIFO, socket or directory")
+                .in_file(path)
+                .with_hint("write to a regular file's path"))
+        }
+        _ => Ok(()),
+    }
+}
+
 /// Write through a temporary file in the same directory (created if missing), fsync, then rename onto `path`.
 ///
 /// # Errors
-/// `resource.output` when writing or renaming fails (the temporary file is removed);
-/// `input.bad-argument` for a path without a file name.
+/// `resource.output` when writing or renaming fails (the temporary file is removed), or when `path` is a
+/// device, a FIFO, a socket or a directory (the rename would replace it with a regular file: run as root,
+/// `-o /dev/null` would replace the system's `/dev/null`); `input.bad-argument` for a path without a file
+/// name.
 pub fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
+    ensure_replaceable(path)?;
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name =
         path.file_name().ok_or_else(|| Error::new(ErrorCode::InputBadArgument, "output path has no file name"))?;

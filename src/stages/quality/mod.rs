@@ -363,15 +363,17 @@ pub fn compare(
             return Err(Error::new(ErrorCode::InputNoGeometry, "nothing to compare: no points"));
         }
     }
+    // Saturating: an absurd sample count (`--samples 18446744073709551615`) must give `resource.memory`, not
+    // wrap to a small estimate and panic on allocation.
     let estimate = |g: &Geometry| -> u64 {
         match g {
-            Geometry::Mesh(m) => {
-                60 * (m.corner_count() as u64) + 32 * opts.samples as u64 + 24 * m.positions.len() as u64
-            }
+            Geometry::Mesh(m) => (60 * m.corner_count() as u64)
+                .saturating_add((opts.samples as u64).saturating_mul(32))
+                .saturating_add(24 * m.positions.len() as u64),
             Geometry::Cloud(c) => 60 * c.positions.len() as u64,
         }
     };
-    let need = estimate(test) + estimate(reference);
+    let need = estimate(test).saturating_add(estimate(reference));
     if need > opts.memory_budget {
         return Err(Error::new(
             ErrorCode::ResourceMemoryBudget,

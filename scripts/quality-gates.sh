@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# The quality gates at the defaults on the nine shared meshes: convert each (release build), then print one
+# Markdown row per mesh (wall seconds and peak RSS of the whole process, exit status, status, every gate's
+# value, chains built). BENCHMARKS.md keeps the latest table.
+#
+#   cargo build --release && bash scripts/quality-gates.sh [OUT_DIR]
+#
+# Uses ../shared/data (override: SCANSTATION_SHARED_DATA). About 8 minutes on 2 cores.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+data=$(realpath "${SCANSTATION_SHARED_DATA:-../shared/data}")
+out=$(realpath -m "${1:-target/quality-gates}")
+mkdir -p "$out"
+bin=target/release/scanstation
+echo "| mesh | wall s | peak RSS MiB | exit | status | crossings | folds | volume % | RMS % (bound 0.05) | chains |"
+echo "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|"
+for f in meshes/spot.ply meshes/armadillo_50k.ply meshes/igea.ply meshes/fandisk.ply bunny/reconstruction/bun_zipper.ply \
+         large/dragon_vrip_draco.ply.gz meshes/scorpion.ply meshes/skull.ply meshes/falconstatue_boundary.ply; do
+  m=$(basename "$f"); m=${m%%.*}
+  /usr/bin/time -f "%e %M" -o "$out/$m.time" "$bin" convert "$data/$f" -o "$out/$m.step" --report "$out/$m.json" \
+    >"$out/$m.txt" 2>"$out/$m.err"
+  code=$?
+  python3 - "$out" "$m" "$code" <<'PY'
+import json, sys
+out, m, code = sys.argv[1:4]
+wall, kb = open(f"{out}/{m}.time").read().split()[-2:]
+try:
+    d = json.load(open(f"{out}/{m}.json"))
+except (OSError, ValueError):
+    err = [l for l in open(f"{out}/{m}.err") if "error:" in l]
+    code_name = err[-1].split("[")[1].split("]")[0] if err else "?"
+    print(f"| {m} | {float(wall):.1f} | {int(kb)/1024:.0f} | {code} | `{code_name}` | | | | | |")
+    sys.exit()
+g = {x["name"]: x["value"] for x in d["gates"]}
+print(f"| {m} | {float(wall):.1f} | {int(kb)/1024:.0f} | {code} | {d['status']} | {g['crossings']:.0f} | {g['folds']:.0f} "
+      f"| {g['volume']:.3f} | {g['rms']:.4f} | {len(d['attempts'])} |")
+PY
+done
