@@ -303,16 +303,9 @@ pub const REMESH_RETRIES: usize = 3;
 /// itself.
 pub const SOLID_RETRIES: usize = 2;
 
-/// Pairs of intersecting triangles of a (welded) triangle mesh.
+/// Pairs of intersecting triangles of a polygon mesh, fan-triangulated (the quad net, or the welded solid mesh).
 fn mesh_self_intersections(mesh: &PolyMesh) -> usize {
     let (t, _) = mesh.triangulate();
-    let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
-    crate::geometry::intersect::self_intersections(&p, &t.triangles).len()
-}
-
-/// Pairs of non-adjacent triangles of the (fan-triangulated) quad mesh that intersect.
-fn quad_self_intersections(quads: &PolyMesh) -> usize {
-    let (t, _) = quads.triangulate();
     let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
     crate::geometry::intersect::self_intersections(&p, &t.triangles).len()
 }
@@ -561,7 +554,7 @@ pub fn convert_file(
         folded_faces: kept_folds,
         volume_error_pct,
         rms_pct: open_input.as_ref().map_or(100.0 * kept_rms / diag, |o| o.rms_pct),
-        rms_one_sided: open_input.is_some(),
+        open_input: open_input.is_some(),
         tolerance_pct: match resolution {
             Resolution::Tolerance(t) => Some(100.0 * t / diag),
             _ => None,
@@ -743,7 +736,7 @@ impl Chain<'_> {
         for retry in 0..=REMESH_RETRIES {
             let ropts = RemeshOptions { seed: seed.wrapping_add(retry as u64), ..ropts.clone() };
             let (q, r) = remesh(&self.repaired, &ropts, span).map_err(|e| e.in_file(self.input))?;
-            let crossings = quad_self_intersections(&q);
+            let crossings = mesh_self_intersections(&q);
             if crossings > 0 {
                 tracing::warn!(crossings, seed = ropts.seed, "the quad mesh intersects itself; trying another seed");
             }

@@ -137,14 +137,14 @@ pub struct Measured {
     /// The RMS distance the gate judges, % of the diagonal.
     pub rms_pct: f64,
     /// Whether that RMS is an open input's (the caps left out of the solid → scan side).
-    pub rms_one_sided: bool,
+    pub open_input: bool,
     /// The RMS bound from a tolerance, % of the diagonal; `None` for the default goal.
     pub tolerance_pct: Option<f64>,
 }
 
 /// The gates on `m`, in the order of the table above, and the status they give.
 pub fn judge(m: &Measured, opts: &GateOptions) -> (Status, Vec<Gate>) {
-    let rms_what = if m.rms_one_sided {
+    let rms_what = if m.open_input {
         "RMS distance solid ↔ scan away from the caps (open input), % of the diagonal"
     } else {
         "RMS distance solid ↔ scan, % of the diagonal"
@@ -206,7 +206,7 @@ mod tests {
             folded_faces: 0,
             volume_error_pct: -0.011,
             rms_pct: 0.0285,
-            rms_one_sided: false,
+            open_input: false,
             tolerance_pct: None,
         }
     }
