@@ -265,7 +265,7 @@ fn trust_issue_mesh(file: &str) -> bool {
 /// fails with its stage's code. Measured 2026-12-05 (release, 2 cores): scorpion `quality.self-intersecting`
 /// (253 pairs, 13 folded faces, volume −1.08 %, RMS 0.54 %; 125 s); skull `quality.self-intersecting` (24
 /// pairs, 3 folded faces, RMS 0.19 %; 105 s); falconstatue_boundary `remesh.failed` (no face extracted;
-/// 10 s). Before the gates, the first two exited 0.
+/// 10 s). Before the gates, the first two exited 0. The skull keeps genus 2.
 #[test]
 fn trust_issue_meshes_are_never_published_as_good() {
     use scanstation::ErrorCode;
@@ -289,6 +289,12 @@ fn trust_issue_meshes_are_never_published_as_good() {
                 assert_eq!(r.status == Status::Ok, clean, "{f}: status {:?} with gates {:?}", r.status, r.gates);
                 if let Err(e) = r.verdict() {
                     assert_eq!(e.class(), scanstation::ErrorClass::Quality, "{f}: {e}");
+                }
+                // The genus-2 skull keeps its genus through repair and remesh (the solid's faces follow the
+                // net): measured 2026-12-05, χ −2 → −2.
+                if f.ends_with("skull.ply") {
+                    assert_eq!(r.repair.output.genus, Some(2), "{f}: repaired genus");
+                    assert_eq!(r.remesh.output.euler_characteristic, -2, "{f}: the quad net's χ");
                 }
             }
             Err(e) => {
