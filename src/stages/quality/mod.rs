@@ -29,7 +29,7 @@ use crate::geometry::mesh::{Geometry, TriMesh};
 use crate::geometry::sampling::{Rng, fnv1a, sample_area_uniform};
 use crate::geometry::stats::percentile;
 use crate::geometry::tolerance::DISTANCE_ZERO_REL;
-use crate::geometry::vec3::{V3, wide};
+use crate::geometry::vec3::{self, V3, wide};
 use crate::stages::Progress;
 
 /// Settings of a comparison.
@@ -301,6 +301,13 @@ pub fn split_by_holes(points: &[V3], scan: &TriMesh) -> HoleSplit {
         }
     }
     let bvh = TriangleBvh::new(scan);
+    // Distance of `q` from the segment a–b.
+    let to_segment = |q: V3, a: V3, b: V3| {
+        let ab = vec3::sub(b, a);
+        let len2 = vec3::dot(ab, ab);
+        let s = if len2 > 0.0 { (vec3::dot(vec3::sub(q, a), ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+        vec3::norm(vec3::sub(q, vec3::add(a, vec3::scale(ab, s))))
+    };
     let pos = |i: u32| wide(scan.positions[i as usize]);
     let on_rim = |c: &crate::geometry::bvh::Closest| {
         let t = scan.triangles[c.index as usize];
@@ -310,14 +317,8 @@ pub fn split_by_holes(points: &[V3], scan: &TriMesh) -> HoleSplit {
                 return false;
             }
             let (pa, pb) = (pos(a), pos(b));
-            let ab = crate::geometry::vec3::sub(pb, pa);
-            let len2 = crate::geometry::vec3::dot(ab, ab);
-            if !(len2 > 0.0) {
-                return false;
-            }
-            let s = (crate::geometry::vec3::dot(crate::geometry::vec3::sub(c.point, pa), ab) / len2).clamp(0.0, 1.0);
-            let foot = crate::geometry::vec3::add(pa, crate::geometry::vec3::scale(ab, s));
-            crate::geometry::vec3::norm(crate::geometry::vec3::sub(c.point, foot)) <= 1e-7 * len2.sqrt()
+            let len = vec3::norm(vec3::sub(pb, pa));
+            len > 0.0 && to_segment(c.point, pa, pb) <= 1e-7 * len
         })
     };
     let found: Vec<(bool, f64)> =

@@ -616,13 +616,11 @@ fn planar_rim(p: &[V3], lp: &[u32], outside: &[Option<V3>]) -> Option<PlanarCap>
     if mean_cos > PLANAR_CAP_MAX_MEAN_COS {
         return None;
     }
-    // Out of the mesh: away from the walls' centroid, which lies on the mesh's side of the cut. The loop's
-    // own orientation gives it too (the cap closes the mesh, so its area vector is −Σ of the loop's).
+    // Out of the mesh: the cap closes the loop, so its area vector is minus the loop's.
     let mut area = [0.0; 3];
     for i in 0..n {
         area = vec3::add(area, vec3::cross(vec3::sub(pts[i], c), vec3::sub(pts[(i + 1) % n], c)));
     }
-    // The mesh has the half-edges v_i → v_{i+1}; the cap uses them reversed, so its normal is −area.
     if vec3::dot(area, normal) > 0.0 {
         normal = vec3::scale(normal, -1.0);
     }
