@@ -85,6 +85,8 @@ pub enum ErrorCode {
     InputDuplicate,
     /// The input file is larger than the configured `limits.max_input_size`.
     InputTooLarge,
+    /// A compressed input expands far more than any scan does ([`GZIP_BOMB_RATIO`](crate::geometry::io::GZIP_BOMB_RATIO)).
+    InputDecompressionBomb,
     /// The operation would need more memory than its budget allows.
     ResourceMemoryBudget,
     /// Writing an output failed (disk full, permissions) or would overwrite an input.
@@ -141,6 +143,7 @@ impl ErrorCode {
             ErrorCode::FeaNotConverged => "fea.not-converged",
             ErrorCode::InputDuplicate => "input.duplicate",
             ErrorCode::InputTooLarge => "input.too-large",
+            ErrorCode::InputDecompressionBomb => "input.decompression-bomb",
             ErrorCode::ResourceMemoryBudget => "resource.memory",
             ErrorCode::ResourceOutput => "resource.output",
             ErrorCode::InternalBug => "internal.bug",

@@ -109,8 +109,11 @@ fn errors_have_codes_and_exit_statuses() {
     let (code, v) = json(&["compare", &a, SPOT, "--json", "--error-map", &a]);
     assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")));
     assert_eq!(std::fs::read(&a).unwrap(), before);
-    let (code, _, _) = run(&["inspect", SPOT, "--memory-budget", "1K"]);
-    assert_eq!(code, 3);
+    // A budget outside its range is a usage error; one too small for the work is a resource error.
+    let (code, _, err) = run(&["inspect", SPOT, "--memory-budget", "1K"]);
+    assert_eq!(code, 2, "{err}");
+    let (code, v) = json(&["compare", SPOT, SPOT, "--samples", "100000000", "--memory-budget", "16M", "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.memory")), "{v}");
 }
 
 #[test]
@@ -267,9 +270,54 @@ fn an_output_that_is_not_a_regular_file_is_never_replaced() {
     assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo(), "the FIFO was replaced");
     let (code, v) = json(&["convert", SPOT, "-o", dir.to_str().unwrap(), "--json"]);
     assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")), "a directory as output: {v}");
-    // And an absurd sample count is a resource error, not a `capacity overflow` panic.
-    let (code, v) = json(&["compare", SPOT, SPOT, "--samples", "18446744073709551615", "--json"]);
-    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.memory")), "{v}");
+    // And an absurd sample count is a usage error naming the range, not a `capacity overflow` panic.
+    let (code, _, err) = run(&["compare", SPOT, SPOT, "--samples", "18446744073709551615", "--json"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("outside the range [100, 100000000]"), "{err}");
+}
+
+/// A character device given as an output stays a device: a private node (`mknod c 1 7`, the kernel's
+/// /dev/full) in a scratch directory, for `repair -o`, `convert -o` and `compare --error-map`. Needs root
+/// (mknod); the test fails, never skips, without it.
+#[test]
+fn a_device_node_given_as_an_output_stays_a_device_node() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = scratch("cli_device_output");
+    let dev = dir.join("full");
+    let ok = std::process::Command::new("mknod").arg(&dev).args(["c", "1", "7"]).status().expect("mknod runs");
+    assert!(ok.success(), "mknod failed: this test needs root (CI runs as root)");
+    let d = dev.to_str().unwrap();
+    for args in [
+        vec!["repair", SPOT, "-o", d, "--json"],
+        vec!["convert", SPOT, "-o", d, "--json"],
+        vec!["compare", SPOT, SPOT, "--error-map", d, "--json"],
+    ] {
+        let (code, v) = json(&args);
+        assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")), "{args:?}: {v}");
+        assert!(std::fs::symlink_metadata(&dev).unwrap().file_type().is_char_device(), "{args:?} replaced the device");
+    }
+}
+
+/// Outputs are checked against every input and every other output by file identity: a hard link to the
+/// input as `-o`, and `--report` on the solid artifact `convert` writes beside the STEP file, are refused
+/// with `resource.output` before any work, and the input is byte for byte unchanged.
+#[test]
+fn outputs_clashing_with_inputs_or_artifacts_are_refused_before_work() {
+    let dir = scratch("cli_output_clash");
+    let input = dir.join("scan.ply");
+    std::fs::copy(SPOT, &input).unwrap();
+    let link = dir.join("link.ply");
+    std::fs::hard_link(&input, &link).unwrap();
+    let before = std::fs::read(&input).unwrap();
+    let (i, l) = (input.to_str().unwrap(), link.to_str().unwrap());
+    let (code, v) = json(&["repair", i, "-o", l, "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")), "hard link: {v}");
+    let step = dir.join("x.step");
+    let solid = dir.join("x.solid.ply");
+    let (code, v) = json(&["convert", i, "-o", step.to_str().unwrap(), "--report", solid.to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")), "report on the artifact: {v}");
+    assert!(!step.exists(), "work started before the clash was found");
+    assert_eq!(std::fs::read(&input).unwrap(), before, "the input changed");
 }
 
 /// `--tolerance` raises the control-vertex count coarse to fine until the solid's RMS meets it; every
@@ -315,8 +363,10 @@ fn a_solid_that_misses_a_quality_gate_exits_4_unless_accepted_as_degraded() {
         json(&["convert", SPOT, "-o", out.to_str().unwrap(), "--vertices", "300", "--accept-degraded", "--json"]);
     assert_eq!(code, 0, "{v}");
     assert_eq!(v["status"], "degraded", "{v}");
-    let (code, v) = json(&["convert", SPOT, "-o", out.to_str().unwrap(), "--max-rms=-1", "--json"]);
-    assert_eq!((code, v["error_code"].as_str()), (2, Some("input.bad-argument")), "{v}");
+    // A bound outside its documented range is a usage error (exit 2) naming the range.
+    let (code, _, err) = run(&["convert", SPOT, "-o", out.to_str().unwrap(), "--max-rms=-1", "--json"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("outside the range [0.000001, 100]"), "{err}");
 }
 
 const ROD: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rod.ply");

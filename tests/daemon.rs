@@ -934,3 +934,55 @@ fn config_errors_name_the_key_and_stop_start_up() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// The hostile-input issue: a gzip bomb and a file whose one line runs 2 GB are quarantined with their
+/// codes, the daemon's peak RSS stays under its memory budget, and the next good file is converted.
+#[test]
+fn a_gzip_bomb_and_an_endless_line_are_quarantined_within_the_budget() {
+    need("busctl", "systemd");
+    let dir = common::scratch("daemon-hostile");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let budget_mib = 96;
+    let mut st = Station::new(&dir, &bus, false, "");
+    let cfg = std::fs::read_to_string(&st.config)
+        .unwrap()
+        .replace("[pipeline]", &format!("[limits]\nmemory_budget = \"{budget_mib}MiB\"\n[pipeline]"));
+    std::fs::write(&st.config, cfg).unwrap();
+    st.start();
+    // 2.3 GB of valid-looking records in 1 MiB gzip members (about 3 MB on disk).
+    let block: Vec<u8> = b"0 0 0\n".iter().copied().cycle().take((1 << 20) / 6 * 6).collect();
+    let member = common::gz(&block);
+    let bomb: Vec<u8> = std::iter::repeat_n(&member[..], 2300).flatten().copied().collect();
+    drop_renamed(&st.inbox(), "bomb.xyz.gz", &bomb);
+    // One line of 2 GB: a sparse file, renamed into the inbox.
+    let part = st.inbox().join("endless.obj.part");
+    let mut f = std::fs::File::create(&part).unwrap();
+    f.write_all(b"v ").unwrap();
+    f.set_len(2_000_000_000).unwrap();
+    drop(f);
+    std::fs::rename(&part, st.inbox().join("endless.obj")).unwrap();
+    st.wait_done(2, Duration::from_secs(120));
+    drop_renamed(&st.inbox(), "good.ply", &sphere_bytes(&dir, 1.0));
+    st.wait_done(3, Duration::from_secs(120));
+
+    let q = visible(&st.spool("quarantine"));
+    assert_eq!(q.len(), 2, "quarantine: {q:?}\n{}", st.log());
+    for entry in &q {
+        let code = error_code_of(&st.spool("quarantine").join(entry));
+        if entry.starts_with("bomb-") {
+            assert!(["input.decompression-bomb", "resource.memory"].contains(&code.as_str()), "{entry}: {code}");
+            let kept = std::fs::metadata(st.spool("quarantine").join(entry).join("bomb.xyz.gz")).unwrap().len();
+            assert_eq!(kept, bomb.len() as u64, "the bomb is kept whole in quarantine");
+        } else {
+            assert!(entry.starts_with("endless-"), "{q:?}");
+            assert_eq!(code, "input.bad-record", "{entry}");
+        }
+    }
+    let out = visible(&st.spool("outbox"));
+    assert!(out.len() == 1 && out[0].starts_with("good-"), "outbox: {out:?}\n{}", st.log());
+    let status = std::fs::read_to_string(format!("/proc/{}/status", st.pid())).unwrap();
+    let hwm_kib: u64 =
+        status.lines().find(|l| l.starts_with("VmHWM:")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+    eprintln!("daemon peak RSS {:.1} MiB with a budget of {budget_mib} MiB", hwm_kib as f64 / 1024.0);
+    assert!(hwm_kib < budget_mib * 1024, "peak RSS {hwm_kib} KiB exceeds the {budget_mib} MiB budget");
+}

@@ -279,3 +279,66 @@ fn nitsche_supports_pass_the_patch_test_that_a_penalty_misses() {
     assert!(nitsche <= 1e-6, "Nitsche: relative error {nitsche:.2e} in a linear field");
     assert!(penalty >= 1e-5, "penalty: relative error {penalty:.2e}; expected about T/β");
 }
+
+/// The size estimate made before any allocation stays within a factor of 1.5 of what the solve builds (the
+/// rod at cell sizes 2 and 1, and spot's solid-like sphere), never below 0.8 of it, so a spec the budget
+/// cannot hold is refused up front; and a grid far too fine fails at once with `resource.memory` naming
+/// the estimate.
+#[test]
+fn the_size_estimate_brackets_the_built_system_and_refuses_what_cannot_fit() {
+    let cases = [(rod(), 2.0), (rod(), 1.0), (shapes::icosphere(10.0, 4, [0.0; 3]), 1.5)];
+    for (mesh, h) in cases {
+        let (mesh, volume) = fea::closed_solid(&mesh).unwrap();
+        let est = fea::SizeEstimate::new(&mesh, volume, h);
+        let mut spec = rod_spec();
+        if mesh.bbox().extent()[0] < 100.0 {
+            // The sphere: fix its bottom cap, load its top.
+            spec.supports[0].plane = Some(fea::spec::HalfSpace { point: [0.0, 0.0, -9.0], normal: [0.0, 0.0, -1.0] });
+            spec.loads[0].plane = Some(fea::spec::HalfSpace { point: [0.0, 0.0, 9.0], normal: [0.0, 0.0, 1.0] });
+            spec.probes.clear();
+        }
+        spec.resolution.cell_size = Some(h);
+        let built = match fea::solve(&mesh, &spec, &FeaOptions::default(), &NoProgress) {
+            Ok(s) => s.report.grid,
+            Err(e) => panic!("h {h}: {e}"),
+        };
+        for (what, e, b) in
+            [("functions", est.functions, built.functions), ("cut cells", est.cut_cells, built.cut_cells)]
+        {
+            let r = e as f64 / b as f64;
+            assert!((0.8..=1.5).contains(&r), "h {h}: {what} estimated {e}, built {b} (ratio {r:.2})");
+        }
+    }
+    let mut spec = rod_spec();
+    spec.resolution.cell_size = Some(0.05);
+    let t = std::time::Instant::now();
+    let e = fea::solve(&rod(), &spec, &FeaOptions { memory_budget: 1 << 30 }, &NoProgress).err().unwrap();
+    assert_eq!(e.code, ErrorCode::ResourceMemoryBudget, "{e}");
+    assert!(e.message.contains("functions") && e.message.contains("MiB"), "names the estimate: {e}");
+    assert!(t.elapsed().as_secs_f64() < 5.0, "refused after {:?}", t.elapsed());
+}
+
+/// Spec bounds: counts of loads and supports, region sizes against the solid, supports that hold the
+/// whole surface and loads that act only where it is held.
+#[test]
+fn specs_out_of_proportion_are_refused_by_name() {
+    let base = include_str!("../config/fea/cantilever-rod.toml");
+    let load =
+        "\n[[loads]]\nplane = { point = [199.999, 0.0, 0.0], normal = [1.0, 0.0, 0.0] }\nforce = [0.0, 0.01, 0.0]\n";
+    let e = FeaSpec::from_toml(&(base.to_string() + &load.repeat(fea::spec::MAX_LOADS))).unwrap_err();
+    assert!(e.code == ErrorCode::FeaBadSpec && e.message.contains("at most 64"), "{e}");
+    let solve = |spec: &FeaSpec| fea::solve(&rod(), spec, &FeaOptions::default(), &NoProgress).err().unwrap();
+    let mut spec = rod_spec();
+    spec.supports[0].plane = None;
+    spec.supports[0].sphere = Some(fea::spec::Sphere { center: [0.0; 3], radius: 1e308 });
+    let e = solve(&spec);
+    assert!(e.code == ErrorCode::FeaBadSpec && e.message.contains("root face"), "{e}");
+    let mut spec = rod_spec();
+    spec.supports[0].plane.as_mut().unwrap().point = [250.0, 0.0, 0.0];
+    let e = solve(&spec);
+    assert!(e.code == ErrorCode::FeaBadSpec && e.message.contains("hold the whole surface"), "{e}");
+    let mut spec = rod_spec();
+    spec.loads[0].plane = Some(fea::spec::HalfSpace { point: [0.0005, 0.0, 0.0], normal: [-1.0, 0.0, 0.0] });
+    let e = solve(&spec);
+    assert!(e.code == ErrorCode::FeaBadSpec && e.message.contains("tip"), "a load on the clamped face: {e}");
+}

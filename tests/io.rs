@@ -212,7 +212,7 @@ fn memory_budget_is_enforced_before_allocating() {
         text.push_str(&format!("{i} 0 0\n"));
     }
     let p = file(&dir, "v.ply", text);
-    let e = read_geometry(&p, &ReadOptions { memory_budget: 1000 }).unwrap_err();
+    let e = read_geometry(&p, &ReadOptions { memory_budget: 1000, ..Default::default() }).unwrap_err();
     assert_eq!(e.code, ErrorCode::ResourceMemoryBudget, "{e}");
     assert_eq!(read_geometry(&p, &ReadOptions::default()).unwrap().positions().len(), 1000);
 }

@@ -226,17 +226,21 @@ pub fn parse_size(s: &str) -> Result<u64, String> {
     Ok(b as u64)
 }
 
+/// Largest config file, bytes (the shipped one is about 4 KiB).
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
 impl Config {
-    /// Read and validate `path`.
+    /// Read and validate `path` (at most [`MAX_CONFIG_BYTES`]).
     ///
     /// # Errors
     /// [`ConfigError`] naming the key and the reason (unreadable file, TOML syntax, unknown key, bad value).
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
-            file: path.display().to_string(),
-            key: "(file)".into(),
-            reason: format!("cannot read: {e}"),
-        })?;
+        let text =
+            crate::geometry::io::read_small_text(path, MAX_CONFIG_BYTES, "the config").map_err(|e| ConfigError {
+                file: path.display().to_string(),
+                key: "(file)".into(),
+                reason: format!("cannot read: {}", e.message),
+            })?;
         Self::parse(&text, &path.display().to_string())
     }
 

@@ -10,6 +10,8 @@ use super::journal::{JobId, sync_dir};
 
 /// Sidecar suffix for per-job options (`scan.ply` + `scan.ply.job.toml` or `scan.job.toml`).
 pub const SIDECAR_SUFFIX: &str = ".job.toml";
+/// Largest sidecar (`NAME.job.toml`), bytes: a handful of options is a few hundred bytes.
+pub const MAX_SIDECAR_BYTES: u64 = 64 << 10;
 
 /// Paths of the spool.
 #[derive(Clone, Debug)]

@@ -183,7 +183,7 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
         },
         ..Default::default()
     };
-    let read = ReadOptions { memory_budget: cfg.memory_budget };
+    let read = ReadOptions { memory_budget: cfg.memory_budget, max_input_size: cfg.max_input_size };
     let step = part.join(format!("{stem}.step"));
     // The STEP file, the solid mesh, the error map (its last phase is `quality`) and the report.
     let report = convert_file(&input, &step, &read, &opts, rep)?;

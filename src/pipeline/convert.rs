@@ -470,6 +470,7 @@ pub fn convert_file(
     }
     if let Some(q) = &opts.quads_output {
         ensure_not_input(q, &[input, output, &solid_path, &map_path])?;
+        crate::geometry::io::ensure_replaceable(q)?;
     }
     let t_total = Instant::now();
     let mut stages = Vec::new();
@@ -593,7 +594,7 @@ pub fn convert_file(
 /// mesh itself (repair alone ~420 bytes per face against ~30 for the mesh), so a larger input is refused
 /// while reading, before it is allocated.
 fn read_input(input: &Path, read: &ReadOptions, opts: &ConvertOptions) -> Result<PolyMesh> {
-    let read = ReadOptions { memory_budget: read.memory_budget.min(opts.memory_budget / CHAIN_MEMORY_FACTOR) };
+    let read = ReadOptions { memory_budget: read.memory_budget.min(opts.memory_budget / CHAIN_MEMORY_FACTOR), ..*read };
     read_mesh(input, &read).map_err(|e| {
         if e.code == ErrorCode::ResourceMemoryBudget {
             e.with_hint(format!(

@@ -91,14 +91,15 @@ pub fn fea_file(
     let meter = StageMeter::start();
     let spec = FeaSpec::read(spec_file)?;
     let mesh_file = solid_mesh_for(input)?;
-    let mesh = read_mesh(&mesh_file, read)?;
-    let (tri, _) = mesh.triangulate();
-    let solution = fea::solve(&tri, &spec, options, progress).map_err(|e| e.in_file(input))?;
     let vtu = output_dir.join("surface.vtu");
     let json = output_dir.join("result.json");
     for out in [&vtu, &json] {
         ensure_not_input(out, &[input, spec_file, &mesh_file])?;
+        crate::geometry::io::ensure_replaceable(out)?;
     }
+    let mesh = read_mesh(&mesh_file, read)?;
+    let (tri, _) = mesh.triangulate();
+    let solution = fea::solve(&tri, &spec, options, progress).map_err(|e| e.in_file(input))?;
     write_atomic(&vtu, |w| fea::vtu::write_vtu(w, &solution.surface, &solution.fields))?;
     let (seconds, peak_rss_mib) = meter.finish();
     let report = FeaFileReport {

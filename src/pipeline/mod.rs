@@ -160,6 +160,7 @@ pub fn compare_files(
 ) -> Result<CompareReport> {
     if let Some(out) = error_map {
         ensure_not_input(out, &[test, reference])?;
+        crate::geometry::io::ensure_replaceable(out)?;
     }
     let t0 = Instant::now();
     let (a, b) = rayon::join(|| read_geometry(test, read), || read_geometry(reference, read));
@@ -204,6 +205,7 @@ pub fn repair_file(
     progress: &dyn Progress,
 ) -> Result<RepairFileReport> {
     ensure_not_input(output, &[input])?;
+    crate::geometry::io::ensure_replaceable(output)?;
     let mesh = crate::geometry::io::read_mesh(input, read)?;
     let (out, report) = crate::stages::repair::repair(&mesh, opts, progress).map_err(|e| e.in_file(input))?;
     write_mesh(output, &crate::geometry::mesh::PolyMesh::from(out), "repaired by scanstation")?;
@@ -245,6 +247,7 @@ pub fn remesh_file(
     progress: &dyn Progress,
 ) -> Result<RemeshFileReport> {
     ensure_not_input(output, &[input])?;
+    crate::geometry::io::ensure_replaceable(output)?;
     let mesh = crate::geometry::io::read_mesh(input, read)?;
     let (tri, _) = mesh.triangulate();
     let (out, report) = crate::stages::remesh::remesh(&tri, opts, progress).map_err(|e| e.in_file(input))?;

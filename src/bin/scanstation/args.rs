@@ -3,6 +3,8 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
+
+use crate::ranges;
 use scanstation::geometry::io::ReadOptions;
 use scanstation::pipeline::{self, ConvertOptions, ConvertReport, GateOptions, RemeshFileReport, Resolution};
 use scanstation::stages::NoProgress;
@@ -27,21 +29,22 @@ pub struct RepairArgs {
     /// Where to write the result (.ply binary, or .obj).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Keep components other than the largest when they hold at least this share of the area.
-    #[arg(long, default_value_t = 0.1)]
+    /// Keep components other than the largest when they hold at least this share of the area (0 to 1).
+    #[arg(long, default_value_t = 0.1, value_parser = ranges::share)]
     pub keep_share: f64,
     /// Do not move spike vertices (far off their neighbours' plane) to their ring centroid.
     #[arg(long)]
     pub keep_spikes: bool,
-    /// Taubin (non-shrinking) smoothing iterations.
-    #[arg(long, default_value_t = 0)]
+    /// Taubin (non-shrinking) smoothing iterations (0 to 1000).
+    #[arg(long, default_value_t = 0, value_parser = ranges::rounds)]
     pub smooth: usize,
-    /// Decimate the repaired mesh to this many vertices (quadric error metric).
-    #[arg(long)]
+    /// Decimate the repaired mesh to this many vertices (quadric error metric; 16 to 10 million).
+    #[arg(long, value_parser = ranges::vertices)]
     pub target_vertices: Option<usize>,
     /// Cut handles (tunnels, bridges) whose shortest loop around them is shorter than this percentage of
-    /// the bounding-box diagonal and fill both sides: topological noise of fused range scans (0: keep all).
-    #[arg(long, default_value_t = 0.0)]
+    /// the bounding-box diagonal and fill both sides: topological noise of fused range scans (0: keep all;
+    /// 0 to 100).
+    #[arg(long, default_value_t = 0.0, value_parser = ranges::pct)]
     pub max_handle_loop_pct: f64,
 }
 
@@ -53,17 +56,17 @@ pub struct RemeshArgs {
     /// Where to write the quad mesh (.obj keeps quads; anything else is binary PLY).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Final vertex count wanted.
-    #[arg(long, conflicts_with = "edge_length", required_unless_present = "edge_length")]
+    /// Final vertex count wanted (16 to 10 million).
+    #[arg(long, conflicts_with = "edge_length", required_unless_present = "edge_length", value_parser = ranges::vertices)]
     pub vertices: Option<usize>,
-    /// Target edge length instead (in the input's units): vertices = area / length².
-    #[arg(long)]
+    /// Target edge length instead (in the input's units, 1e-12 to 1e12): vertices = area / length².
+    #[arg(long, value_parser = ranges::length)]
     pub edge_length: Option<f64>,
     /// Seed of the random initial fields.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Gauss–Seidel sweeps per hierarchy level for each field.
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().iterations)]
+    /// Gauss–Seidel sweeps per hierarchy level for each field (1 to 1000).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().iterations, value_parser = ranges::sweeps)]
     pub iterations: usize,
     /// Only the split route (extraction at a quarter of the count, then a regular split): fewer irregular
     /// vertices and faster, but features thinner than twice the spacing can be lost.
@@ -75,28 +78,28 @@ pub struct RemeshArgs {
     /// Extract from the position field as it is, without cancelling its singularities in pairs.
     #[arg(long)]
     pub keep_singularities: bool,
-    /// Working-mesh vertices per output vertex.
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex)]
+    /// Working-mesh vertices per output vertex (1 to 64).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex, value_parser = ranges::per_vertex)]
     pub work_per_vertex: f64,
-    /// Working-mesh vertices per output vertex for the direct routes (which extract at the full count).
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex_direct)]
+    /// Working-mesh vertices per output vertex for the direct routes (which extract at the full count; 1 to 64).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex_direct, value_parser = ranges::per_vertex)]
     pub work_per_vertex_direct: f64,
     /// No refined direct route (a finer spacing where the direct result missed thin parts).
     #[arg(long)]
     pub no_refine: bool,
-    /// Rounds of the least-squares fit of the quad mesh to the input (0 = vertices stay on the input).
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().fit_rounds)]
+    /// Rounds of the least-squares fit of the quad mesh to the input (0 = vertices stay on the input; 0 to 1000).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().fit_rounds, value_parser = ranges::rounds)]
     pub fit_rounds: usize,
     /// Longest chain of cost-neutral operations (edge rotations, vertex splits, diagonal collapses) that
-    /// moves a dipole (valence 3–5 pair) until it cancels another (0 = no dipole transport).
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().dipole_depth)]
+    /// moves a dipole (valence 3–5 pair) until it cancels another (0 = no dipole transport; 0 to 16).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().dipole_depth, value_parser = ranges::depth)]
     pub dipole_depth: usize,
-    /// Weight of the pull toward principal curvature directions (0 = off).
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight)]
+    /// Weight of the pull toward principal curvature directions (0 = off; 0 to 100).
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight, value_parser = ranges::weight)]
     pub curvature_weight: f64,
     /// Extra pull, relative to the curvature weight, where the principal directions agree over the
-    /// whole surface (tori, surfaces of revolution); 0 = off.
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().coherent_pull)]
+    /// whole surface (tori, surfaces of revolution); 0 = off; 0 to 100.
+    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().coherent_pull, value_parser = ranges::weight)]
     pub coherent_pull: f64,
 }
 
@@ -108,8 +111,8 @@ pub struct ConvertArgs {
     /// The STEP file to write (written to a temporary name and renamed when complete).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Control vertices of the quad net (default 10000).
-    #[arg(long, conflicts_with = "tolerance")]
+    /// Control vertices of the quad net (default 10000; 16 to 10 million).
+    #[arg(long, conflicts_with = "tolerance", value_parser = ranges::vertices)]
     pub vertices: Option<usize>,
     /// Refine coarse to fine until the solid's RMS distance to the input is at most this: a length in
     /// the input's units, or a percentage of the bounding-box diagonal such as 0.05%.
@@ -136,11 +139,11 @@ pub struct ConvertArgs {
     #[arg(long)]
     pub keep_small_handles: bool,
     /// Quality gate: the most RMS distance of the solid to the scan, % of the diagonal, when no --tolerance
-    /// is given (a tolerance is its own bound).
-    #[arg(long, value_name = "PCT", default_value_t = pipeline::gates::DEFAULT_MAX_RMS_PCT)]
+    /// is given (a tolerance is its own bound); 1e-6 to 100.
+    #[arg(long, value_name = "PCT", default_value_t = pipeline::gates::DEFAULT_MAX_RMS_PCT, value_parser = ranges::gate_pct)]
     pub max_rms: f64,
-    /// Quality gate: the most |volume error| of the solid against the input, %.
-    #[arg(long, value_name = "PCT", default_value_t = pipeline::gates::DEFAULT_MAX_VOLUME_ERROR_PCT)]
+    /// Quality gate: the most |volume error| of the solid against the input, % (1e-6 to 100).
+    #[arg(long, value_name = "PCT", default_value_t = pipeline::gates::DEFAULT_MAX_VOLUME_ERROR_PCT, value_parser = ranges::gate_pct)]
     pub max_volume_error: f64,
     /// Publish a solid that misses a quality gate anyway (exit 0, `"status": "degraded"` in the report);
     /// without it such a solid exits 4 with the gate's `quality.*` code.
@@ -183,11 +186,11 @@ pub struct JobsArgs {
 #[derive(Args)]
 pub struct SubmitArgs {
     pub file: PathBuf,
-    /// Control vertices of the quad net for this job.
-    #[arg(long)]
+    /// Control vertices of the quad net for this job (16 to 10 million).
+    #[arg(long, value_parser = ranges::vertices_u32)]
     pub vertices: Option<u32>,
-    /// RMS tolerance (length) for this job instead of a vertex count.
-    #[arg(long)]
+    /// RMS tolerance (length) for this job instead of a vertex count (1e-12 to 1e12).
+    #[arg(long, value_parser = ranges::length)]
     pub tolerance: Option<f64>,
     /// Follow the job until it finishes (exit status 1 when it fails).
     #[arg(long)]
@@ -221,8 +224,8 @@ pub struct CompareArgs {
     pub test: PathBuf,
     /// The surface it is measured against (percentages use its bounding-box diagonal).
     pub reference: PathBuf,
-    /// Area samples per side.
-    #[arg(long, default_value_t = 200_000)]
+    /// Area samples per side (100 to 100 million).
+    #[arg(long, default_value_t = 200_000, value_parser = ranges::samples)]
     pub samples: usize,
     /// Sampling seed.
     #[arg(long, default_value_t = 0)]
@@ -319,7 +322,12 @@ impl ConvertArgs {
     pub fn run(&self, read: &ReadOptions, memory_budget: u64) -> Result<ConvertReport, Error> {
         let opts = self.options(memory_budget)?;
         if let Some(r) = &self.report {
-            scanstation::geometry::io::ensure_not_input(r, &[&self.input, &self.output])?;
+            use scanstation::pipeline::provenance::{error_map_path, solid_artifact_path};
+            let (solid, map) = (solid_artifact_path(&self.output), error_map_path(&self.output));
+            let mut others = vec![self.input.as_path(), &self.output, &solid, &map];
+            others.extend(self.quads.as_deref());
+            scanstation::geometry::io::ensure_not_input(r, &others)?;
+            scanstation::geometry::io::ensure_replaceable(r)?;
         }
         let r = pipeline::convert_file(&self.input, &self.output, read, &opts, &NoProgress)?;
         if let Some(path) = &self.report {

@@ -6,6 +6,7 @@ mod args;
 #[cfg(feature = "daemon")]
 mod client;
 mod print;
+mod ranges;
 
 use std::process::ExitCode;
 
@@ -27,9 +28,12 @@ struct Cli {
     /// Print the report as JSON on stdout (errors too, as {"ok": false, "error": {...}}).
     #[arg(long, global = true)]
     json: bool,
-    /// Memory budget for reading and measuring, e.g. 512M, 4G.
-    #[arg(long, global = true, default_value = "8G", value_parser = parse_bytes)]
+    /// Memory budget for reading and measuring, e.g. 512M, 4G (16M to 1T).
+    #[arg(long, global = true, default_value = "8G", value_parser = ranges::memory_budget)]
     memory_budget: u64,
+    /// The most bytes an input may hold, decompressed for gzip (1K to 1T); larger: input.too-large.
+    #[arg(long, global = true, default_value = "4G", value_parser = ranges::input_size)]
+    max_input_size: u64,
     /// More log output on stderr (-v info, -vv debug).
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     verbose: u8,
@@ -82,7 +86,7 @@ fn main() -> ExitCode {
     };
     tracing_subscriber::fmt().with_writer(std::io::stderr).with_max_level(level).init();
     let (json, budget) = (cli.json, cli.memory_budget);
-    let read = ReadOptions { memory_budget: budget };
+    let read = ReadOptions { memory_budget: budget, max_input_size: cli.max_input_size };
     let result = match &cli.command {
         Command::Inspect(a) => pipeline::inspect_file(&a.file, &read).map(|r| emit(json, &r, print::print_inspect)),
         Command::Repair(a) => pipeline::repair_file(&a.input, &a.output, &read, &a.options(budget), &NoProgress)
@@ -121,16 +125,4 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => print::report_error(&e, json),
     }
-}
-
-/// A byte count with an optional K, M or G suffix (powers of 1024).
-fn parse_bytes(s: &str) -> Result<u64, String> {
-    let s = s.trim();
-    let (num, mult) = match s.chars().last().map(|c| c.to_ascii_uppercase()) {
-        Some('K') => (&s[..s.len() - 1], 1u64 << 10),
-        Some('M') => (&s[..s.len() - 1], 1 << 20),
-        Some('G') => (&s[..s.len() - 1], 1 << 30),
-        _ => (s, 1),
-    };
-    num.parse::<u64>().ok().and_then(|n| n.checked_mul(mult)).ok_or_else(|| format!("not a size: {s:?}"))
 }

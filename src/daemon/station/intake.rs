@@ -74,7 +74,8 @@ impl Station {
             .ok()
             .and_then(|r| r.flatten().map(|f| f.path()).find(|p| p.to_string_lossy().ends_with(spool::SIDECAR_SUFFIX)));
         if let Some(sc) = sidecar {
-            match std::fs::read_to_string(&sc).map_err(|e| e.to_string()).and_then(|t| JobOptions::parse_toml(&t)) {
+            let text = crate::geometry::io::read_small_text(&sc, spool::MAX_SIDECAR_BYTES, "the sidecar");
+            match text.map_err(|e| e.message).and_then(|t| JobOptions::parse_toml(&t)) {
                 Ok(o) => rec.options = o,
                 Err(m) => {
                     preset = Some(Error::new(

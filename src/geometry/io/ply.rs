@@ -300,6 +300,7 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
             for el in &header.elements {
                 read_binary_element(&mut *input.reader, el, big, layout.as_ref(), &mut sink, &mut pos)?;
             }
+            crate::geometry::io::check_trailing(&mut *input.reader, pos)?;
         }
     }
     finish(sink)
@@ -350,6 +351,9 @@ fn read_binary_element(
     let mut vals = vec![0f64; el.props.len()];
     let mut buf = [0u8; 8];
     let mut skip = Vec::new();
+    if el.props.is_empty() {
+        return Ok(()); // nothing is stored, however large the declared count
+    }
     for _ in 0..el.count {
         let start = *pos;
         for (k, p) in el.props.iter().enumerate() {

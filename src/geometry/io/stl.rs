@@ -74,6 +74,7 @@ fn read_binary(input: &mut Input) -> Result<Geometry> {
             w.push(finite_point([c(0), c(1), c(2)], || format!("triangle {t}"), Location::Byte(at))?);
         }
     }
+    crate::geometry::io::check_trailing(&mut *input.reader, pos)?;
     w.finish()
 }
 

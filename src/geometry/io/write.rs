@@ -26,19 +26,30 @@ fn out_err(path: &Path, e: std::io::Error) -> Error {
     Error::new(ErrorCode::ResourceOutput, format!("cannot write: {e}")).in_file(path)
 }
 
-/// Refuse to write `out` when it names one of `inputs` (same file after resolving links).
+/// Refuse to write `out` when it is one of `inputs`: the same file (device and inode, so through hard and
+/// symbolic links too) or, for paths that do not exist yet, the same name in the same directory.
 ///
 /// # Errors
-/// `resource.output` naming the input.
+/// `resource.output` naming the path it clashes with.
 pub fn ensure_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
-    let canon = |p: &Path| std::fs::canonicalize(p).ok();
-    if let Some(o) = canon(out) {
-        for i in inputs {
-            if canon(i).as_deref() == Some(o.as_path()) {
-                return Err(Error::new(ErrorCode::ResourceOutput, "refusing to overwrite an input file")
-                    .in_file(out)
-                    .with_hint("choose another output path"));
-            }
+    use std::os::unix::fs::MetadataExt;
+    let id = |p: &Path| std::fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
+    // The directory resolved, the name kept: equal for two spellings of one path, existing or not.
+    let name = |p: &Path| {
+        let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        std::fs::canonicalize(dir).ok().zip(p.file_name().map(|n| n.to_os_string())).map(|(d, n)| d.join(n))
+    };
+    let (out_id, out_name) = (id(out), name(out));
+    for i in inputs {
+        let same_file = out_id.is_some() && out_id == id(i);
+        let same_name = out_name.is_some() && out_name == name(i);
+        if same_file || same_name {
+            return Err(Error::new(
+                ErrorCode::ResourceOutput,
+                format!("refusing to write over {}, which this run reads or writes", i.display()),
+            )
+            .in_file(out)
+            .with_hint("choose another output path"));
         }
     }
     Ok(())

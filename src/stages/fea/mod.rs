@@ -327,15 +327,10 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
     let ext = bbox.extent();
     let longest = ext[0].max(ext[1]).max(ext[2]);
     let h = spec.resolution.cell_size.unwrap_or(longest / spec.resolution.cells_along_longest as f64);
+    check_regions(spec, &bbox)?;
+    check_not_all_held(&mesh, spec)?;
+    SizeEstimate::new(&mesh, surface_volume, h).check(options.memory_budget)?;
     let grid = Grid::around(&bbox, h);
-    let cells = grid.cells() as u64;
-    if cells > 50_000_000 || cells * 16 > options.memory_budget {
-        return Err(Error::new(
-            ErrorCode::ResourceMemoryBudget,
-            format!("a grid of {:?} cells (h = {h}) is too large", grid.n),
-        )
-        .with_hint("raise resolution.cell_size"));
-    }
     let domain = Domain::new(&mesh, grid.clone(), spec.resolution.subcells);
     // Surface quadrature only where a region may select something.
     let regions: Vec<spec::Region> =
@@ -364,6 +359,7 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
         }
     }
     check_supports_hold(&supports)?;
+    check_loads_free(&loads, spec)?;
 
     // Assemble.
     let t1 = Instant::now();
@@ -551,6 +547,128 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
 }
 
 /// Supports must hold every rigid motion: their points together must not lie on one line.
+/// Bytes per B-spline function on the iterative path, the least the solve can take: 63 coupled functions ×
+/// a 3×3 block of f64 with its index (system.rs's cost note, 63 · 72 B), the right-hand side and the PCG
+/// vectors (6 · 3 · 8 B), and the function's cell maps (about 200 B).
+pub const BYTES_PER_FUNCTION: u64 = 63 * 72 + 6 * 24 + 200;
+/// Bytes per cut cell for its moments and integration lines (domain.rs's cost note).
+pub const BYTES_PER_CUT_CELL: u64 = 1024;
+/// Most B-spline functions (three unknowns each) a solve may have, whatever the budget: the time cap. The
+/// bundled rod at cell_size 1 (12,180 functions) assembles and solves in 1.7 s on 2 cores; 4 million is
+/// about a quarter of an hour there by the solver's growth.
+pub const MAX_FUNCTIONS: u64 = 4_000_000;
+
+/// The size of a solve, estimated from the solid before any allocation: interior cells from the volume,
+/// cut cells from the area, functions from both (for the bundled rod at cell_size 1: 13,366 estimated,
+/// 12,180 built; cut cells 4,743 estimated, 4,044 built).
+#[derive(Clone, Copy, Debug)]
+pub struct SizeEstimate {
+    /// Cells that the surface cuts.
+    pub cut_cells: u64,
+    /// B-spline functions (3 unknowns each).
+    pub functions: u64,
+    /// Least bytes of the assembled system and the domain.
+    pub bytes: u64,
+}
+
+impl SizeEstimate {
+    /// Estimate for the closed `mesh` of volume `volume` on a grid of spacing `h`.
+    pub fn new(mesh: &TriMesh, volume: f64, h: f64) -> SizeEstimate {
+        let area = mesh.area();
+        let cap = |x: f64| if x.is_finite() { x.min(u64::MAX as f64 / 4.0) as u64 } else { u64::MAX / 4 };
+        let cut_cells = cap(1.5 * area / (h * h));
+        let functions = cap(volume / (h * h * h)).saturating_add(cut_cells.saturating_mul(2));
+        let bytes =
+            functions.saturating_mul(BYTES_PER_FUNCTION).saturating_add(cut_cells.saturating_mul(BYTES_PER_CUT_CELL));
+        SizeEstimate { cut_cells, functions, bytes }
+    }
+
+    /// Fail with `resource.memory` when the solve cannot fit `budget` or the time cap ([`MAX_FUNCTIONS`]).
+    pub fn check(&self, budget: u64) -> Result<()> {
+        if self.bytes > budget || self.functions > MAX_FUNCTIONS {
+            return Err(Error::new(
+                ErrorCode::ResourceMemoryBudget,
+                format!(
+                    "the grid would hold about {} functions ({} unknowns) and {} cut cells: at least {} MiB (budget {} MiB), at most {MAX_FUNCTIONS} functions",
+                    self.functions,
+                    self.functions.saturating_mul(3),
+                    self.cut_cells,
+                    self.bytes >> 20,
+                    budget >> 20
+                ),
+            )
+            .with_hint("raise resolution.cell_size (or lower cells_along_longest), or the memory budget"));
+        }
+        Ok(())
+    }
+}
+
+/// Regions sized against the solid: a sphere larger than [`MAX_REGION_DIAGONALS`] diagonals, or one that
+/// cannot reach the solid's bounding box, is `fea.bad-spec` before any work.
+fn check_regions(spec: &FeaSpec, bbox: &crate::geometry::vec3::Aabb) -> Result<()> {
+    let diag = bbox.diagonal();
+    let named = spec.supports.iter().enumerate().map(|(i, s)| (s.label(i), s.sphere.clone()));
+    let named = named.chain(spec.loads.iter().enumerate().map(|(i, l)| (l.label(i), l.sphere.clone())));
+    for (name, sphere) in named {
+        let Some(s) = sphere else { continue };
+        if s.radius > MAX_REGION_DIAGONALS * diag {
+            return Err(Error::new(
+                ErrorCode::FeaBadSpec,
+                format!("{name}: a sphere of radius {:e} is more than {MAX_REGION_DIAGONALS} times the solid's diagonal ({diag:.4})", s.radius),
+            )
+            .with_hint("use a plane region to select a whole side"));
+        }
+        let gap = (0..3)
+            .map(|k| (bbox.min[k] - s.center[k]).max(s.center[k] - bbox.max[k]).max(0.0))
+            .map(|d| d * d)
+            .sum::<f64>()
+            .sqrt();
+        if gap > s.radius {
+            return Err(Error::new(
+                ErrorCode::FeaEmptySelection,
+                format!(
+                    "{name}: the sphere lies {gap} away from the solid's bounding box, beyond its radius {}",
+                    s.radius
+                ),
+            )
+            .with_hint("check the region against the solid's bounding box (same units)"));
+        }
+    }
+    Ok(())
+}
+
+/// Largest sphere region, in diagonals of the solid's bounding box.
+pub const MAX_REGION_DIAGONALS: f64 = 10.0;
+
+/// Supports that hold every vertex of the surface leave nothing free to deform: `fea.bad-spec`, named.
+fn check_not_all_held(mesh: &TriMesh, spec: &FeaSpec) -> Result<()> {
+    let held = |p: V3| spec.supports.iter().any(|s| s.region().contains(p));
+    if mesh.positions.iter().all(|&p| held(wide(p))) {
+        let names: Vec<String> = spec.supports.iter().enumerate().map(|(i, s)| s.label(i)).collect();
+        return Err(Error::new(
+            ErrorCode::FeaBadSpec,
+            format!("the supports ({}) hold the whole surface: nothing is free to deform", names.join(", ")),
+        )
+        .with_hint("fix a part of the surface, such as a base face, not all of it"));
+    }
+    Ok(())
+}
+
+/// A load that acts only where the solid is held moves nothing: `fea.bad-spec`, named.
+fn check_loads_free(loads: &[(String, Vec<SurfacePoint>)], spec: &FeaSpec) -> Result<()> {
+    let held = |p: V3| spec.supports.iter().any(|s| s.region().contains(p));
+    for (name, pts) in loads {
+        if pts.iter().all(|sp| held(sp.p)) {
+            return Err(Error::new(
+                ErrorCode::FeaBadSpec,
+                format!("{name} acts only where the supports hold the solid"),
+            )
+            .with_hint("move the load off the supported part"));
+        }
+    }
+    Ok(())
+}
+
 fn check_supports_hold(supports: &[(String, Vec<SurfacePoint>)]) -> Result<()> {
     let pts: Vec<V3> = supports.iter().flat_map(|s| s.1.iter().map(|sp| sp.p)).collect();
     let n = pts.len() as f64;

@@ -266,6 +266,23 @@ impl Support {
     }
 }
 
+/// Most `[[loads]]` a spec may hold: each is a selection pass over the surface, and real load cases have a few.
+pub const MAX_LOADS: usize = 64;
+/// Most `[[supports]]` a spec may hold.
+pub const MAX_SUPPORTS: usize = 64;
+/// Most `[[probes]]` a spec may hold.
+pub const MAX_PROBES: usize = 1024;
+/// Longest name of a region or probe, characters.
+pub const MAX_NAME_CHARS: usize = 200;
+/// Largest spec file, bytes (the shipped specs are about 1.5 KiB).
+pub const MAX_SPEC_BYTES: u64 = 1 << 20;
+/// Largest |force| of a load, N, and |pressure|, MPa: beyond any structure a scan station measures.
+pub const MAX_FORCE: f64 = 1e12;
+/// Largest |pressure| of a load, MPa.
+pub const MAX_PRESSURE: f64 = 1e6;
+/// Largest |gravity|, mm/s² (10⁶ g).
+pub const MAX_GRAVITY: f64 = 1e10;
+
 fn finite(v: &V3) -> bool {
     v.iter().all(|x| x.is_finite())
 }
@@ -286,16 +303,13 @@ impl FeaSpec {
         Ok(spec)
     }
 
-    /// Read and validate a spec file.
+    /// Read and validate a spec file (at most [`MAX_SPEC_BYTES`]).
     ///
     /// # Errors
-    /// `input.not-found`/`input.io` when it cannot be read; otherwise as [`FeaSpec::from_toml`], with the file.
+    /// `input.not-found`/`input.io` when it cannot be read, `input.too-large` beyond [`MAX_SPEC_BYTES`] (a
+    /// device such as `/dev/urandom` too); otherwise as [`FeaSpec::from_toml`], with the file.
     pub fn read(path: &std::path::Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| {
-            let code =
-                if e.kind() == std::io::ErrorKind::NotFound { ErrorCode::InputNotFound } else { ErrorCode::InputIo };
-            Error::new(code, e.to_string()).in_file(path)
-        })?;
+        let text = crate::geometry::io::read_small_text(path, MAX_SPEC_BYTES, "an FEA spec")?;
         Self::from_toml(&text).map_err(|e| e.in_file(path))
     }
 
@@ -315,17 +329,37 @@ impl FeaSpec {
             return Err(bad(format!("material.density = {} must lie in [0, 1) t/mm³", m.density)));
         }
         if let Some(g) = &self.gravity {
-            if !finite(g) {
-                return Err(bad("gravity must be finite".into()));
+            if !(finite(g) && norm(*g) <= MAX_GRAVITY) {
+                return Err(bad(format!("gravity must be finite, at most {MAX_GRAVITY:e} mm/s²")));
             }
+        }
+        for (what, n, max) in [
+            ("[[loads]]", self.loads.len(), MAX_LOADS),
+            ("[[supports]]", self.supports.len(), MAX_SUPPORTS),
+            ("[[probes]]", self.probes.len(), MAX_PROBES),
+        ] {
+            if n > max {
+                return Err(bad(format!("{n} {what} entries; at most {max} are accepted")));
+            }
+        }
+        let names = self.loads.iter().filter_map(|l| l.name.as_ref());
+        let names = names
+            .chain(self.supports.iter().filter_map(|s| s.name.as_ref()))
+            .chain(self.probes.iter().map(|p| &p.name));
+        if let Some(n) = names.into_iter().find(|n| n.chars().count() > MAX_NAME_CHARS) {
+            return Err(bad(format!("a name of {} characters; at most {MAX_NAME_CHARS}", n.chars().count())));
         }
         for (i, l) in self.loads.iter().enumerate() {
             let what = l.label(i);
             l.region().validate(&what)?;
             match (&l.force, &l.pressure) {
-                (Some(f), None) if finite(f) => {}
-                (None, Some(p)) if p.is_finite() => {}
-                _ => return Err(bad(format!("{what}: give exactly one finite `force` or `pressure`"))),
+                (Some(f), None) if finite(f) && norm(*f) <= MAX_FORCE => {}
+                (None, Some(p)) if p.is_finite() && p.abs() <= MAX_PRESSURE => {}
+                _ => {
+                    return Err(bad(format!(
+                        "{what}: give exactly one finite `force` (|F| ≤ {MAX_FORCE:e} N) or `pressure` (|p| ≤ {MAX_PRESSURE:e} MPa)"
+                    )));
+                }
             }
         }
         for (i, s) in self.supports.iter().enumerate() {
