@@ -85,6 +85,14 @@ pub enum ErrorCode {
     InputDuplicate,
     /// The input file is larger than the configured `limits.max_input_size`.
     InputTooLarge,
+    /// A point cloud has too few points to reconstruct a surface from ([`MIN_POINTS`](crate::stages::reconstruct::MIN_POINTS)).
+    ReconstructTooFewPoints,
+    /// A point cloud is flat or a line: it bounds no solid.
+    ReconstructDegenerate,
+    /// Reconstruction could not produce a closed, outward surface (no component survived, orientation).
+    ReconstructFailed,
+    /// A point cloud's normals include zero-length or non-finite vectors.
+    InputBadNormal,
     /// A compressed input expands far more than any scan does ([`GZIP_BOMB_RATIO`](crate::geometry::io::GZIP_BOMB_RATIO)).
     InputDecompressionBomb,
     /// The operation would need more memory than its budget allows.
@@ -144,6 +152,10 @@ impl ErrorCode {
             ErrorCode::InputDuplicate => "input.duplicate",
             ErrorCode::InputTooLarge => "input.too-large",
             ErrorCode::InputDecompressionBomb => "input.decompression-bomb",
+            ErrorCode::ReconstructTooFewPoints => "reconstruct.too-few-points",
+            ErrorCode::ReconstructDegenerate => "reconstruct.degenerate",
+            ErrorCode::ReconstructFailed => "reconstruct.failed",
+            ErrorCode::InputBadNormal => "input.bad-normal",
             ErrorCode::ResourceMemoryBudget => "resource.memory",
             ErrorCode::ResourceOutput => "resource.output",
             ErrorCode::InternalBug => "internal.bug",

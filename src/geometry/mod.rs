@@ -7,6 +7,7 @@ pub mod intersect;
 pub mod io;
 pub mod linalg;
 pub mod mesh;
+pub mod points;
 pub mod polygon;
 pub mod sampling;
 pub mod shapes;

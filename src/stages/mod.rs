@@ -8,6 +8,7 @@
 pub mod brep;
 pub mod fea;
 pub mod quality;
+pub mod reconstruct;
 pub mod remesh;
 pub mod repair;
 pub mod surface;

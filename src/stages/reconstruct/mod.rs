@@ -1,0 +1,267 @@
+//! **reconstruct** — a closed, outward-oriented 2-manifold triangle mesh from a point cloud.
+//!
+//! Steps (see [`reconstruct`]): neighbours on a grid index; normals given (checked) or estimated by PCA and
+//! oriented along a minimum spanning tree with a global flux check ([`normals`]); screened Poisson on a
+//! regular grid solved coarse to fine ([`poisson`]); the iso-surface by marching tetrahedra, closed and
+//! manifold by construction, without bubbles and blobs ([`extract`]); the share of the surface far from every
+//! point reported (a solid stays closed: regions without data are bridged, never cut open).
+//!
+//! Deterministic for the same cloud and settings on any number of threads.
+
+pub mod extract;
+pub mod normals;
+pub mod poisson;
+pub mod project;
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::mesh::{PointCloud, TriMesh};
+use crate::geometry::points::PointIndex;
+use crate::geometry::vec3::{Aabb, V3, add, cross, norm, scale, sub, wide};
+use crate::stages::Progress;
+
+/// Fewest points a cloud must have: below this no surface is defined by it.
+pub const MIN_POINTS: usize = 300;
+
+/// Neighbours of each point for normals and density (PCA over 16 is the usual choice, 10–30).
+pub const NEIGHBOURS: usize = 16;
+
+/// A point of the result farther than this many mean sample spacings from every input point is "far":
+/// surface invented where the scan has no data.
+pub const FAR_SPACINGS: f64 = 3.0;
+
+/// Bytes per grid node during the solve: χ, the right-hand side, three CG vectors and one edge-gradient
+/// array (6 × f64).
+pub const BYTES_PER_NODE: u64 = 48;
+
+/// Bytes per point: position, normal, area, screening weight, neighbour lists (16 × 4 B, twice for the
+/// symmetric graph) and the orientation's heap and flags.
+pub const BYTES_PER_POINT: u64 = 12 + 24 + 16 + 2 * 4 * NEIGHBOURS as u64 + 40;
+
+/// Settings of [`reconstruct`].
+#[derive(Clone, Debug)]
+pub struct ReconstructOptions {
+    /// Grid nodes along the longest side (0: chosen from the point count, see [`auto_resolution`]).
+    pub resolution: usize,
+    /// Largest automatic resolution.
+    pub max_resolution: usize,
+    /// Screening weight (0: unscreened Poisson, smoother and farther from the points).
+    pub screening: f64,
+    /// Ignore the cloud's normals and estimate them.
+    pub estimate_normals: bool,
+    /// Move the extracted vertices onto the samples' local planes ([`project`]).
+    pub project: bool,
+    /// Most bytes the stage may allocate.
+    pub memory_budget: u64,
+}
+
+impl Default for ReconstructOptions {
+    fn default() -> Self {
+        ReconstructOptions {
+            resolution: 0,
+            max_resolution: 256,
+            screening: 4.0,
+            estimate_normals: false,
+            project: true,
+            memory_budget: 8 << 30,
+        }
+    }
+}
+
+/// What [`reconstruct`] did.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ReconstructReport {
+    /// Input points.
+    pub points: usize,
+    /// Whether the cloud's own normals were used.
+    pub normals_given: bool,
+    /// Orientation of estimated normals (absent when given).
+    pub orientation: Option<normals::Orientation>,
+    /// Mean distance to the nearest neighbour.
+    pub mean_spacing: f64,
+    /// Grid nodes per axis and spacing.
+    pub grid_nodes: [usize; 3],
+    /// Grid spacing.
+    pub cell_size: f64,
+    /// The solve, coarse to fine.
+    pub levels: Vec<poisson::LevelReport>,
+    /// Share of the sample area where χ increases along the normal (1 for a consistent outward field).
+    pub outward_share: f64,
+    /// The iso-value extracted.
+    pub iso_value: f64,
+    /// Components kept and removed.
+    pub components: extract::Components,
+    /// Vertices moved onto the samples' planes ([`project`]).
+    pub projected_vertices: usize,
+    /// Vertices of the result.
+    pub vertices: usize,
+    /// Triangles of the result.
+    pub triangles: usize,
+    /// Share of the result's area farther than [`FAR_SPACINGS`] mean spacings from every point.
+    pub far_area_share: f64,
+    /// Seconds per step.
+    pub seconds: BTreeMap<String, f64>,
+}
+
+/// Grid resolution for `n` points: `0.6·√n` nodes along the longest side, between 32 and `max`.
+pub fn auto_resolution(n: usize, max: usize) -> usize {
+    ((0.6 * (n as f64).sqrt()).round() as usize).clamp(32, max.max(32))
+}
+
+/// Reconstruct a closed, outward-oriented 2-manifold from `cloud`.
+///
+/// # Errors
+/// `reconstruct.too-few-points` below [`MIN_POINTS`]; `reconstruct.degenerate` for a flat or linear cloud;
+/// `input.bad-normal` for zero or non-finite normals; `resource.memory` when the grid and the points do not
+/// fit `memory_budget` (checked before allocating them); `reconstruct.failed` when no closed outward
+/// component remains. Cost: O(n k log k) for neighbours, O(res³ · iterations) for the solve.
+///
+/// # Example
+/// ```
+/// use scanstation::geometry::mesh::PointCloud;
+/// use scanstation::geometry::shapes::icosphere;
+/// use scanstation::stages::{NoProgress, reconstruct::{reconstruct, ReconstructOptions}};
+///
+/// let sphere = icosphere(1.0, 4, [0.0; 3]);
+/// let cloud = PointCloud::new(sphere.positions.clone(), None, None)?;
+/// let (mesh, report) = reconstruct(&cloud, &ReconstructOptions::default(), &NoProgress)?;
+/// assert_eq!(report.components.kept, 1);
+/// assert!((mesh.signed_volume() - 4.18879).abs() < 0.1); // 4/3 π
+/// # Ok::<(), scanstation::Error>(())
+/// ```
+pub fn reconstruct(
+    cloud: &PointCloud,
+    opts: &ReconstructOptions,
+    progress: &dyn Progress,
+) -> Result<(TriMesh, ReconstructReport)> {
+    let mut seconds = BTreeMap::new();
+    let mut t = Instant::now();
+    let mut lap = |name: &str, t: &mut Instant| {
+        seconds.insert(name.to_string(), t.elapsed().as_secs_f64());
+        *t = Instant::now();
+    };
+    let points = &cloud.positions;
+    let n = points.len();
+    // 1. The cloud bounds a solid, and fits the budget.
+    if n < MIN_POINTS {
+        return Err(Error::new(
+            ErrorCode::ReconstructTooFewPoints,
+            format!("{n} points; at least {MIN_POINTS} are needed to reconstruct a surface"),
+        ));
+    }
+    normals::check_not_flat(points)?;
+    let res = if opts.resolution > 0 { opts.resolution } else { auto_resolution(n, opts.max_resolution) };
+    let bbox = Aabb::of_points(points);
+    let nodes = poisson::Grid::around(&bbox, res).len() as u64;
+    let need = nodes.saturating_mul(BYTES_PER_NODE).saturating_add((n as u64).saturating_mul(BYTES_PER_POINT));
+    if need > opts.memory_budget {
+        return Err(Error::new(
+            ErrorCode::ResourceMemoryBudget,
+            format!(
+                "reconstructing {n} points on a grid of {nodes} nodes needs about {} MiB; the budget is {} MiB",
+                need >> 20,
+                opts.memory_budget >> 20
+            ),
+        )
+        .with_hint("raise the memory budget or lower the resolution"));
+    }
+    progress.report(0.0, "neighbours");
+    // 2. Neighbours, spacing and the area each point stands for (π r_k² / k).
+    let nb = normals::Neighbours::new(points, NEIGHBOURS);
+    let areas: Vec<f64> = nb.radius.iter().map(|&r| std::f64::consts::PI * r * r / nb.k as f64).collect();
+    let mean_spacing = (0..n)
+        .map(|i| nb.of(i).get(1).map_or(0.0, |&j| norm(sub(wide(points[j as usize]), wide(points[i])))))
+        .sum::<f64>()
+        / n as f64;
+    lap("neighbours", &mut t);
+    // 3. Normals: given, or estimated and oriented.
+    progress.report(0.1, "normals");
+    let given = cloud.normals.as_ref().filter(|_| !opts.estimate_normals);
+    let (normals, orientation) = match given {
+        Some(g) => (normals::given_normals(g)?, None),
+        None => {
+            let mut est = normals::pca_normals(points, &nb);
+            let o = normals::orient(points, &mut est, &areas, &nb);
+            (est, Some(o))
+        }
+    };
+    lap("normals", &mut t);
+    // 4. Screened Poisson, coarse to fine.
+    progress.report(0.3, "solve");
+    let samples = poisson::Samples { points, normals: &normals, areas: &areas };
+    let settings = poisson::SolveSettings {
+        resolution: res,
+        screening: opts.screening,
+        coarse_levels: 2,
+        tolerance: 1e-6,
+        max_iterations: 400,
+    };
+    let (grid, chi, levels) = poisson::solve(&bbox, &samples, &settings);
+    let iso = poisson::iso_value(&grid, &chi, &samples);
+    let outward_share = poisson::outward_share(&grid, &chi, &samples);
+    lap("solve", &mut t);
+    // 5. The iso-surface, its outward components of real size.
+    progress.report(0.8, "extract");
+    let raw = extract::marching_tetrahedra(&grid, &chi, iso);
+    let (mut mesh, components) = extract::filter_components(&raw);
+    if mesh.triangles.is_empty() {
+        return Err(Error::new(
+            ErrorCode::ReconstructFailed,
+            format!(
+                "no closed outward surface: {} bubbles and {} blobs removed, χ increases outward on {:.0} % of the samples",
+                components.bubbles_removed,
+                components.blobs_removed,
+                100.0 * outward_share
+            ),
+        )
+        .with_hint("check the cloud's normals, or estimate them (--estimate-normals)"));
+    }
+    lap("extract", &mut t);
+    // 6. Vertices onto the samples' planes; how much of the surface is far from every point.
+    let reach = FAR_SPACINGS * mean_spacing.max(grid.h * 0.5);
+    let projected = if opts.project { project::onto_samples(&mut mesh, points, &normals, grid.h, reach) } else { 0 };
+    lap("project", &mut t);
+    let far_area_share = far_share(&mesh, points, reach);
+    lap("far", &mut t);
+    progress.report(1.0, "done");
+    let report = ReconstructReport {
+        points: n,
+        normals_given: given.is_some(),
+        orientation,
+        mean_spacing,
+        grid_nodes: grid.n,
+        cell_size: grid.h,
+        levels,
+        outward_share,
+        iso_value: iso,
+        components,
+        projected_vertices: projected,
+        vertices: mesh.positions.len(),
+        triangles: mesh.triangles.len(),
+        far_area_share,
+        seconds,
+    };
+    Ok((mesh, report))
+}
+
+/// Share of `mesh`'s area whose triangle centroids lie farther than `reach` from every point.
+fn far_share(mesh: &TriMesh, points: &[[f32; 3]], reach: f64) -> f64 {
+    let index = PointIndex::new(points, 4.0);
+    let (far, total) = mesh
+        .triangles
+        .par_iter()
+        .map(|t| {
+            let p: [V3; 3] = t.map(|v| wide(mesh.positions[v as usize]));
+            let area = 0.5 * norm(cross(sub(p[1], p[0]), sub(p[2], p[0])));
+            let c = scale(add(add(p[0], p[1]), p[2]), 1.0 / 3.0);
+            (if index.nearest_within(c, reach).is_none() { area } else { 0.0 }, area)
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    far / total.max(f64::MIN_POSITIVE)
+}

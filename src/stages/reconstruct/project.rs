@@ -1,0 +1,65 @@
+//! Moving the extracted vertices onto the points: linear interpolation of a steep χ on the grid leaves the
+//! iso-surface a fraction of a cell off (measured on a 20k-point sphere at 85³ nodes: RMS 0.072 % of the
+//! diagonal, 9 % of a cell). Each vertex is projected onto the plane of its nearest samples (Gaussian-weighted
+//! centroid and oriented normal: a moving-least-squares step, Alexa et al. 2003), [`ROUNDS`] times, moving at
+//! most [`MAX_MOVE_CELLS`] cells in all. Vertices farther than `reach` from every sample (bridged regions)
+//! stay where the smooth solution put them.
+
+use rayon::prelude::*;
+
+use crate::geometry::mesh::TriMesh;
+use crate::geometry::points::PointIndex;
+use crate::geometry::vec3::{V3, add, dot, norm, norm2, scale, sub, wide};
+
+/// Projection rounds.
+pub const ROUNDS: usize = 2;
+/// Samples per projection.
+pub const SAMPLES: usize = 12;
+/// Largest total move of a vertex, in grid cells (the interpolation error is below one cell).
+pub const MAX_MOVE_CELLS: f64 = 1.0;
+
+/// Project the vertices of `mesh` onto the oriented samples; returns how many vertices moved.
+pub fn onto_samples(mesh: &mut TriMesh, points: &[[f32; 3]], normals: &[V3], h: f64, reach: f64) -> usize {
+    let index = PointIndex::new(points, 4.0);
+    let moved: Vec<Option<[f32; 3]>> = mesh
+        .positions
+        .par_iter()
+        .map_init(Vec::new, |buf, &p0| {
+            let start = wide(p0);
+            let mut p = start;
+            for _ in 0..ROUNDS {
+                index.knn(p, SAMPLES, buf);
+                if buf.first().is_none_or(|&(_, d)| d > reach * reach) {
+                    return None;
+                }
+                // Gaussian weights on the distance, σ = the farthest neighbour's distance / 2.
+                let sigma2 = (buf.last().map_or(0.0, |x| x.1) / 4.0).max(f64::MIN_POSITIVE);
+                let (mut c, mut n, mut wsum) = ([0.0; 3], [0.0; 3], 0.0);
+                for &(i, d2) in buf.iter() {
+                    let w = (-d2 / (2.0 * sigma2)).exp();
+                    c = add(c, scale(wide(points[i as usize]), w));
+                    n = add(n, scale(normals[i as usize], w));
+                    wsum += w;
+                }
+                let (c, len) = (scale(c, 1.0 / wsum), norm(n));
+                if len < 1e-9 * wsum {
+                    return None;
+                }
+                let n = scale(n, 1.0 / len);
+                p = sub(p, scale(n, dot(sub(p, c), n)));
+            }
+            let d = sub(p, start);
+            let limit = MAX_MOVE_CELLS * h;
+            let p = if norm2(d) > limit * limit { add(start, scale(d, limit / norm(d))) } else { p };
+            Some(p.map(|c| c as f32))
+        })
+        .collect();
+    let mut count = 0;
+    for (q, m) in mesh.positions.iter_mut().zip(moved) {
+        if let Some(m) = m {
+            *q = m;
+            count += 1;
+        }
+    }
+    count
+}
