@@ -7,11 +7,12 @@ use std::time::Instant;
 use super::gates::{Gate, GateOptions, Measured, Status, judge};
 use super::memory::StageMeter;
 use crate::error::{Error, ErrorCode, Result};
-use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh};
+use crate::geometry::io::{ReadOptions, ensure_not_input, read_geometry};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
 use crate::stages::quality::{CompareOptions, DistanceReport, compare, write_error_map};
+use crate::stages::reconstruct::{ReconstructOptions, ReconstructReport};
 use crate::stages::remesh::{RemeshOptions, RemeshReport, remesh};
 use crate::stages::repair::{RepairOptions, RepairReport, repair};
 use crate::stages::surface::{FitOptions, FitReport, MeshTarget, control_net, fit_control_points};
@@ -98,6 +99,8 @@ pub struct ConvertOptions {
     pub memory_budget: u64,
     /// The quality gates' bounds, and whether a solid that misses one is still published ([`super::gates`]).
     pub gates: GateOptions,
+    /// How a point-cloud input becomes a mesh first ([`crate::stages::reconstruct`]).
+    pub reconstruct: ReconstructOptions,
 }
 
 /// Handle loops shorter than this many quad spacings √(area / n) are topological noise to `convert`: the
@@ -131,6 +134,7 @@ impl Default for ConvertOptions {
             remove_small_handles: true,
             memory_budget: 8 << 30,
             gates: GateOptions::default(),
+            reconstruct: ReconstructOptions::default(),
         }
     }
 }
@@ -207,6 +211,10 @@ pub struct ConvertReport {
     pub attempts: Vec<Attempt>,
     /// For an open input (holes that repair filled): the distances the RMS gate judges it by.
     pub open_input: Option<OpenInputMeasure>,
+    /// For a point-cloud input: how it became a closed mesh, and that mesh's distance to the points
+    /// (`reference_to_test`: points to surface; `test_to_reference`: invented surface). Every later stage is
+    /// measured against the points.
+    pub reconstruct: Option<ReconstructStep>,
     /// `ok` when the solid meets every gate; `failed` when it misses one (see [`ConvertReport::verdict`]);
     /// `degraded` when it misses one and was published anyway ([`GateOptions::accept_degraded`]).
     pub status: Status,
@@ -484,12 +492,29 @@ pub fn convert_file(
     // 2. Read.
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.0, 0.02, "read");
-    let input_geom = Geometry::Mesh(read_input(input, read, opts)?);
-    let Geometry::Mesh(mesh) = &input_geom else { return Err(Error::internal("read_mesh returned a cloud")) };
-    let diag = mesh.bbox().diagonal();
-    let (input_vertices, input_faces) = (mesh.positions.len(), mesh.face_count());
-    let resolution = opts.resolution.resolved(diag);
+    let input_geom = read_input(input, read, opts)?;
     stages.push(clock.stop("read", None));
+    // 2b. A cloud is reconstructed into a closed mesh first; the points stay the reference.
+    let (reconstructed, reconstruct_step) = match &input_geom {
+        Geometry::Mesh(_) => (None, None),
+        Geometry::Cloud(cloud) => {
+            check_cancelled(progress)?;
+            let clock = Clock::start();
+            let span = ProgressSpan::new(progress, 0.02, 0.08, "reconstruct");
+            let ro = ReconstructOptions { memory_budget: opts.memory_budget, ..opts.reconstruct.clone() };
+            let (m, report, distance) =
+                super::reconstruct::reconstruct_measured(cloud, &ro, &cmp_opts, &span).map_err(|e| e.in_file(input))?;
+            stages.push(clock.stop("reconstruct", Some(distance.clone())));
+            (Some(PolyMesh::from(m)), Some(ReconstructStep { report, distance }))
+        }
+    };
+    let mesh = match (&reconstructed, &input_geom) {
+        (Some(m), _) | (None, Geometry::Mesh(m)) => m,
+        (None, Geometry::Cloud(_)) => return Err(Error::internal("a cloud was not reconstructed")),
+    };
+    let diag = input_geom.bbox().diagonal();
+    let (input_vertices, input_faces) = (input_geom.positions().len(), mesh.face_count());
+    let resolution = opts.resolution.resolved(diag);
 
     // 3. Repair (its distance to the input is the stage's).
     check_cancelled(progress)?;
@@ -540,9 +565,12 @@ pub fn convert_file(
     check_cancelled(progress)?;
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
-    let Geometry::Mesh(scan) = &chain.input_geom else { return Err(Error::internal("the input is not a mesh")) };
-    let open_input = (repair_report.holes.holes_filled > 0)
-        .then(|| OpenInputMeasure::measure(&solid_mesh, scan, kept_input_to_solid_rms, &repair_report, diag));
+    let open_input = match &chain.input_geom {
+        Geometry::Mesh(scan) if repair_report.holes.holes_filled > 0 => {
+            Some(OpenInputMeasure::measure(&solid_mesh, scan, kept_input_to_solid_rms, &repair_report, diag))
+        }
+        _ => None,
+    };
     let error_map_file = super::provenance::error_map_path(output);
     let error_map_scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh), &chain.input_geom)?;
     stages.push(clock.stop("quality", None));
@@ -584,18 +612,28 @@ pub fn convert_file(
         volume_error_pct,
         attempts,
         open_input,
+        reconstruct: reconstruct_step,
         status,
         gates,
         total_seconds: t_total.elapsed().as_secs_f64(),
     })
 }
 
-/// The input mesh, read within 1/[`CHAIN_MEMORY_FACTOR`] of the budget: the chain needs far more than the
-/// mesh itself (repair alone ~420 bytes per face against ~30 for the mesh), so a larger input is refused
-/// while reading, before it is allocated.
-fn read_input(input: &Path, read: &ReadOptions, opts: &ConvertOptions) -> Result<PolyMesh> {
+/// What reconstruction did for a point-cloud input.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ReconstructStep {
+    /// The stage's report.
+    pub report: ReconstructReport,
+    /// The reconstructed mesh (TEST) against the points (REFERENCE).
+    pub distance: DistanceReport,
+}
+
+/// The input mesh or cloud, read within 1/[`CHAIN_MEMORY_FACTOR`] of the budget: the chain needs far more
+/// than the mesh itself (repair alone ~420 bytes per face against ~30 for the mesh), so a larger input is
+/// refused while reading, before it is allocated.
+fn read_input(input: &Path, read: &ReadOptions, opts: &ConvertOptions) -> Result<Geometry> {
     let read = ReadOptions { memory_budget: read.memory_budget.min(opts.memory_budget / CHAIN_MEMORY_FACTOR), ..*read };
-    read_mesh(input, &read).map_err(|e| {
+    read_geometry(input, &read).map_err(|e| {
         if e.code == ErrorCode::ResourceMemoryBudget {
             e.with_hint(format!(
                 "the conversion needs about {CHAIN_MEMORY_FACTOR}x the input mesh's memory; raise the memory budget or decimate the scan"

@@ -9,9 +9,11 @@ pub mod fea;
 pub mod gates;
 pub mod memory;
 pub mod provenance;
+pub mod reconstruct;
 
 pub use convert::{ConvertOptions, ConvertReport, Resolution, convert_file, small_handle_loop};
 pub use gates::{Gate, GateOptions, Status};
+pub use reconstruct::{ReconstructFileReport, reconstruct_file};
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

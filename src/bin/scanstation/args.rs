@@ -103,6 +103,42 @@ pub struct RemeshArgs {
     pub coherent_pull: f64,
 }
 
+/// Arguments of `scanstation reconstruct`.
+#[derive(Args)]
+pub struct ReconstructArgs {
+    /// The point cloud (a mesh's vertices are used as points).
+    pub input: PathBuf,
+    /// Where to write the closed mesh (.ply binary, or .obj).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Grid nodes along the longest side (default: 0.6·√points, 32 to 256; range 8 to 1024).
+    #[arg(long, value_parser = ranges::grid_resolution)]
+    pub resolution: Option<usize>,
+    /// Screening weight: how strongly the surface is pulled through the points (0 = plain Poisson; 0 to 100).
+    #[arg(long, default_value_t = scanstation::stages::reconstruct::ReconstructOptions::default().screening, value_parser = ranges::weight)]
+    pub screening: f64,
+    /// Ignore the cloud's normals and estimate them (PCA, oriented along a spanning tree).
+    #[arg(long)]
+    pub estimate_normals: bool,
+    /// Keep the vertices where the grid put them (no projection onto the points' local planes).
+    #[arg(long)]
+    pub no_project: bool,
+}
+
+impl ReconstructArgs {
+    /// Reconstruction's settings.
+    pub fn options(&self, memory_budget: u64) -> scanstation::stages::reconstruct::ReconstructOptions {
+        scanstation::stages::reconstruct::ReconstructOptions {
+            resolution: self.resolution.unwrap_or(0),
+            screening: self.screening,
+            estimate_normals: self.estimate_normals,
+            project: !self.no_project,
+            memory_budget,
+            ..Default::default()
+        }
+    }
+}
+
 /// Arguments of `scanstation convert`.
 #[derive(Args)]
 pub struct ConvertArgs {

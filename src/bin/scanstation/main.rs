@@ -51,6 +51,9 @@ enum Command {
     /// Field-aligned pure-quad remeshing of a closed mesh (run `repair` first): orientation and position
     /// fields, extraction, clean-up to all quads at the requested vertex count, projection onto the input.
     Remesh(RemeshArgs),
+    /// A closed, outward 2-manifold mesh from a point cloud (PLY, XYZ/PTS; normals used when present, else
+    /// estimated and oriented): screened Poisson on a grid, marching tetrahedra, measured against the points.
+    Reconstruct(ReconstructArgs),
     /// The whole chain to a CAD solid: repair → quad remesh → fitted Catmull–Clark surface → B-spline B-rep
     /// → STEP (AP214), with a quality check, time and peak memory after every stage.
     Convert(ConvertArgs),
@@ -92,6 +95,10 @@ fn main() -> ExitCode {
         Command::Repair(a) => pipeline::repair_file(&a.input, &a.output, &read, &a.options(budget), &NoProgress)
             .map(|r| emit(json, &r, print::print_repair)),
         Command::Remesh(a) => a.run(&read, budget).map(|r| emit(json, &r, print::print_remesh)),
+        Command::Reconstruct(a) => {
+            pipeline::reconstruct_file(&a.input, &a.output, &read, &a.options(budget), &NoProgress)
+                .map(|r| emit(json, &r, print::print_reconstruct))
+        }
         Command::Convert(a) => match a.run(&read, budget) {
             Ok(r) => {
                 emit(json, &r, print::print_convert);

@@ -107,6 +107,51 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
     }
 }
 
+/// Human-readable `reconstruct` report.
+pub fn print_reconstruct(r: &pipeline::ReconstructFileReport) {
+    let m = &r.reconstruct;
+    println!("{} -> {}", r.input_file.display(), r.output_file.display());
+    println!(
+        "  {} points ({} normals), mean spacing {:.4}; grid {:?} nodes, cell {:.4}",
+        m.points,
+        if m.normals_given { "given" } else { "estimated" },
+        m.mean_spacing,
+        m.grid_nodes,
+        m.cell_size
+    );
+    if let Some(o) = &m.orientation {
+        println!(
+            "  orientation: {} normals turned along the tree, {} uncertain, {} parts{}",
+            o.flipped,
+            o.uncertain,
+            o.parts,
+            if o.turned_over { ", all turned outward by the flux check" } else { "" }
+        );
+    }
+    for l in &m.levels {
+        println!("  solve {:?}: {} iterations, residual {:.1e}", l.nodes, l.iterations, l.relative_residual);
+    }
+    println!(
+        "  result: {} vertices, {} triangles, {} components ({} bubbles, {} blobs removed); {:.2} % of the area far from the points",
+        m.vertices,
+        m.triangles,
+        m.components.kept,
+        m.components.bubbles_removed,
+        m.components.blobs_removed,
+        100.0 * m.far_area_share
+    );
+    let d = &r.distance;
+    println!(
+        "  points to surface RMS {:.5} % of the diagonal (max {:.4} %); surface to points RMS {:.5} % (max {:.4} %)",
+        d.reference_to_test.rms.pct_of_diagonal,
+        d.reference_to_test.max.pct_of_diagonal,
+        d.test_to_reference.rms.pct_of_diagonal,
+        d.test_to_reference.max.pct_of_diagonal
+    );
+    println!("  seconds: {:?}", m.seconds);
+}
+
+/// Human-readable `remesh` report.
 pub fn print_remesh(r: &pipeline::RemeshFileReport) {
     let m = &r.remesh;
     let o = &m.output;

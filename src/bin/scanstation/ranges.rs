@@ -46,6 +46,11 @@ pub fn vertices_u32(s: &str) -> Result<u32, String> {
     within(s, 16u32, 10_000_000)
 }
 
+/// Grid nodes along the longest side of `reconstruct`: 8 to 1024.
+pub fn grid_resolution(s: &str) -> Result<usize, String> {
+    within(s, 8usize, 1024)
+}
+
 /// A share or fraction: 0 to 1.
 pub fn share(s: &str) -> Result<f64, String> {
     within(s, 0.0, 1.0)
