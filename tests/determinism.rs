@@ -62,3 +62,20 @@ fn convert_writes_the_same_bytes_on_one_and_two_threads() {
         assert!(a == b, "{what}: {} bytes on 1 thread and {} on 2 differ", a.len(), b.len());
     }
 }
+
+/// Reconstruction from spot's vertices (estimated normals, so the orientation's tree too): the same mesh on
+/// one and two threads.
+#[test]
+fn reconstruct_gives_the_same_mesh_on_one_and_two_threads() {
+    use scanstation::stages::reconstruct::{ReconstructOptions, reconstruct};
+    let spot = read_mesh(Path::new(SPOT), &ReadOptions::default()).expect("examples/spot.ply");
+    let cloud = scanstation::PointCloud::new(spot.positions.clone(), None, None).unwrap();
+    let run = |threads: usize| {
+        pool(threads).install(|| reconstruct(&cloud, &ReconstructOptions::default(), &NoProgress)).expect("spot")
+    };
+    let ((one, r1), (two, r2)) = (run(1), run(2));
+    assert!(one.triangles.len() > 1000, "spot: {} triangles", one.triangles.len());
+    assert_eq!(one.positions, two.positions, "spot: positions differ between 1 and 2 threads");
+    assert_eq!(one.triangles, two.triangles, "spot: triangles differ between 1 and 2 threads");
+    assert_eq!(r1.iso_value.to_bits(), r2.iso_value.to_bits(), "spot: iso-value");
+}

@@ -105,21 +105,7 @@ fn rms_pct(shape: Shape, m: &TriMesh) -> f64 {
 }
 
 fn run(c: &PointCloud) -> Result<(TriMesh, scanstation::stages::reconstruct::ReconstructReport)> {
-    let mut o = ReconstructOptions::default();
-    if let Ok(v) = std::env::var("SS_SCREEN") {
-        o.screening = v.parse().unwrap();
-    }
-    if let Ok(v) = std::env::var("SS_RES") {
-        o.resolution = v.parse().unwrap();
-    }
-    if std::env::var("SS_NOPROJ").is_ok() {
-        o.project = false;
-    }
-    let r = reconstruct(c, &o, &NoProgress);
-    if let Ok((_, rep)) = &r {
-        eprintln!("levels {:?} secs {:?} iso {}", rep.levels, rep.seconds, rep.iso_value);
-    }
-    r
+    reconstruct(c, &ReconstructOptions::default(), &NoProgress)
 }
 
 /// Sphere and torus, 20k points: with exact normals, estimated normals, and 0.1 % noise. Closed, manifold,

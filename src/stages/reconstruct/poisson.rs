@@ -9,7 +9,7 @@
 //! the first term fitting the gradient, the second (the screening) pulling χ to 0 at the samples, so the
 //! surface passes through them instead of being smoothed away. Its normal equations `(L + S) χ = b` (L the
 //! 7-point graph Laplacian, S = Σᵢ cᵢ wᵢ wᵢᵀ with wᵢ the trilinear weights of sample i) are solved by
-//! conjugate gradients, coarse to fine (cascadic: each level starts from the coarser solution). Sums run in
+//! conjugate gradients preconditioned by a multigrid V-cycle (damped Jacobi, trilinear transfer). Sums run in
 //! fixed blocks, so the result does not depend on the number of threads.
 
 use rayon::prelude::*;
@@ -30,19 +30,38 @@ pub struct Grid {
 /// Relative margin around the points' box (each side), so the boundary lies outside the object.
 pub const MARGIN: f64 = 0.1;
 
+/// Coarsening steps of the multigrid hierarchy at most; the finest grid's cell counts are multiples of
+/// 2^steps, so every coarser grid's nodes are nodes of the finer one.
+pub const MAX_COARSENING: usize = 6;
+/// Nodes along the longest side of the coarsest grid (at least).
+const COARSEST_NODES: usize = 9;
+
 impl Grid {
-    /// A grid with `res` nodes along the longest side of `bbox` enlarged by [`MARGIN`] each side.
-    pub fn around(bbox: &Aabb, res: usize) -> Grid {
+    /// A grid with about `res` nodes along the longest side of `bbox` enlarged by [`MARGIN`] each side,
+    /// its cell counts multiples of 2^`steps`.
+    pub fn around(bbox: &Aabb, res: usize, steps: usize) -> Grid {
         let ext = bbox.extent();
         let longest = ext[0].max(ext[1]).max(ext[2]).max(f64::MIN_POSITIVE);
         let margin = MARGIN * longest;
-        let h = (longest + 2.0 * margin) / (res - 1) as f64;
-        let n = [0, 1, 2].map(|k| (((ext[k] + 2.0 * margin) / h).ceil() as usize + 1).max(4));
-        let origin = [0, 1, 2].map(|k| {
-            let span = (n[k] - 1) as f64 * h;
-            bbox.min[k] - (span - ext[k]) / 2.0
-        });
+        let h = (longest + 2.0 * margin) / (res.max(4) - 1) as f64;
+        let m = 1usize << steps;
+        let n = [0, 1, 2].map(|k| (((ext[k] + 2.0 * margin) / h / m as f64).ceil() as usize).max(2) * m + 1);
+        let origin = [0, 1, 2].map(|k| bbox.min[k] - ((n[k] - 1) as f64 * h - ext[k]) / 2.0);
         Grid { n, origin, h }
+    }
+
+    /// Coarsening steps for `res` nodes along the longest side: down to about [`COARSEST_NODES`].
+    pub fn steps_for(res: usize) -> usize {
+        let mut steps = 0;
+        while steps < MAX_COARSENING && (res >> (steps + 1)) >= COARSEST_NODES {
+            steps += 1;
+        }
+        steps
+    }
+
+    /// The grid with every other node (exactly nested: node I is node 2I here).
+    fn coarser(&self) -> Grid {
+        Grid { n: self.n.map(|n| (n - 1) / 2 + 1), origin: self.origin, h: 2.0 * self.h }
     }
 
     /// Number of nodes.
@@ -84,10 +103,9 @@ impl Grid {
         [0, 1, 2].map(|a| self.origin[a] + c[a] as f64 * self.h)
     }
 
-    /// The 8 nodes around `p` (shifted by `shift`, in cells, per axis) and their trilinear weights; nodes
-    /// clamped into the grid.
+    /// The cell holding `p` (shifted by `shift` cells per axis, clamped into the grid) and the fractions.
     #[inline]
-    fn stencil(&self, p: V3, shift: [f64; 3]) -> [(usize, f64); 8] {
+    fn locate(&self, p: V3, shift: [f64; 3]) -> (usize, [f64; 3]) {
         let mut base = [0usize; 3];
         let mut f = [0.0; 3];
         for a in 0..3 {
@@ -96,18 +114,52 @@ impl Grid {
             base[a] = b;
             f[a] = x - b as f64;
         }
-        let mut out = [(0usize, 0.0); 8];
-        for (c, o) in out.iter_mut().enumerate() {
+        (self.idx(base[0], base[1], base[2]), f)
+    }
+
+    /// The 8 nodes of the cell at `base` with fractions `f`, and their trilinear weights.
+    #[inline]
+    fn corners(&self, base: usize, f: [f64; 3]) -> [(usize, f64); 8] {
+        let st = [self.stride(0), self.stride(1), self.stride(2)];
+        std::array::from_fn(|c| {
             let d = [c & 1, (c >> 1) & 1, (c >> 2) & 1];
             let w = (0..3).map(|a| if d[a] == 1 { f[a] } else { 1.0 - f[a] }).product::<f64>();
-            *o = (self.idx(base[0] + d[0], base[1] + d[1], base[2] + d[2]), w);
-        }
-        out
+            (base + d[0] * st[0] + d[1] * st[1] + d[2] * st[2], w)
+        })
+    }
+
+    /// The 8 nodes around `p` (shifted by `shift` cells per axis) and their trilinear weights.
+    #[inline]
+    fn stencil(&self, p: V3, shift: [f64; 3]) -> [(usize, f64); 8] {
+        let (base, f) = self.locate(p, shift);
+        self.corners(base, f)
     }
 
     /// Trilinear interpolation of node values `x` at `p`.
     pub fn sample(&self, x: &[f64], p: V3) -> f64 {
         self.stencil(p, [0.0; 3]).iter().map(|&(v, w)| w * x[v]).sum()
+    }
+
+    /// Run `f(j, k, row)` for every interior row (j, k) of `out` (a node array), in parallel over z-slices;
+    /// boundary nodes are set to 0.
+    fn for_interior_rows(&self, out: &mut [f64], f: impl Fn(usize, usize, &mut [f64]) + Sync) {
+        let [n0, n1, n2] = self.n;
+        out.par_chunks_mut(n0 * n1).enumerate().for_each(|(k, slice)| {
+            if k == 0 || k + 1 == n2 {
+                slice.fill(0.0);
+                return;
+            }
+            for j in 0..n1 {
+                let row = &mut slice[j * n0..(j + 1) * n0];
+                if j == 0 || j + 1 == n1 {
+                    row.fill(0.0);
+                    continue;
+                }
+                f(j, k, row);
+                row[0] = 0.0;
+                row[n0 - 1] = 0.0;
+            }
+        });
     }
 }
 
@@ -121,11 +173,13 @@ pub struct Samples<'a> {
     pub areas: &'a [f64],
 }
 
-/// How one level's solve went.
+/// How the solve went.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct LevelReport {
     /// Nodes per axis.
     pub nodes: [usize; 3],
+    /// Grids of the multigrid hierarchy (the finest included).
+    pub multigrid_levels: usize,
     /// Conjugate-gradient iterations.
     pub iterations: usize,
     /// Final residual relative to the right-hand side.
@@ -148,40 +202,238 @@ fn rhs(grid: &Grid, s: &Samples) -> Vec<f64> {
             }
         }
         let st = grid.stride(a);
-        b.par_iter_mut().enumerate().for_each(|(j, bj)| {
-            let c = grid.coords(j);
-            if grid.on_boundary(c) {
-                return;
+        let mut part = vec![0.0; grid.len()];
+        grid.for_interior_rows(&mut part, |j, k, row| {
+            let base = grid.idx(0, j, k);
+            for (i, r) in row.iter_mut().enumerate().skip(1) {
+                let v = base + i;
+                if v >= st {
+                    *r = grid.h * (g[v - st] - g[v]);
+                }
             }
-            *bj += grid.h * (g[j - st] - g[j]);
         });
+        b.par_iter_mut().zip(&part).for_each(|(x, y)| *x += y);
     }
     b
 }
 
-/// y = (L + S) x on the interior nodes (y = 0 on the boundary); x is read everywhere.
-fn apply(grid: &Grid, s: &Samples, c: &[f64], x: &[f64], y: &mut [f64]) {
-    let st = [grid.stride(0), grid.stride(1), grid.stride(2)];
-    y.par_iter_mut().enumerate().for_each(|(j, yj)| {
-        let co = grid.coords(j);
-        *yj = if grid.on_boundary(co) {
-            0.0
-        } else {
-            6.0 * x[j] - x[j - st[0]] - x[j + st[0]] - x[j - st[1]] - x[j + st[1]] - x[j - st[2]] - x[j + st[2]]
-        };
-    });
-    // Screening: each sample's value, then scattered back (in sample order: deterministic).
-    let vals: Vec<f64> = (0..s.points.len())
-        .into_par_iter()
-        .map(|i| c[i] * grid.stencil(wide(s.points[i]), [0.0; 3]).iter().map(|&(v, w)| w * x[v]).sum::<f64>())
-        .collect();
-    for (i, &t) in vals.iter().enumerate() {
-        for (v, w) in grid.stencil(wide(s.points[i]), [0.0; 3]) {
-            if !grid.on_boundary(grid.coords(v)) {
-                y[v] += w * t;
+/// The screening operator S = Σᵢ cᵢ wᵢ wᵢᵀ on one grid.
+enum Screen {
+    /// Per sample: its cell (base node and fractions); applied by gathering and scattering through the
+    /// samples (the finest grid, where nodes far outnumber the samples' cells).
+    Samples(Vec<(usize, [f64; 3])>),
+    /// Assembled: per touched node its 27 couplings (offsets −1, 0, +1 per axis); applied node by node
+    /// (coarse grids, where many samples share a cell and the per-sample form would dominate the V-cycle).
+    Assembled { nodes: Vec<usize>, coef: Vec<[f64; 27]> },
+}
+
+/// Index of the offset (dx, dy, dz) ∈ {−1, 0, 1}³ among the 27.
+#[inline]
+fn offset_slot(d: [isize; 3]) -> usize {
+    ((d[0] + 1) + 3 * (d[1] + 1) + 9 * (d[2] + 1)) as usize
+}
+
+/// One grid of the multigrid hierarchy: the operator α·L + S on it and its diagonal.
+struct Level {
+    grid: Grid,
+    /// The Galerkin scale of the Laplacian on this level (1 on the finest, ×2 per coarsening: PᵀLP = 2L for
+    /// the trilinear P between nested grids, away from the boundary).
+    alpha: f64,
+    screen: Screen,
+    diag: Vec<f64>,
+}
+
+impl Level {
+    fn new(grid: Grid, alpha: f64, s: &Samples, c: &[f64], assembled: bool) -> Level {
+        let cells: Vec<(usize, [f64; 3])> = s.points.par_iter().map(|&p| grid.locate(wide(p), [0.0; 3])).collect();
+        let mut diag = vec![6.0 * alpha; grid.len()];
+        for (i, &(base, f)) in cells.iter().enumerate() {
+            for (v, w) in grid.corners(base, f) {
+                diag[v] += c[i] * w * w;
+            }
+        }
+        let screen = if assembled { Self::assemble(&grid, &cells, c) } else { Screen::Samples(cells) };
+        Level { grid, alpha, screen, diag }
+    }
+
+    /// S as 27 couplings per touched interior node, nodes in order of first touch (deterministic).
+    fn assemble(grid: &Grid, cells: &[(usize, [f64; 3])], c: &[f64]) -> Screen {
+        let mut slot: std::collections::HashMap<usize, usize> = std::collections::HashMap::new();
+        let (mut nodes, mut coef) = (Vec::new(), Vec::new());
+        for (i, &(base, f)) in cells.iter().enumerate() {
+            let corners = grid.corners(base, f);
+            for &(a, wa) in &corners {
+                if grid.on_boundary(grid.coords(a)) {
+                    continue;
+                }
+                let k = *slot.entry(a).or_insert_with(|| {
+                    nodes.push(a);
+                    coef.push([0.0; 27]);
+                    nodes.len() - 1
+                });
+                let ca = grid.coords(a);
+                for &(b, wb) in &corners {
+                    let cb = grid.coords(b);
+                    let d = [0, 1, 2].map(|t| cb[t] as isize - ca[t] as isize);
+                    coef[k][offset_slot(d)] += c[i] * wa * wb;
+                }
+            }
+        }
+        Screen::Assembled { nodes, coef }
+    }
+
+    /// y = (α·L + S) x on the interior nodes (y = 0 on the boundary); x is read everywhere.
+    fn apply(&self, c: &[f64], x: &[f64], y: &mut [f64]) {
+        let g = &self.grid;
+        let (sy, sz) = (g.stride(1), g.stride(2));
+        let alpha = self.alpha;
+        g.for_interior_rows(y, |j, k, row| {
+            let base = g.idx(0, j, k);
+            for i in 1..g.n[0] - 1 {
+                let v = base + i;
+                row[i] = alpha * (6.0 * x[v] - x[v - 1] - x[v + 1] - x[v - sy] - x[v + sy] - x[v - sz] - x[v + sz]);
+            }
+        });
+        match &self.screen {
+            Screen::Samples(cells) => {
+                // Each sample's value, then scattered back in sample order (deterministic).
+                let vals: Vec<f64> = cells
+                    .par_iter()
+                    .enumerate()
+                    .map(|(i, &(b, f))| c[i] * g.corners(b, f).iter().map(|&(v, w)| w * x[v]).sum::<f64>())
+                    .collect();
+                for (&(b, f), &t) in cells.iter().zip(&vals) {
+                    for (v, w) in g.corners(b, f) {
+                        // A sample's cell may touch the boundary on a small grid; it stays exactly 0.
+                        if !g.on_boundary(g.coords(v)) {
+                            y[v] += w * t;
+                        }
+                    }
+                }
+            }
+            Screen::Assembled { nodes, coef } => {
+                let st = [1isize, sy as isize, sz as isize];
+                for (&v, cf) in nodes.iter().zip(coef) {
+                    let mut acc = 0.0;
+                    for (t, &w) in cf.iter().enumerate() {
+                        if w != 0.0 {
+                            let d = [(t % 3) as isize - 1, ((t / 3) % 3) as isize - 1, (t / 9) as isize - 1];
+                            acc += w * x[(v as isize + d[0] * st[0] + d[1] * st[1] + d[2] * st[2]) as usize];
+                        }
+                    }
+                    y[v] += acc;
+                }
             }
         }
     }
+
+    /// `rounds` of damped Jacobi on (α·L + S) x = r from `x`; `ax` is scratch. The boundary of `x` stays.
+    fn smooth(&self, c: &[f64], r: &[f64], x: &mut [f64], ax: &mut [f64], rounds: usize) {
+        for _ in 0..rounds {
+            self.apply(c, x, ax);
+            // ax is 0 on the boundary, and so is r: there the update is r − ax = 0.
+            x.par_iter_mut()
+                .zip(ax.par_iter())
+                .zip(r.par_iter().zip(self.diag.par_iter()))
+                .for_each(|((xv, a), (rv, d))| *xv += JACOBI_DAMPING * (rv - a) / d);
+        }
+    }
+}
+
+/// Damping of the Jacobi smoother (2/3 damps the 7-point Laplacian's high frequencies best).
+const JACOBI_DAMPING: f64 = 2.0 / 3.0;
+/// Jacobi rounds before and after each coarse-grid correction.
+const SMOOTHING_ROUNDS: usize = 2;
+/// Jacobi rounds on the coarsest grid.
+const COARSEST_ROUNDS: usize = 60;
+
+/// 1-D weights of the trilinear prolongation between nested grids: fine offset −1, 0, +1 from 2I.
+const HAT: [f64; 3] = [0.5, 1.0, 0.5];
+
+/// The transpose of [`prolong`]: each interior coarse node gathers the fine values around its twin with the
+/// hat weights (parallel over coarse nodes: deterministic).
+fn restrict(fine: &Grid, coarse: &Grid, x: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0; coarse.len()];
+    coarse.for_interior_rows(&mut out, |j, k, row| {
+        for (i, r) in row.iter_mut().enumerate().take(coarse.n[0] - 1).skip(1) {
+            let mut acc = 0.0;
+            for (dk, wk) in HAT.iter().enumerate() {
+                for (dj, wj) in HAT.iter().enumerate() {
+                    let base = fine.idx(2 * i - 1, 2 * j + dj - 1, 2 * k + dk - 1);
+                    acc += wk * wj * (0.5 * x[base] + x[base + 1] + 0.5 * x[base + 2]);
+                }
+            }
+            *r = acc;
+        }
+    });
+    out
+}
+
+/// Add the coarse values interpolated at the fine nodes (trilinear between nested grids) to `out`, except
+/// on the fine boundary. Row by row: the (at most four) coarse rows a fine row lies between are blended
+/// first, then interpolated along x.
+fn prolong_add(coarse: &Grid, fine: &Grid, x: &[f64], out: &mut [f64]) {
+    let pair = |f: usize| -> ([usize; 2], [f64; 2]) {
+        if f % 2 == 0 { ([f / 2, f / 2], [1.0, 0.0]) } else { ([f / 2, f / 2 + 1], [0.5, 0.5]) }
+    };
+    let [n0, n1, n2] = fine.n;
+    let c0 = coarse.n[0];
+    out.par_chunks_mut(n0 * n1).enumerate().for_each_init(
+        || vec![0.0; c0],
+        |t, (k, slice)| {
+            if k == 0 || k + 1 == n2 {
+                return;
+            }
+            let (ck, wk) = pair(k);
+            for j in 1..n1 - 1 {
+                let (cj, wj) = pair(j);
+                t.iter_mut().for_each(|v| *v = 0.0);
+                for a in 0..2 {
+                    for b in 0..2 {
+                        let w = wk[a] * wj[b];
+                        if w != 0.0 {
+                            let row = coarse.idx(0, cj[b], ck[a]);
+                            for (tv, xv) in t.iter_mut().zip(&x[row..row + c0]) {
+                                *tv += w * xv;
+                            }
+                        }
+                    }
+                }
+                let dst = &mut slice[j * n0..(j + 1) * n0];
+                for (i, d) in dst.iter_mut().enumerate().take(n0 - 1).skip(1) {
+                    *d += if i % 2 == 0 { t[i / 2] } else { 0.5 * (t[i / 2] + t[i / 2 + 1]) };
+                }
+            }
+        },
+    );
+}
+
+/// Scratch of one level for the V-cycle: its correction, the operator applied to it, its right-hand side.
+struct Work {
+    x: Vec<f64>,
+    ax: Vec<f64>,
+    r: Vec<f64>,
+}
+
+/// One V-cycle on `levels[0]` (coarser ones after it) for the residual `r` (or `work[0].r`): leaves an
+/// approximation of (α·L + S)⁻¹ r in `work[0].x`; symmetric in r. `work[i]` is the scratch of `levels[i]`.
+fn vcycle(levels: &[Level], c: &[f64], r: Option<&[f64]>, work: &mut [Work]) {
+    let lev = &levels[0];
+    let (here, below) = work.split_at_mut(1);
+    let w = &mut here[0];
+    let r: &[f64] = r.unwrap_or(&w.r);
+    w.x.iter_mut().for_each(|v| *v = 0.0);
+    if levels.len() == 1 {
+        lev.smooth(c, r, &mut w.x, &mut w.ax, COARSEST_ROUNDS);
+        return;
+    }
+    lev.smooth(c, r, &mut w.x, &mut w.ax, SMOOTHING_ROUNDS);
+    lev.apply(c, &w.x, &mut w.ax);
+    w.ax.par_iter_mut().zip(r.par_iter()).for_each(|(a, rv)| *a = rv - *a);
+    below[0].r = restrict(&lev.grid, &levels[1].grid, &w.ax);
+    vcycle(&levels[1..], c, None, below);
+    prolong_add(&levels[1].grid, &lev.grid, &below[0].x, &mut w.x);
+    lev.smooth(c, r, &mut w.x, &mut w.ax, SMOOTHING_ROUNDS);
 }
 
 /// Σ a·b in fixed blocks of 4096, summed in order: the same bits for any number of threads.
@@ -191,31 +443,42 @@ fn dot_blocks(a: &[f64], b: &[f64]) -> f64 {
     parts.iter().sum()
 }
 
-/// Solve one level by conjugate gradients from `chi` (boundary already +½). Stops at `tol` relative
-/// residual or `max_iter`.
-fn solve_level(grid: &Grid, s: &Samples, c: &[f64], chi: &mut [f64], tol: f64, max_iter: usize) -> LevelReport {
-    let b = rhs(grid, s);
-    let n = grid.len();
+/// Solve (L + S) χ = b on the finest grid by conjugate gradients preconditioned with one multigrid V-cycle;
+/// `chi` holds the start (boundary +½).
+fn solve_mgpcg(levels: &[Level], s: &Samples, c: &[f64], chi: &mut [f64], tol: f64, max_iter: usize) -> LevelReport {
+    let fine = &levels[0];
+    let b = rhs(&fine.grid, s);
+    let n = fine.grid.len();
     let mut r = vec![0.0; n];
-    apply(grid, s, c, chi, &mut r);
+    fine.apply(c, chi, &mut r);
     r.par_iter_mut().zip(&b).for_each(|(ri, bi)| *ri = bi - *ri);
     let bnorm = dot_blocks(&b, &b).sqrt().max(f64::MIN_POSITIVE);
-    let mut p = r.clone();
+    let mut work: Vec<Work> = levels
+        .iter()
+        .map(|l| Work { x: vec![0.0; l.grid.len()], ax: vec![0.0; l.grid.len()], r: Vec::new() })
+        .collect();
+    drop(b);
+    vcycle(levels, c, Some(&r), &mut work);
+    let mut p = work[0].x.clone();
     let mut ap = vec![0.0; n];
-    let mut rr = dot_blocks(&r, &r);
+    let mut rz = dot_blocks(&r, &work[0].x);
+    let mut rnorm = dot_blocks(&r, &r).sqrt();
     let mut it = 0;
-    while it < max_iter && rr.sqrt() > tol * bnorm {
-        apply(grid, s, c, &p, &mut ap);
-        let alpha = rr / dot_blocks(&p, &ap).max(f64::MIN_POSITIVE);
+    while it < max_iter && rnorm > tol * bnorm {
+        fine.apply(c, &p, &mut ap);
+        let alpha = rz / dot_blocks(&p, &ap).max(f64::MIN_POSITIVE);
         chi.par_iter_mut().zip(&p).for_each(|(x, pi)| *x += alpha * pi);
         r.par_iter_mut().zip(&ap).for_each(|(ri, api)| *ri -= alpha * api);
-        let rr_new = dot_blocks(&r, &r);
-        let beta = rr_new / rr;
-        rr = rr_new;
-        p.par_iter_mut().zip(&r).for_each(|(pi, ri)| *pi = ri + beta * *pi);
+        rnorm = dot_blocks(&r, &r).sqrt();
+        vcycle(levels, c, Some(&r), &mut work);
+        let z = &work[0].x;
+        let rz_new = dot_blocks(&r, z);
+        let beta = rz_new / rz;
+        rz = rz_new;
+        p.par_iter_mut().zip(z).for_each(|(pi, zi)| *pi = zi + beta * *pi);
         it += 1;
     }
-    LevelReport { nodes: grid.n, iterations: it, relative_residual: rr.sqrt() / bnorm }
+    LevelReport { nodes: fine.grid.n, multigrid_levels: levels.len(), iterations: it, relative_residual: rnorm / bnorm }
 }
 
 /// Settings of the solve.
@@ -225,38 +488,33 @@ pub struct SolveSettings {
     pub resolution: usize,
     /// Screening weight (0: plain Poisson).
     pub screening: f64,
-    /// Coarser levels solved first (each half the resolution of the next).
-    pub coarse_levels: usize,
-    /// Relative residual at which a level stops.
+    /// Relative residual at which the solve stops.
     pub tolerance: f64,
-    /// Most iterations per level.
+    /// Most iterations.
     pub max_iterations: usize,
 }
 
-/// Solve coarse to fine; the finest grid, χ on it, and one report per level.
+/// The finest grid the solve uses for `res` nodes along the longest side of `bbox`.
+pub fn finest_grid(bbox: &Aabb, res: usize) -> Grid {
+    Grid::around(bbox, res, Grid::steps_for(res))
+}
+
+/// Solve on the finest grid (multigrid-preconditioned CG); the grid, χ on it, and the solve's report.
 pub fn solve(bbox: &Aabb, s: &Samples, set: &SolveSettings) -> (Grid, Vec<f64>, Vec<LevelReport>) {
-    let mut levels = Vec::new();
-    let mut prev: Option<(Grid, Vec<f64>)> = None;
-    for l in (0..=set.coarse_levels).rev() {
-        let res = (set.resolution >> l).max(8);
-        let grid = Grid::around(bbox, res);
-        let c: Vec<f64> = s.areas.iter().map(|a| set.screening * a / (grid.h * grid.h)).collect();
-        let mut chi: Vec<f64> = (0..grid.len())
-            .into_par_iter()
-            .map(|v| {
-                let co = grid.coords(v);
-                match &prev {
-                    _ if grid.on_boundary(co) => 0.5,
-                    Some((g, x)) => g.sample(x, grid.position(co)),
-                    None => 0.0,
-                }
-            })
-            .collect();
-        levels.push(solve_level(&grid, s, &c, &mut chi, set.tolerance, set.max_iterations));
-        prev = Some((grid, chi));
+    let steps = Grid::steps_for(set.resolution);
+    let grid = Grid::around(bbox, set.resolution, steps);
+    let c: Vec<f64> = s.areas.iter().map(|a| set.screening * a / (grid.h * grid.h)).collect();
+    let mut levels = vec![Level::new(grid.clone(), 1.0, s, &c, false)];
+    for _ in 0..steps {
+        let last = levels.last().expect("one level");
+        let coarse = last.grid.coarser();
+        let alpha = 2.0 * last.alpha;
+        levels.push(Level::new(coarse, alpha, s, &c, true));
     }
-    let (grid, chi) = prev.expect("at least one level");
-    (grid, chi, levels)
+    let mut chi: Vec<f64> =
+        (0..grid.len()).into_par_iter().map(|v| if grid.on_boundary(grid.coords(v)) { 0.5 } else { 0.0 }).collect();
+    let report = solve_mgpcg(&levels, s, &c, &mut chi, set.tolerance, set.max_iterations);
+    (grid, chi, vec![report])
 }
 
 /// The iso-value: χ at the samples, area-weighted mean.
