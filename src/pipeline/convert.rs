@@ -565,6 +565,7 @@ pub fn convert_file(
     check_cancelled(progress)?;
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
+    let cloud_input = matches!(chain.input_geom, Geometry::Cloud(_));
     let open_input = match &chain.input_geom {
         Geometry::Mesh(scan) if repair_report.holes.holes_filled > 0 => {
             Some(OpenInputMeasure::measure(&solid_mesh, scan, kept_input_to_solid_rms, &repair_report, diag))
@@ -582,8 +583,13 @@ pub fn convert_file(
         crossings: kept_crossings,
         folded_faces: kept_folds,
         volume_error_pct,
-        rms_pct: open_input.as_ref().map_or(100.0 * kept_rms / diag, |o| o.rms_pct),
+        rms_pct: match (&open_input, cloud_input) {
+            (_, true) => 100.0 * kept_input_to_solid_rms / diag,
+            (Some(o), false) => o.rms_pct,
+            (None, false) => 100.0 * kept_rms / diag,
+        },
         open_input: open_input.is_some(),
+        cloud_input,
         tolerance_pct: match resolution {
             Resolution::Tolerance(t) => Some(100.0 * t / diag),
             _ => None,

@@ -138,13 +138,18 @@ pub struct Measured {
     pub rms_pct: f64,
     /// Whether that RMS is an open input's (the caps left out of the solid → scan side).
     pub open_input: bool,
+    /// Whether the input is a point cloud: the RMS is then points → solid only (the other direction measures
+    /// the cloud's sampling, not the solid; it is reported with the reconstruction).
+    pub cloud_input: bool,
     /// The RMS bound from a tolerance, % of the diagonal; `None` for the default goal.
     pub tolerance_pct: Option<f64>,
 }
 
 /// The gates on `m`, in the order of the table above, and the status they give.
 pub fn judge(m: &Measured, opts: &GateOptions) -> (Status, Vec<Gate>) {
-    let rms_what = if m.open_input {
+    let rms_what = if m.cloud_input {
+        "RMS distance scan points → solid, % of the diagonal"
+    } else if m.open_input {
         "RMS distance solid ↔ scan away from the caps (open input), % of the diagonal"
     } else {
         "RMS distance solid ↔ scan, % of the diagonal"
@@ -207,6 +212,7 @@ mod tests {
             volume_error_pct: -0.011,
             rms_pct: 0.0285,
             open_input: false,
+            cloud_input: false,
             tolerance_pct: None,
         }
     }

@@ -11,7 +11,11 @@ use crate::geometry::mesh::TriMesh;
 use crate::geometry::points::PointIndex;
 use crate::geometry::vec3::{V3, add, dot, norm, norm2, scale, sub, wide};
 
-/// Projection rounds.
+/// Projection rounds. The weights' width was measured (2026-12-05): σ² = d₃²/2 (d₃ the third-nearest
+/// sample) against σ² = d₁₂²/4, on the armadillo's 50k vertices as a cloud: solid-to-mesh RMS 0.0285 % of the
+/// diagonal against 0.0371 %; on the 20k-point sphere and torus without noise 0.009/0.014 % against
+/// 0.012/0.018 %; with 0.1 % noise 0.044/0.046 % against 0.036/0.038 % (a wider plane averages noise
+/// better; scans from the station are closer to the first two).
 pub const ROUNDS: usize = 2;
 /// Samples per projection.
 pub const SAMPLES: usize = 12;
@@ -32,8 +36,9 @@ pub fn onto_samples(mesh: &mut TriMesh, points: &[[f32; 3]], normals: &[V3], h: 
                 if buf.first().is_none_or(|&(_, d)| d > reach * reach) {
                     return None;
                 }
-                // Gaussian weights on the distance, σ = the farthest neighbour's distance / 2.
-                let sigma2 = (buf.last().map_or(0.0, |x| x.1) / 4.0).max(f64::MIN_POSITIVE);
+                // Gaussian weights, σ² = half the squared distance to the third-nearest sample: a tight
+                // plane, so curved surfaces sampled sparsely keep their shape (see [`ROUNDS`]).
+                let sigma2 = (buf[2.min(buf.len() - 1)].1 / 2.0).max(f64::MIN_POSITIVE);
                 let (mut c, mut n, mut wsum) = ([0.0; 3], [0.0; 3], 0.0);
                 for &(i, d2) in buf.iter() {
                     let w = (-d2 / (2.0 * sigma2)).exp();
