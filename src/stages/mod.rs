@@ -1,9 +1,10 @@
 //! **Stages** — the steps of the scan-to-solid chain, each a plain, deterministic function over geometry
 //! with a progress callback and a memory budget. Stages use the geometry core and nothing above it.
 //!
-//! Present so far: [`quality`] (the two-sided surface distance every other stage reports with),
-//! [`repair`] (closed 2-manifold without self-intersections) and [`remesh`] (field-aligned pure quads).
-//! Surface, brep/step, fea and reconstruction arrive with their issues.
+//! In chain order: [`reconstruct`] (a closed mesh from a point cloud), [`repair`] (closed 2-manifold without
+//! self-intersections), [`remesh`] (field-aligned pure quads), [`surface`] (fitted Catmull–Clark limit
+//! surface), [`brep`] (B-spline B-rep and STEP), [`quality`] (the two-sided surface distance every stage
+//! reports with) and [`fea`] (immersed linear statics).
 
 pub mod brep;
 pub mod fea;
