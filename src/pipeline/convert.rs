@@ -7,7 +7,7 @@ use std::time::Instant;
 use super::gates::{Gate, GateOptions, Measured, Status, judge};
 use super::memory::StageMeter;
 use crate::error::{Error, ErrorCode, Result};
-use crate::geometry::io::{ReadOptions, ensure_not_input, read_geometry};
+use crate::geometry::io::{ReadOptions, ensure_not_input};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
@@ -492,7 +492,7 @@ pub fn convert_file(
     // 2. Read.
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.0, 0.02, "read");
-    let input_geom = read_input(input, read, opts)?;
+    let (input_geom, fusion) = read_input(input, read, opts)?;
     stages.push(clock.stop("read", None));
     // 2b. A cloud is reconstructed into a closed mesh first; the points stay the reference.
     let (reconstructed, reconstruct_step) = match &input_geom {
@@ -505,7 +505,7 @@ pub fn convert_file(
             let (m, report, distance) =
                 super::reconstruct::reconstruct_measured(cloud, &ro, &cmp_opts, &span).map_err(|e| e.in_file(input))?;
             stages.push(clock.stop("reconstruct", Some(distance.clone())));
-            (Some(PolyMesh::from(m)), Some(ReconstructStep { report, distance }))
+            (Some(PolyMesh::from(m)), Some(ReconstructStep { fusion: fusion.clone(), report, distance }))
         }
     };
     let mesh = match (&reconstructed, &input_geom) {
@@ -628,6 +628,8 @@ pub fn convert_file(
 /// What reconstruction did for a point-cloud input.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct ReconstructStep {
+    /// For a scan set: how its views were fused.
+    pub fusion: Option<crate::stages::reconstruct::fusion::FusionReport>,
     /// The stage's report.
     pub report: ReconstructReport,
     /// The reconstructed mesh (TEST) against the points (REFERENCE).
@@ -637,9 +639,13 @@ pub struct ReconstructStep {
 /// The input mesh or cloud, read within 1/[`CHAIN_MEMORY_FACTOR`] of the budget: the chain needs far more
 /// than the mesh itself (repair alone ~420 bytes per face against ~30 for the mesh), so a larger input is
 /// refused while reading, before it is allocated.
-fn read_input(input: &Path, read: &ReadOptions, opts: &ConvertOptions) -> Result<Geometry> {
+fn read_input(
+    input: &Path,
+    read: &ReadOptions,
+    opts: &ConvertOptions,
+) -> Result<(Geometry, Option<crate::stages::reconstruct::fusion::FusionReport>)> {
     let read = ReadOptions { memory_budget: read.memory_budget.min(opts.memory_budget / CHAIN_MEMORY_FACTOR), ..*read };
-    read_geometry(input, &read).map_err(|e| {
+    super::reconstruct::read_input(input, &read).map_err(|e| {
         if e.code == ErrorCode::ResourceMemoryBudget {
             e.with_hint(format!(
                 "the conversion needs about {CHAIN_MEMORY_FACTOR}x the input mesh's memory; raise the memory budget or decimate the scan"

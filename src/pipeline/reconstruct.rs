@@ -8,6 +8,7 @@ use crate::geometry::io::{ReadOptions, ensure_not_input, ensure_replaceable, rea
 use crate::geometry::mesh::{Geometry, PointCloud, PolyMesh, TriMesh};
 use crate::stages::Progress;
 use crate::stages::quality::{CompareOptions, DistanceReport, compare};
+use crate::stages::reconstruct::fusion::FusionReport;
 use crate::stages::reconstruct::{ReconstructOptions, ReconstructReport, reconstruct};
 
 /// What `scanstation reconstruct` reports.
@@ -17,11 +18,28 @@ pub struct ReconstructFileReport {
     pub input_file: PathBuf,
     /// Output path.
     pub output_file: PathBuf,
+    /// For a scan set: how its views were fused.
+    pub fusion: Option<FusionReport>,
     /// The stage's report.
     pub reconstruct: ReconstructReport,
     /// Distance of the result (TEST) to the input points (REFERENCE): `reference_to_test` is the accuracy
     /// (points to surface), `test_to_reference` the invented surface (surface to points).
     pub distance: DistanceReport,
+}
+
+/// Read a mesh, a cloud, or a scan set (`.conf`: its views fused by their poses, normals toward each
+/// scanner; [`crate::stages::reconstruct::fusion`]).
+///
+/// # Errors
+/// The readers' errors; those of [`read_conf`](crate::geometry::io::scanset::read_conf) and
+/// [`fuse`](crate::stages::reconstruct::fusion::fuse).
+pub fn read_input(path: &Path, read: &ReadOptions) -> Result<(Geometry, Option<FusionReport>)> {
+    if crate::geometry::io::scanset::is_scan_set(path) {
+        let views = crate::geometry::io::scanset::read_conf(path, read)?;
+        let (cloud, report) = crate::stages::reconstruct::fusion::fuse(&views).map_err(|e| e.in_file(path))?;
+        return Ok((Geometry::Cloud(cloud), Some(report)));
+    }
+    Ok((read_geometry(path, read)?, None))
 }
 
 /// The points of `g`: a cloud as it is, a mesh's vertices without normals.
@@ -67,7 +85,8 @@ pub fn reconstruct_file(
 ) -> Result<ReconstructFileReport> {
     ensure_not_input(output, &[input])?;
     ensure_replaceable(output)?;
-    let cloud = cloud_of(&read_geometry(input, read)?)?;
+    let (geometry, fusion) = read_input(input, read)?;
+    let cloud = cloud_of(&geometry)?;
     let cmp = CompareOptions { memory_budget: opts.memory_budget, ..Default::default() };
     let (mesh, report, distance) = reconstruct_measured(&cloud, opts, &cmp, progress).map_err(|e| e.in_file(input))?;
     if mesh.triangles.is_empty() {
@@ -77,6 +96,7 @@ pub fn reconstruct_file(
     Ok(ReconstructFileReport {
         input_file: input.to_path_buf(),
         output_file: output.to_path_buf(),
+        fusion,
         reconstruct: report,
         distance,
     })

@@ -8,6 +8,7 @@
 mod obj;
 mod off;
 mod ply;
+pub mod scanset;
 mod stl;
 mod text;
 mod write;

@@ -13,8 +13,10 @@ use super::poisson::Grid;
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::vec3::{V3, add, cross, dot, scale, sub};
 
-/// Components smaller than this share of the largest one's area are dropped as blobs.
-pub const MIN_COMPONENT_SHARE: f64 = 0.01;
+/// Components smaller than this share of the largest one's area are dropped as blobs (and counted). 5 %:
+/// the Stanford bunny's ten scans hold stray points beside the bunny that close into a 2 cm blob of 1.5 % of
+/// its area (measured 2026-12-05); a solid is one part.
+pub const MIN_COMPONENT_SHARE: f64 = 0.05;
 
 /// A crossing of the grid edge between nodes `a < b`.
 type EdgeKey = (u32, u32);

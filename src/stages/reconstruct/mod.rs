@@ -9,6 +9,7 @@
 //! Deterministic for the same cloud and settings on any number of threads.
 
 pub mod extract;
+pub mod fusion;
 pub mod normals;
 pub mod poisson;
 pub mod project;

@@ -32,10 +32,9 @@ pub fn onto_samples(mesh: &mut TriMesh, points: &[[f32; 3]], normals: &[V3], h: 
             let start = wide(p0);
             let mut p = start;
             for _ in 0..ROUNDS {
+                // Far from every sample (a bridged region): stays. Checked first, as a bounded search.
+                index.nearest_within(p, reach)?;
                 index.knn(p, SAMPLES, buf);
-                if buf.first().is_none_or(|&(_, d)| d > reach * reach) {
-                    return None;
-                }
                 // Gaussian weights, σ² = half the squared distance to the third-nearest sample: a tight
                 // plane, so curved surfaces sampled sparsely keep their shape (see [`ROUNDS`]).
                 let sigma2 = (buf[2.min(buf.len() - 1)].1 / 2.0).max(f64::MIN_POSITIVE);
