@@ -160,3 +160,78 @@ fn bad_clouds_get_stable_codes() {
         .unwrap_err();
     assert_eq!(e.code, ErrorCode::ResourceMemoryBudget, "{e}");
 }
+
+/// Scan sets: a malformed pose, a duplicate view and a missing view file get stable codes with the line;
+/// four turntable-like views of a sphere (scanners at ±x, ±y, each view holding what its scanner sees, in
+/// its own frame with the scanner on +z) fuse with overlap between neighbours and reconstruct one closed
+/// sphere; the poles, seen by none, are bridged.
+#[test]
+fn scan_sets_are_read_checked_and_fused() {
+    use scanstation::geometry::io::scanset::read_conf;
+    use scanstation::geometry::io::{ReadOptions, write_ply_cloud};
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("reconstruct-scanset");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let (p, _) = Shape::Sphere.sample(20_000, 11);
+    // Quaternion (x, y, z, w) of M = R_y(−90°)·R_z(−θ), which takes the scanner direction (cos θ, sin θ, 0)
+    // to +z; a view's points are M·p (the file holds the view frame), its pose the same quaternion.
+    let quat = |theta: f64| {
+        let (s1, c1) = ((-std::f64::consts::FRAC_PI_4).sin(), (-std::f64::consts::FRAC_PI_4).cos());
+        let (s2, c2) = ((-theta / 2.0).sin(), (-theta / 2.0).cos());
+        [s1 * s2, s1 * c2, c1 * s2, c1 * c2]
+    };
+    let matrix = |q: [f64; 4]| {
+        let [x, y, z, w] = q;
+        [
+            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
+            [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
+            [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
+        ]
+    };
+    let mut good = String::from("camera 0 0 0 0 0 0 1\n");
+    for k in 0..4 {
+        let theta = k as f64 * std::f64::consts::FRAC_PI_2;
+        let d = [theta.cos(), theta.sin(), 0.0];
+        let (q, m) = (quat(theta), matrix(quat(theta)));
+        let seen: Vec<[f32; 3]> = p
+            .iter()
+            .filter(|x| x[0] * d[0] + x[1] * d[1] > 0.2)
+            .map(|x| std::array::from_fn(|r| (m[r][0] * x[0] + m[r][1] * x[1] + m[r][2] * x[2]) as f32))
+            .collect();
+        let name = format!("v{k}.ply");
+        write_ply_cloud(&dir.join(&name), &PointCloud::new(seen, None, None).unwrap(), &Default::default(), &[])
+            .unwrap();
+        good += &format!("bmesh {name} 0 0 0 {} {} {} {}\n", q[0], q[1], q[2], q[3]);
+    }
+    let conf = |body: &str| {
+        let p = dir.join("set.conf");
+        std::fs::write(&p, body).unwrap();
+        p
+    };
+    let opts = ReadOptions::default();
+    for (body, code, line) in [
+        ("bmesh v0.ply 0 0 0 0 0 0\n", ErrorCode::InputBadRecord, 1),
+        ("bmesh v0.ply 0 0 nan 0 0 0 1\n", ErrorCode::InputBadRecord, 1),
+        ("bmesh v0.ply 0 0 0 0 0 0 2\n", ErrorCode::InputBadRecord, 1),
+        ("bmesh v0.ply 0 0 0 0 0 0 1\nbmesh v0.ply 0 0 0 0 0 0 1\n", ErrorCode::InputBadRecord, 2),
+        ("bmesh v0.ply 0 0 0 0 0 0 1\nbmesh gone.ply 0 0 0 0 0 0 1\n", ErrorCode::InputNotFound, 2),
+    ] {
+        let e = read_conf(&conf(body), &opts).unwrap_err();
+        assert_eq!((e.code, e.location), (code, Some(scanstation::Location::Line(line))), "{body:?}: {e}");
+    }
+    let views = read_conf(&conf(&good), &opts).unwrap();
+    let (cloud, fusion) = scanstation::stages::reconstruct::fusion::fuse(&views).unwrap();
+    assert_eq!(fusion.views.len(), 4);
+    for v in &fusion.views {
+        // Neighbouring views share the quarter between their scanners.
+        assert!(v.overlap_share > 0.2 && v.residual_rms.unwrap() < 1e-3, "{v:?}");
+    }
+    let (m, r) = run(&cloud).unwrap();
+    let topo = TopologyReport::compute(&PolyMesh::from(m.clone()));
+    assert!(topo.closed && topo.components == 1 && topo.genus == Some(0), "{topo:?}");
+    assert!(r.normals_given, "fusion gives the normals");
+    let rms = rms_pct(Shape::Sphere, &m);
+    println!("fused sphere: RMS {rms:.4} % of the diagonal, far area {:.1} %", 100.0 * r.far_area_share);
+    assert!(rms < 0.1, "fused sphere: RMS {rms:.4} % of the diagonal");
+    assert!(r.far_area_share > 0.01, "the poles are bridged, far from the points: {}", r.far_area_share);
+}
