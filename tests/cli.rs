@@ -427,3 +427,46 @@ fn fea_refuses_bad_input_and_writes_nothing() {
     assert_eq!((code, v["error_code"].as_str()), (2, Some("fea.bad-spec")), "{v}");
     assert!(!out.exists(), "nothing written on failure");
 }
+
+/// `reconstruct` on spot's vertices as an XYZ cloud: exit 0, a closed mesh written, both directions of the
+/// distance to the points reported; `convert` takes the same cloud through the whole chain to a STEP solid
+/// whose report carries the reconstruction and judges points → solid. A cloud of 100 points is refused with
+/// `reconstruct.too-few-points` (exit 2).
+#[test]
+fn reconstruct_and_convert_take_a_point_cloud() {
+    let dir = scratch("cli_reconstruct");
+    let spot = scanstation::geometry::io::read_mesh(Path::new(SPOT), &Default::default()).unwrap();
+    let xyz: String = spot.positions.iter().map(|p| format!("{} {} {}\n", p[0], p[1], p[2])).collect();
+    let cloud = dir.join("spot.xyz");
+    std::fs::write(&cloud, &xyz).unwrap();
+    let out = dir.join("spot.rec.ply");
+    let (code, v) = json(&["reconstruct", cloud.to_str().unwrap(), "-o", out.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{v}");
+    assert_eq!(v["reconstruct"]["points"], 2930, "{v}");
+    assert_eq!(v["reconstruct"]["components"]["kept"], 1, "{v}");
+    let accuracy = v["distance"]["reference_to_test"]["rms"]["pct_of_diagonal"].as_f64().unwrap();
+    assert!(accuracy < 0.2, "points → surface RMS {accuracy} %");
+    let (code, inspect) = json(&["inspect", out.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0);
+    assert_eq!((inspect["closed"].as_bool(), inspect["genus"].as_i64()), (Some(true), Some(0)), "{inspect}");
+    let step = dir.join("spot.step");
+    let (code, c) = json(&[
+        "convert",
+        cloud.to_str().unwrap(),
+        "-o",
+        step.to_str().unwrap(),
+        "--vertices",
+        "600",
+        "--accept-degraded",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{c}");
+    assert_eq!(c["reconstruct"]["report"]["points"], 2930, "{c}");
+    let rms_gate = c["gates"].as_array().unwrap().iter().find(|g| g["name"] == "rms").unwrap();
+    assert!(rms_gate["what"].as_str().unwrap().contains("points → solid"), "{rms_gate}");
+    assert!(step.is_file());
+    let few = dir.join("few.xyz");
+    std::fs::write(&few, xyz.lines().take(100).map(|l| format!("{l}\n")).collect::<String>()).unwrap();
+    let (code, v) = json(&["reconstruct", few.to_str().unwrap(), "-o", dir.join("few.ply").to_str().unwrap(), "--json"]);
+    assert_eq!((code, v["error_code"].as_str()), (2, Some("reconstruct.too-few-points")), "{v}");
+}

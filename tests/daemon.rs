@@ -986,3 +986,25 @@ fn a_gzip_bomb_and_an_endless_line_are_quarantined_within_the_budget() {
     eprintln!("daemon peak RSS {:.1} MiB with a budget of {budget_mib} MiB", hwm_kib as f64 / 1024.0);
     assert!(hwm_kib < budget_mib * 1024, "peak RSS {hwm_kib} KiB exceeds the {budget_mib} MiB budget");
 }
+
+/// A point cloud dropped into the inbox (an XYZ file without normals) is reconstructed and converted like a
+/// mesh: its bundle lands in the outbox, and its report carries the reconstruction.
+#[test]
+fn a_point_cloud_in_the_inbox_becomes_a_solid() {
+    need("busctl", "systemd");
+    let dir = common::scratch("daemon-cloud");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let mut st = Station::new(&dir, &bus, false, "");
+    st.start();
+    let sphere = icosphere(1.0, 4, [0.0; 3]);
+    let xyz: String = sphere.positions.iter().map(|p| format!("{} {} {}\n", p[0], p[1], p[2])).collect();
+    drop_renamed(&st.inbox(), "ball.xyz", xyz.as_bytes());
+    st.wait_done(1, Duration::from_secs(120));
+    let out = visible(&st.spool("outbox"));
+    assert!(out.len() == 1 && out[0].starts_with("ball-"), "outbox: {out:?}\n{}", st.log());
+    let bundle = st.spool("outbox").join(&out[0]);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(bundle.join("ball.report.json")).unwrap()).unwrap();
+    assert_eq!(report["convert"]["reconstruct"]["report"]["points"], 2562, "{}", report["convert"]["reconstruct"]);
+    assert!(bundle.join("ball.step").is_file(), "{:?}", visible(&bundle));
+}

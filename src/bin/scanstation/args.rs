@@ -111,7 +111,7 @@ pub struct ReconstructArgs {
     /// Where to write the closed mesh (.ply binary, or .obj).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Grid nodes along the longest side (default: 0.6·√points, 32 to 256; range 8 to 1024).
+    /// Grid nodes along the longest side (default: 0.6·√points, 64 to 256; range 8 to 1024).
     #[arg(long, value_parser = ranges::grid_resolution)]
     pub resolution: Option<usize>,
     /// Screening weight: how strongly the surface is pulled through the points (0 = plain Poisson; 0 to 100).

@@ -110,9 +110,10 @@ pub struct ReconstructReport {
     pub seconds: BTreeMap<String, f64>,
 }
 
-/// Grid resolution for `n` points: `0.6·√n` nodes along the longest side, between 32 and `max`.
+/// Grid resolution for `n` points: `0.6·√n` nodes along the longest side, between 64 and `max` (spot's 2,930
+/// vertices as a cloud: points → surface RMS 0.236 % of the diagonal at 32 nodes).
 pub fn auto_resolution(n: usize, max: usize) -> usize {
-    ((0.6 * (n as f64).sqrt()).round() as usize).clamp(32, max.max(32))
+    ((0.6 * (n as f64).sqrt()).round() as usize).clamp(64, max.max(64))
 }
 
 /// Reconstruct a closed, outward-oriented 2-manifold from `cloud`.
