@@ -3,8 +3,7 @@
 # clouds without normals (each tool estimates and orients them), each result measured against the source mesh
 # by `scanstation compare` (symmetric RMS, % of the diagonal). One Markdown row per run: wall s, peak RSS.
 #
-#   cargo build --release && bash scripts/setup-validators.sh && \
-#     .venv-validators/bin/pip install open3d==0.20.0 && bash scripts/reconstruct-peers.sh [OUT_DIR]
+#   cargo build --release && bash scripts/setup-validators.sh --peers && bash scripts/reconstruct-peers.sh [OUT_DIR]
 #
 # Uses ../shared/data (override: SCANSTATION_SHARED_DATA) and ../shared/validators/poisson_peer.py.
 set -uo pipefail
@@ -14,7 +13,7 @@ val=$(realpath ../shared/validators)
 out=$(realpath -m "${1:-target/reconstruct-peers}")
 mkdir -p "$out"
 bin=$(realpath target/release/scanstation)
-py=$(realpath .venv-validators/bin/python)
+py="$PWD/.venv-validators/bin/python"  # not realpath: that would leave the venv for the system python
 echo "| cloud | tool | setting | wall s | peak RSS MiB | RMS to the source mesh, % diag |"
 echo "|---|---|---|---:|---:|---:|"
 row() { # cloud tool setting result time

@@ -2,7 +2,9 @@
 # Install what the conformance suite needs: a Python virtualenv (.venv-validators/) with the pinned packages of
 # ../shared/validators that our suites call (point-cloud-utils, trimesh, numpy, scipy; pyinstantmeshes, the peer remesher;
 # cadquery-ocp (OpenCASCADE) and gmsh for the STEP checks; meshio for the FEA's VTU files). Idempotent.
-# Usage: bash scripts/setup-validators.sh            (SCANSTATION_VALIDATORS overrides ../shared/validators)
+# Usage: bash scripts/setup-validators.sh [--peers]  (SCANSTATION_VALIDATORS overrides ../shared/validators)
+# --peers also installs Open3D (the reconstruction peer of scripts/reconstruct-peers.sh) and the Debian
+# package it needs (libusb-1.0-0).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 kit="${SCANSTATION_VALIDATORS:-$root/../shared/validators}"
@@ -19,3 +21,11 @@ pins=$(grep -E '^(numpy|scipy|trimesh|rtree|point-cloud-utils|pyinstantmeshes|ca
 # meshio reads our FEA result files (VTU) the way ParaView users' scripts do; not in the kit's list.
 "$venv/bin/pip" install -q --disable-pip-version-check meshio==5.3.5
 "$venv/bin/python" -c "import point_cloud_utils, trimesh, numpy, scipy, pyinstantmeshes, OCP, gmsh, meshio; print('validators venv ok:', '$venv')"
+if [ "${1:-}" = "--peers" ]; then
+  if ! ldconfig -p | grep -q libusb-1.0.so.0; then
+    apt-get install -y -q libusb-1.0-0 >/dev/null
+  fi
+  pin=$(grep -E '^open3d==' "$kit/requirements.txt" | sed 's/[[:space:]]*#.*//')
+  "$venv/bin/pip" install -q --disable-pip-version-check "$pin"
+  "$venv/bin/python" -c "import open3d; print('open3d', open3d.__version__)"
+fi
