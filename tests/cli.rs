@@ -225,8 +225,8 @@ fn convert_writes_a_step_solid_of_the_bundled_sample() {
     assert!(leftovers.is_empty(), "{leftovers:?}");
 }
 
-/// Bad input to `convert`: a point cloud is refused with a stable code and no STEP file appears; the input
-/// is never overwritten.
+/// Bad input to `convert`: a cloud too small to reconstruct is refused with a stable code and no STEP file
+/// appears; the input is never overwritten.
 #[test]
 fn convert_refuses_bad_input_and_writes_nothing() {
     let dir = scratch("cli_convert_bad");
@@ -234,8 +234,7 @@ fn convert_refuses_bad_input_and_writes_nothing() {
     std::fs::write(&cloud, "0 0 0\n1 0 0\n0 1 0\n0 0 1\n").unwrap();
     let out = dir.join("cloud.step");
     let (code, v) = json(&["convert", cloud.to_str().unwrap(), "-o", out.to_str().unwrap(), "--json"]);
-    assert_eq!(code, 2, "{v}");
-    assert!(v["error_code"].as_str().unwrap().starts_with("input."), "{v}");
+    assert_eq!((code, v["error_code"].as_str()), (2, Some("reconstruct.too-few-points")), "{v}");
     assert!(!out.exists());
     let (code, v) = json(&["convert", SPOT, "-o", SPOT, "--json"]);
     assert_eq!((code, v["error_code"].as_str()), (3, Some("resource.output")), "{v}");
@@ -467,6 +466,7 @@ fn reconstruct_and_convert_take_a_point_cloud() {
     assert!(step.is_file());
     let few = dir.join("few.xyz");
     std::fs::write(&few, xyz.lines().take(100).map(|l| format!("{l}\n")).collect::<String>()).unwrap();
-    let (code, v) = json(&["reconstruct", few.to_str().unwrap(), "-o", dir.join("few.ply").to_str().unwrap(), "--json"]);
+    let (code, v) =
+        json(&["reconstruct", few.to_str().unwrap(), "-o", dir.join("few.ply").to_str().unwrap(), "--json"]);
     assert_eq!((code, v["error_code"].as_str()), (2, Some("reconstruct.too-few-points")), "{v}");
 }

@@ -495,19 +495,8 @@ pub fn convert_file(
     let (input_geom, fusion) = read_input(input, read, opts)?;
     stages.push(clock.stop("read", None));
     // 2b. A cloud is reconstructed into a closed mesh first; the points stay the reference.
-    let (reconstructed, reconstruct_step) = match &input_geom {
-        Geometry::Mesh(_) => (None, None),
-        Geometry::Cloud(cloud) => {
-            check_cancelled(progress)?;
-            let clock = Clock::start();
-            let span = ProgressSpan::new(progress, 0.02, 0.08, "reconstruct");
-            let ro = ReconstructOptions { memory_budget: opts.memory_budget, ..opts.reconstruct.clone() };
-            let (m, report, distance) =
-                super::reconstruct::reconstruct_measured(cloud, &ro, &cmp_opts, &span).map_err(|e| e.in_file(input))?;
-            stages.push(clock.stop("reconstruct", Some(distance.clone())));
-            (Some(PolyMesh::from(m)), Some(ReconstructStep { fusion: fusion.clone(), report, distance }))
-        }
-    };
+    let (reconstructed, reconstruct_step) =
+        reconstruct_stage(input, &input_geom, fusion, opts, &cmp_opts, progress, &mut stages)?;
     let mesh = match (&reconstructed, &input_geom) {
         (Some(m), _) | (None, Geometry::Mesh(m)) => m,
         (None, Geometry::Cloud(_)) => return Err(Error::internal("a cloud was not reconstructed")),
@@ -566,12 +555,7 @@ pub fn convert_file(
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
     let cloud_input = matches!(chain.input_geom, Geometry::Cloud(_));
-    let open_input = match &chain.input_geom {
-        Geometry::Mesh(scan) if repair_report.holes.holes_filled > 0 => {
-            Some(OpenInputMeasure::measure(&solid_mesh, scan, kept_input_to_solid_rms, &repair_report, diag))
-        }
-        _ => None,
-    };
+    let open_input = open_input_measure(&solid_mesh, &chain.input_geom, kept_input_to_solid_rms, &repair_report, diag);
     let error_map_file = super::provenance::error_map_path(output);
     let error_map_scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh), &chain.input_geom)?;
     stages.push(clock.stop("quality", None));
@@ -579,26 +563,21 @@ pub fn convert_file(
 
     // 7. The quality gates and the report.
     let volume_error_pct = 100.0 * (kept.brep.volume - input_volume) / input_volume.abs().max(f64::MIN_POSITIVE);
+    // The RMS the gate judges: points → solid for a cloud, the open-input measure, or the two-sided RMS.
+    let rms_pct = open_input.as_ref().map_or(100.0 * kept_rms / diag, |o| o.rms_pct);
+    let rms_pct = if cloud_input { 100.0 * kept_input_to_solid_rms / diag } else { rms_pct };
+    let tolerance_pct = if let Resolution::Tolerance(t) = resolution { Some(100.0 * t / diag) } else { None };
+    let open = open_input.is_some();
     let measured = Measured {
         crossings: kept_crossings,
         folded_faces: kept_folds,
         volume_error_pct,
-        rms_pct: match (&open_input, cloud_input) {
-            (_, true) => 100.0 * kept_input_to_solid_rms / diag,
-            (Some(o), false) => o.rms_pct,
-            (None, false) => 100.0 * kept_rms / diag,
-        },
-        open_input: open_input.is_some(),
+        rms_pct,
+        open_input: open,
         cloud_input,
-        tolerance_pct: match resolution {
-            Resolution::Tolerance(t) => Some(100.0 * t / diag),
-            _ => None,
-        },
+        tolerance_pct,
     };
-    let (status, gates) = judge(&measured, &opts.gates);
-    for g in gates.iter().filter(|g| !g.passed) {
-        tracing::warn!(gate = g.name, value = g.value, bound = g.bound, ?status, "quality gate missed");
-    }
+    let (status, gates) = judge_logged(&measured, &opts.gates);
     Ok(ConvertReport {
         input_file: input.to_path_buf(),
         output_file: output.to_path_buf(),
@@ -623,6 +602,54 @@ pub fn convert_file(
         gates,
         total_seconds: t_total.elapsed().as_secs_f64(),
     })
+}
+
+/// The gates on `m`, each missed one logged.
+fn judge_logged(m: &Measured, opts: &GateOptions) -> (Status, Vec<super::gates::Gate>) {
+    let (status, gates) = judge(m, opts);
+    for g in gates.iter().filter(|g| !g.passed) {
+        tracing::warn!(gate = g.name, value = g.value, bound = g.bound, ?status, "quality gate missed");
+    }
+    (status, gates)
+}
+
+/// For a mesh input whose holes repair filled: the open-input measure of the solid mesh (see
+/// [`OpenInputMeasure`]); `None` otherwise.
+fn open_input_measure(
+    solid_mesh: &PolyMesh,
+    input: &Geometry,
+    input_to_solid_rms: f64,
+    repair_report: &RepairReport,
+    diag: f64,
+) -> Option<OpenInputMeasure> {
+    match input {
+        Geometry::Mesh(scan) if repair_report.holes.holes_filled > 0 => {
+            Some(OpenInputMeasure::measure(solid_mesh, scan, input_to_solid_rms, repair_report, diag))
+        }
+        _ => None,
+    }
+}
+
+/// Step 2b of [`convert_file`]: reconstruct a cloud input, measured against its points (its stage report
+/// pushed onto `stages`); nothing for a mesh.
+fn reconstruct_stage(
+    input: &Path,
+    input_geom: &Geometry,
+    fusion: Option<crate::stages::reconstruct::fusion::FusionReport>,
+    opts: &ConvertOptions,
+    cmp_opts: &CompareOptions,
+    progress: &dyn Progress,
+    stages: &mut Vec<StageReport>,
+) -> Result<(Option<PolyMesh>, Option<ReconstructStep>)> {
+    let Geometry::Cloud(cloud) = input_geom else { return Ok((None, None)) };
+    check_cancelled(progress)?;
+    let clock = Clock::start();
+    let span = ProgressSpan::new(progress, 0.02, 0.08, "reconstruct");
+    let ro = ReconstructOptions { memory_budget: opts.memory_budget, ..opts.reconstruct.clone() };
+    let (m, report, distance) =
+        super::reconstruct::reconstruct_measured(cloud, &ro, cmp_opts, &span).map_err(|e| e.in_file(input))?;
+    stages.push(clock.stop("reconstruct", Some(distance.clone())));
+    Ok((Some(PolyMesh::from(m)), Some(ReconstructStep { fusion, report, distance })))
 }
 
 /// What reconstruction did for a point-cloud input.

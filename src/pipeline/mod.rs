@@ -57,6 +57,10 @@ pub struct InspectReport {
     /// Cloud figures.
     #[serde(flatten)]
     pub cloud: Option<CloudSummary>,
+    /// For a scan set (`.conf`): its views with their points and poses (the cloud figures are then the
+    /// views placed in the common frame).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub views: Option<Vec<crate::geometry::io::scanset::View>>,
     /// Seconds to read the file.
     pub read_seconds: f64,
     /// Seconds to analyse it.
@@ -90,13 +94,23 @@ pub fn inspect(geometry: &Geometry) -> (Option<TopologyReport>, Option<CloudSumm
 /// Any reader error (`input.*`, `resource.memory`).
 pub fn inspect_file(path: &Path, options: &ReadOptions) -> Result<InspectReport> {
     let t0 = Instant::now();
-    let g = read_geometry(path, options)?;
+    let (g, views) = if crate::geometry::io::scanset::is_scan_set(path) {
+        let views = crate::geometry::io::scanset::read_conf(path, options)?;
+        let placed: Vec<[f32; 3]> = views
+            .iter()
+            .flat_map(|v| v.points.iter().map(|&p| v.to_world(crate::geometry::vec3::wide(p)).map(|c| c as f32)))
+            .collect();
+        (Geometry::Cloud(crate::geometry::mesh::PointCloud::new(placed, None, None)?), Some(views))
+    } else {
+        (read_geometry(path, options)?, None)
+    };
     let read_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let (mesh, cloud) = inspect(&g);
     Ok(InspectReport {
         file: path.to_path_buf(),
-        kind: g.kind(),
+        kind: if views.is_some() { "scan_set" } else { g.kind() },
+        views,
         mesh,
         cloud,
         read_seconds,

@@ -43,7 +43,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Counts, size and topology of a mesh or point cloud (PLY, OBJ, STL, OFF, XYZ/PTS; .gz too).
+    /// Counts, size and topology of a mesh or point cloud (PLY, OBJ, STL, OFF, XYZ/PTS; .gz too), or the views,
+    /// points and poses of a scan set (.conf).
     Inspect(InspectArgs),
     /// Make a mesh a closed, outward-oriented 2-manifold: weld, fix non-manifold parts and orientation, drop
     /// debris, fill holes (smoothly); report each step and the distance to the input.

@@ -262,6 +262,12 @@ pub fn report_quality_failure(e: &Error, r: &pipeline::ConvertReport) -> ExitCod
 pub fn print_inspect(r: &InspectReport) {
     println!("file:                  {}", r.file.display());
     println!("kind:                  {}", r.kind);
+    for v in r.views.iter().flatten() {
+        println!(
+            "view {:<16} {:>8} points, t = {:?}, q (x y z w) = {:?}",
+            v.name, v.point_count, v.translation, v.rotation
+        );
+    }
     if let Some(c) = &r.cloud {
         println!("points:                {}", c.vertices);
         println!("normals / colors:      {} / {}", c.has_normals, c.has_colors);

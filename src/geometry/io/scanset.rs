@@ -16,7 +16,7 @@ use crate::geometry::io::{ReadOptions, read_geometry};
 use crate::geometry::vec3::V3;
 
 /// One view of a scan set.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct View {
     /// The view's name (its file name as listed).
     pub name: String,
