@@ -159,6 +159,23 @@ compare_samples = 5000
         Station { child: None, dir: dir.to_path_buf(), config, bus: bus.address.clone(), system }
     }
 
+    /// A station whose config sets `limits.memory_budget` to `mib` MiB.
+    fn with_memory_budget(dir: &Path, bus: &Bus, mib: u64) -> Station {
+        let st = Station::new(dir, bus, false, "");
+        let cfg = std::fs::read_to_string(&st.config)
+            .unwrap()
+            .replace("[pipeline]", &format!("[limits]\nmemory_budget = \"{mib}MiB\"\n[pipeline]"));
+        std::fs::write(&st.config, cfg).unwrap();
+        st
+    }
+
+    /// The daemon's peak resident memory so far (VmHWM), KiB.
+    fn peak_rss_kib(&self) -> u64 {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", self.pid())).unwrap();
+        let line = status.lines().find(|l| l.starts_with("VmHWM:")).expect("VmHWM in /proc/PID/status");
+        line.split_whitespace().nth(1).unwrap().parse().unwrap()
+    }
+
     fn inbox(&self) -> PathBuf {
         self.dir.join("spool/inbox")
     }
@@ -874,11 +891,7 @@ fn a_job_that_cannot_fit_the_memory_budget_fails_without_exceeding_it() {
     let dir = common::scratch("daemon-memory");
     let bus = start_bus(&dir, OPEN_POLICY);
     let budget_mib = 48;
-    let mut st = Station::new(&dir, &bus, false, "");
-    let cfg = std::fs::read_to_string(&st.config)
-        .unwrap()
-        .replace("[pipeline]", &format!("[limits]\nmemory_budget = \"{budget_mib}MiB\"\n[pipeline]"));
-    std::fs::write(&st.config, cfg).unwrap();
+    let mut st = Station::with_memory_budget(&dir, &bus, budget_mib);
     st.start();
     let big = dir.join("big.ply");
     write_ply(&big, &PolyMesh::from(icosphere(1.0, 8, [0.0; 3])), &Default::default(), &[]).unwrap();
@@ -886,9 +899,7 @@ fn a_job_that_cannot_fit_the_memory_budget_fails_without_exceeding_it() {
     let text = String::from_utf8_lossy(&out.stdout);
     let last: serde_json::Value = serde_json::from_str(text.lines().last().unwrap()).unwrap();
     assert_eq!(last["error_code"], "resource.memory", "{text}\n{}", st.log());
-    let status = std::fs::read_to_string(format!("/proc/{}/status", st.pid())).unwrap();
-    let hwm_kib: u64 =
-        status.lines().find(|l| l.starts_with("VmHWM:")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+    let hwm_kib = st.peak_rss_kib();
     eprintln!("daemon peak RSS {:.1} MiB with a budget of {budget_mib} MiB", hwm_kib as f64 / 1024.0);
     assert!(hwm_kib < budget_mib * 1024, "peak RSS {hwm_kib} KiB exceeds the {budget_mib} MiB budget");
     let q = visible(&st.spool("quarantine"));
@@ -943,11 +954,7 @@ fn a_gzip_bomb_and_an_endless_line_are_quarantined_within_the_budget() {
     let dir = common::scratch("daemon-hostile");
     let bus = start_bus(&dir, OPEN_POLICY);
     let budget_mib = 96;
-    let mut st = Station::new(&dir, &bus, false, "");
-    let cfg = std::fs::read_to_string(&st.config)
-        .unwrap()
-        .replace("[pipeline]", &format!("[limits]\nmemory_budget = \"{budget_mib}MiB\"\n[pipeline]"));
-    std::fs::write(&st.config, cfg).unwrap();
+    let mut st = Station::with_memory_budget(&dir, &bus, budget_mib);
     st.start();
     // 2.3 GB of valid-looking records in 1 MiB gzip members (about 3 MB on disk).
     let block: Vec<u8> = b"0 0 0\n".iter().copied().cycle().take((1 << 20) / 6 * 6).collect();
@@ -980,9 +987,7 @@ fn a_gzip_bomb_and_an_endless_line_are_quarantined_within_the_budget() {
     }
     let out = visible(&st.spool("outbox"));
     assert!(out.len() == 1 && out[0].starts_with("good-"), "outbox: {out:?}\n{}", st.log());
-    let status = std::fs::read_to_string(format!("/proc/{}/status", st.pid())).unwrap();
-    let hwm_kib: u64 =
-        status.lines().find(|l| l.starts_with("VmHWM:")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+    let hwm_kib = st.peak_rss_kib();
     eprintln!("daemon peak RSS {:.1} MiB with a budget of {budget_mib} MiB", hwm_kib as f64 / 1024.0);
     assert!(hwm_kib < budget_mib * 1024, "peak RSS {hwm_kib} KiB exceeds the {budget_mib} MiB budget");
 }

@@ -35,70 +35,41 @@ pub fn input_size(s: &str) -> Result<u64, String> {
     bytes_within(s, 1 << 10, 1 << 40)
 }
 
-/// Control or output vertex counts (`--vertices`, `--target-vertices`): 16 to 10 million.
-pub fn vertices(s: &str) -> Result<usize, String> {
-    within(s, 16usize, 10_000_000)
+/// One parser per range: `name: type = low, high` with its doc line.
+macro_rules! ranged {
+    ($($(#[$doc:meta])* $name:ident: $t:ty = $lo:expr, $hi:expr;)*) => {
+        $($(#[$doc])* pub fn $name(s: &str) -> Result<$t, String> { within(s, $lo, $hi) })*
+    };
 }
 
-/// `submit --vertices`: as [`vertices`], for the D-Bus `u` type.
-#[allow(dead_code)] // only the daemon client uses it
-pub fn vertices_u32(s: &str) -> Result<u32, String> {
-    within(s, 16u32, 10_000_000)
-}
-
-/// Grid nodes along the longest side of `reconstruct`: 8 to 1024.
-pub fn grid_resolution(s: &str) -> Result<usize, String> {
-    within(s, 8usize, 1024)
-}
-
-/// A share or fraction: 0 to 1.
-pub fn share(s: &str) -> Result<f64, String> {
-    within(s, 0.0, 1.0)
-}
-
-/// A percentage bound of a gate: above 0 (1e-6) to 100.
-pub fn gate_pct(s: &str) -> Result<f64, String> {
-    within(s, 1e-6, 100.0)
-}
-
-/// A percentage that may be 0: 0 to 100.
-pub fn pct(s: &str) -> Result<f64, String> {
-    within(s, 0.0, 100.0)
-}
-
-/// Iteration and round counts: 0 to 1000.
-pub fn rounds(s: &str) -> Result<usize, String> {
-    within(s, 0usize, 1000)
-}
-
-/// Gauss–Seidel sweeps per level: 1 to 1000.
-pub fn sweeps(s: &str) -> Result<usize, String> {
-    within(s, 1usize, 1000)
-}
-
-/// Dipole transport depth: 0 to 16.
-pub fn depth(s: &str) -> Result<usize, String> {
-    within(s, 0usize, 16)
-}
-
-/// Working vertices per output vertex: 1 to 64.
-pub fn per_vertex(s: &str) -> Result<f64, String> {
-    within(s, 1.0, 64.0)
-}
-
-/// Field weights: 0 to 100.
-pub fn weight(s: &str) -> Result<f64, String> {
-    within(s, 0.0, 100.0)
-}
-
-/// A length in the input's units: positive and finite (1e-12 to 1e12).
-pub fn length(s: &str) -> Result<f64, String> {
-    within(s, 1e-12, 1e12)
-}
-
-/// Samples per side of `compare`: 100 to 100 million.
-pub fn samples(s: &str) -> Result<usize, String> {
-    within(s, 100usize, 100_000_000)
+ranged! {
+    /// Control or output vertex counts (`--vertices`, `--target-vertices`): 16 to 10 million.
+    vertices: usize = 16usize, 10_000_000;
+    /// `submit --vertices`: as [`vertices`], for the D-Bus `u` type.
+    #[allow(dead_code)] // only the daemon client uses it
+    vertices_u32: u32 = 16u32, 10_000_000;
+    /// Grid nodes along the longest side of `reconstruct`: 8 to 1024.
+    grid_resolution: usize = 8usize, 1024;
+    /// A share or fraction: 0 to 1.
+    share: f64 = 0.0, 1.0;
+    /// A percentage bound of a gate: above 0 (1e-6) to 100.
+    gate_pct: f64 = 1e-6, 100.0;
+    /// A percentage that may be 0: 0 to 100.
+    pct: f64 = 0.0, 100.0;
+    /// Iteration and round counts: 0 to 1000.
+    rounds: usize = 0usize, 1000;
+    /// Gauss–Seidel sweeps per level: 1 to 1000.
+    sweeps: usize = 1usize, 1000;
+    /// Dipole transport depth: 0 to 16.
+    depth: usize = 0usize, 16;
+    /// Working vertices per output vertex: 1 to 64.
+    per_vertex: f64 = 1.0, 64.0;
+    /// Field weights: 0 to 100.
+    weight: f64 = 0.0, 100.0;
+    /// A length in the input's units: positive and finite (1e-12 to 1e12).
+    length: f64 = 1e-12, 1e12;
+    /// Samples per side of `compare`: 100 to 100 million.
+    samples: usize = 100usize, 100_000_000;
 }
 
 #[cfg(test)]
