@@ -96,10 +96,7 @@ pub fn inspect_file(path: &Path, options: &ReadOptions) -> Result<InspectReport>
     let t0 = Instant::now();
     let (g, views) = if crate::geometry::io::scanset::is_scan_set(path) {
         let views = crate::geometry::io::scanset::read_conf(path, options)?;
-        let placed: Vec<[f32; 3]> = views
-            .iter()
-            .flat_map(|v| v.points.iter().map(|&p| v.to_world(crate::geometry::vec3::wide(p)).map(|c| c as f32)))
-            .collect();
+        let placed: Vec<[f32; 3]> = views.iter().flat_map(|v| v.placed()).collect();
         (Geometry::Cloud(crate::geometry::mesh::PointCloud::new(placed, None, None)?), Some(views))
     } else {
         (read_geometry(path, options)?, None)

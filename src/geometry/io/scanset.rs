@@ -45,10 +45,16 @@ impl View {
         ]
     }
 
-    /// `p` (in the view's frame) in the common frame.
-    pub fn to_world(&self, p: V3) -> V3 {
-        let r = self.rotation_matrix();
-        std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + self.translation[i])
+    /// The view's points in the common frame (the rotation computed once).
+    pub fn placed(&self) -> Vec<[f32; 3]> {
+        let (r, t) = (self.rotation_matrix(), self.translation);
+        self.points
+            .iter()
+            .map(|p| {
+                let p = p.map(f64::from);
+                std::array::from_fn(|i| (r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i]) as f32)
+            })
+            .collect()
     }
 
     /// Direction `d` (in the view's frame) in the common frame.

@@ -51,7 +51,7 @@ const VIEW_NEIGHBOURS: usize = 12;
 /// `reconstruct.too-few-points` for a view with fewer than [`VIEW_NEIGHBOURS`] + 1 points.
 pub fn fuse(views: &[View]) -> Result<(PointCloud, FusionReport)> {
     // 1. Each view in the common frame, with normals toward its scanner.
-    let mut placed: Vec<(Vec<[f32; 3]>, Vec<V3>)> = Vec::with_capacity(views.len());
+    let mut placed: Vec<(Vec<[f32; 3]>, Vec<V3>, f64)> = Vec::with_capacity(views.len());
     for v in views {
         if v.points.len() <= VIEW_NEIGHBOURS {
             return Err(Error::new(
@@ -59,20 +59,21 @@ pub fn fuse(views: &[View]) -> Result<(PointCloud, FusionReport)> {
                 format!("view {} has {} points", v.name, v.points.len()),
             ));
         }
-        let world: Vec<[f32; 3]> = v.points.par_iter().map(|&p| v.to_world(wide(p)).map(|c| c as f32)).collect();
-        let nb = Neighbours::new(&world, VIEW_NEIGHBOURS);
+        let world = v.placed();
+        let nb = Neighbours::new(&PointIndex::new(&world, super::INDEX_POINTS_PER_CELL), &world, VIEW_NEIGHBOURS);
         let toward = v.dir_to_world([0.0, 0.0, 1.0]);
+        let spacing = nb.mean_nearest(&world);
         let normals: Vec<V3> = pca_normals(&world, &nb)
             .into_iter()
             .map(|n| if dot(n, toward) < 0.0 { n.map(|c| -c) } else { n })
             .collect();
-        placed.push((world, normals));
+        placed.push((world, normals, spacing));
     }
     // 2. Residuals: each view against every other.
-    let indexes: Vec<PointIndex> = placed.iter().map(|(w, _)| PointIndex::new(w, 4.0)).collect();
+    let indexes: Vec<PointIndex> =
+        placed.iter().map(|(w, _, _)| PointIndex::new(w, super::INDEX_POINTS_PER_CELL)).collect();
     let mut reports = Vec::with_capacity(views.len());
-    for (a, (world, _)) in placed.iter().enumerate() {
-        let spacing = mean_spacing(world);
+    for (a, (world, _, spacing)) in placed.iter().enumerate() {
         let reach = OVERLAP_SPACINGS * spacing;
         let hits: Vec<Option<f64>> = world
             .par_iter()
@@ -105,25 +106,11 @@ pub fn fuse(views: &[View]) -> Result<(PointCloud, FusionReport)> {
     // 3. One cloud.
     let mut positions = Vec::new();
     let mut normals = Vec::new();
-    for (w, n) in placed {
+    for (w, n, _) in placed {
         positions.extend(w);
         normals.extend(n.into_iter().map(|v| v.map(|c| c as f32)));
     }
     let points = positions.len();
     let cloud = PointCloud::new(positions, Some(normals), None)?;
     Ok((cloud, FusionReport { views: reports, points, refined: false }))
-}
-
-/// Mean distance to the nearest other point (sampled every 16th point).
-fn mean_spacing(points: &[[f32; 3]]) -> f64 {
-    let idx = PointIndex::new(points, 4.0);
-    let d: Vec<f64> = points
-        .par_iter()
-        .step_by(16)
-        .map_init(Vec::new, |buf, &p| {
-            idx.knn(wide(p), 2, buf);
-            buf.get(1).map_or(0.0, |x| x.1.sqrt())
-        })
-        .collect();
-    d.iter().sum::<f64>() / d.len().max(1) as f64
 }

@@ -25,6 +25,9 @@ use crate::geometry::points::PointIndex;
 use crate::geometry::vec3::{Aabb, V3, add, cross, norm, scale, sub, wide};
 use crate::stages::Progress;
 
+/// Points per occupied cell of the one point index a reconstruction builds (neighbours, projection, far area).
+pub const INDEX_POINTS_PER_CELL: f64 = 4.0;
+
 /// Fewest points a cloud must have: below this no surface is defined by it.
 pub const MIN_POINTS: usize = 300;
 
@@ -175,12 +178,10 @@ pub fn reconstruct(
     }
     progress.report(0.0, "neighbours");
     // 2. Neighbours, spacing and the area each point stands for (π r_k² / k).
-    let nb = normals::Neighbours::new(points, NEIGHBOURS);
+    let index = PointIndex::new(points, INDEX_POINTS_PER_CELL);
+    let nb = normals::Neighbours::new(&index, points, NEIGHBOURS);
     let areas: Vec<f64> = nb.radius.iter().map(|&r| std::f64::consts::PI * r * r / nb.k as f64).collect();
-    let mean_spacing = (0..n)
-        .map(|i| nb.of(i).get(1).map_or(0.0, |&j| norm(sub(wide(points[j as usize]), wide(points[i])))))
-        .sum::<f64>()
-        / n as f64;
+    let mean_spacing = nb.mean_nearest(points);
     lap("neighbours", &mut t);
     // 3. Normals: given, or estimated and oriented.
     progress.report(0.1, "normals");
@@ -222,9 +223,10 @@ pub fn reconstruct(
     lap("extract", &mut t);
     // 6. Vertices onto the samples' planes; how much of the surface is far from every point.
     let reach = FAR_SPACINGS * mean_spacing.max(grid.h * 0.5);
-    let projected = if opts.project { project::onto_samples(&mut mesh, points, &normals, grid.h, reach) } else { 0 };
+    let projected =
+        if opts.project { project::onto_samples(&mut mesh, &index, points, &normals, grid.h, reach) } else { 0 };
     lap("project", &mut t);
-    let far_area_share = far_share(&mesh, points, reach);
+    let far_area_share = far_share(&mesh, &index, reach);
     lap("far", &mut t);
     progress.report(1.0, "done");
     let report = ReconstructReport {
@@ -247,9 +249,8 @@ pub fn reconstruct(
     Ok((mesh, report))
 }
 
-/// Share of `mesh`'s area whose triangle centroids lie farther than `reach` from every point.
-fn far_share(mesh: &TriMesh, points: &[[f32; 3]], reach: f64) -> f64 {
-    let index = PointIndex::new(points, 4.0);
+/// Share of `mesh`'s area whose triangle centroids lie farther than `reach` from every indexed point.
+fn far_share(mesh: &TriMesh, index: &PointIndex, reach: f64) -> f64 {
     let (far, total) = mesh
         .triangles
         .par_iter()

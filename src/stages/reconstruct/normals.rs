@@ -25,10 +25,10 @@ pub struct Neighbours {
 }
 
 impl Neighbours {
-    /// The `k` nearest neighbours of every point. Cost: O(n k log k) with the grid index, in parallel.
-    pub fn new(points: &[[f32; 3]], k: usize) -> Neighbours {
+    /// The `k` nearest neighbours of every point of `points`, which `index` indexes. Cost: O(n k log k), in
+    /// parallel.
+    pub fn new(index: &PointIndex, points: &[[f32; 3]], k: usize) -> Neighbours {
         let k = k.min(points.len());
-        let index = PointIndex::new(points, 4.0);
         let rows: Vec<(Vec<u32>, f64)> = points
             .par_iter()
             .map_init(Vec::new, |buf, &p| {
@@ -44,6 +44,15 @@ impl Neighbours {
             radius.push(r);
         }
         Neighbours { k, ids, radius }
+    }
+
+    /// Mean distance from each of `points` to its nearest other point (its second neighbour).
+    pub fn mean_nearest(&self, points: &[[f32; 3]]) -> f64 {
+        let n = points.len();
+        let sum: f64 = (0..n)
+            .map(|i| self.of(i).get(1).map_or(0.0, |&j| norm(sub(wide(points[j as usize]), wide(points[i])))))
+            .sum();
+        sum / n.max(1) as f64
     }
 
     /// The neighbours of point `i`.

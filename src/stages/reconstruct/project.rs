@@ -23,8 +23,15 @@ pub const SAMPLES: usize = 12;
 pub const MAX_MOVE_CELLS: f64 = 1.0;
 
 /// Project the vertices of `mesh` onto the oriented samples; returns how many vertices moved.
-pub fn onto_samples(mesh: &mut TriMesh, points: &[[f32; 3]], normals: &[V3], h: f64, reach: f64) -> usize {
-    let index = PointIndex::new(points, 4.0);
+/// `index` indexes `points`.
+pub fn onto_samples(
+    mesh: &mut TriMesh,
+    index: &PointIndex,
+    points: &[[f32; 3]],
+    normals: &[V3],
+    h: f64,
+    reach: f64,
+) -> usize {
     let moved: Vec<Option<[f32; 3]>> = mesh
         .positions
         .par_iter()
