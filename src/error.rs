@@ -91,6 +91,9 @@ pub enum ErrorCode {
     ReconstructDegenerate,
     /// Reconstruction could not produce a closed, outward surface (no component survived, orientation).
     ReconstructFailed,
+    /// The views of a scan set do not fit each other: more than half of them are off their neighbours after
+    /// registration (each named).
+    ReconstructViewsDisagree,
     /// A point cloud's normals include zero-length or non-finite vectors.
     InputBadNormal,
     /// A compressed input expands far more than any scan does ([`GZIP_BOMB_RATIO`](crate::geometry::io::GZIP_BOMB_RATIO)).
@@ -155,6 +158,7 @@ impl ErrorCode {
             ErrorCode::ReconstructTooFewPoints => "reconstruct.too-few-points",
             ErrorCode::ReconstructDegenerate => "reconstruct.degenerate",
             ErrorCode::ReconstructFailed => "reconstruct.failed",
+            ErrorCode::ReconstructViewsDisagree => "reconstruct.views-disagree",
             ErrorCode::InputBadNormal => "input.bad-normal",
             ErrorCode::ResourceMemoryBudget => "resource.memory",
             ErrorCode::ResourceOutput => "resource.output",

@@ -9,6 +9,7 @@ pub mod linalg;
 pub mod mesh;
 pub mod points;
 pub mod polygon;
+pub mod pose;
 pub mod sampling;
 pub mod shapes;
 pub mod stats;

@@ -9,9 +9,10 @@ use crate::geometry::vec3::{Aabb, V3, norm2, sub, wide};
 /// The index. Cost: O(n log n) to build, memory 4 bytes per point plus 16 per occupied cell.
 pub struct PointIndex<'a> {
     points: &'a [[f32; 3]],
-    bbox: Aabb,
     origin: V3,
     cell: f64,
+    /// The highest occupied cell coordinate per axis (cells run from 0).
+    top: [i64; 3],
     /// Point indices sorted by cell key.
     order: Vec<u32>,
     /// Cell key → `order[start..end]`.
@@ -30,10 +31,12 @@ impl<'a> PointIndex<'a> {
     pub fn new(points: &'a [[f32; 3]], per_cell: f64) -> PointIndex<'a> {
         let bbox = Aabb::of_points(points);
         let n = points.len().max(1) as f64;
-        let diag = bbox.diagonal().max(f64::MIN_POSITIVE);
-        // At most 2^20 cells per axis, so keys never collide.
-        let cell = (diag * (per_cell / n).sqrt()).max(diag / (1u64 << 20) as f64);
+        let diag = bbox.diagonal();
+        // At most 2^20 cells per axis, so keys never collide; a set of one repeated point (diagonal 0) is
+        // one cell of any size.
+        let cell = if diag > 0.0 { (diag * (per_cell / n).sqrt()).max(diag / (1u64 << 20) as f64) } else { 1.0 };
         let origin = if bbox.is_empty() { [0.0; 3] } else { bbox.min };
+        let top = if bbox.is_empty() { [0; 3] } else { Self::coords(origin, cell, bbox.max) };
         let mut keyed: Vec<(u64, u32)> =
             (0..points.len()).map(|i| (key(Self::coords(origin, cell, wide(points[i]))), i as u32)).collect();
         keyed.sort_unstable();
@@ -45,11 +48,22 @@ impl<'a> PointIndex<'a> {
                 start = i;
             }
         }
-        PointIndex { points, bbox, origin, cell, order: keyed.into_iter().map(|k| k.1).collect(), cells }
+        PointIndex { points, origin, cell, top, order: keyed.into_iter().map(|k| k.1).collect(), cells }
     }
 
+    /// Integer cell coordinates of `p`, clamped to ±2^40 so that ring arithmetic never overflows (a query
+    /// that far out sees every point from its clamped cell in the same order: the rings only bound the search).
     fn coords(origin: V3, cell: f64, p: V3) -> [i64; 3] {
-        [0, 1, 2].map(|k| ((p[k] - origin[k]) / cell).floor() as i64)
+        const FAR: f64 = (1u64 << 40) as f64;
+        [0, 1, 2].map(|k| ((p[k] - origin[k]) / cell).floor().clamp(-FAR, FAR) as i64)
+    }
+
+    /// The rings (Chebyshev distances in cells from `c`) that can hold points: from the grid's nearest cell
+    /// to its farthest.
+    fn rings(&self, c: [i64; 3]) -> (i64, i64) {
+        let first = (0..3).map(|k| (-c[k]).max(c[k] - self.top[k]).max(0)).max().unwrap_or(0);
+        let last = (0..3).map(|k| c[k].abs().max((self.top[k] - c[k]).abs())).max().unwrap_or(0);
+        (first, last)
     }
 
     /// Cell side.
@@ -76,8 +90,7 @@ impl<'a> PointIndex<'a> {
             return;
         }
         let c = Self::coords(self.origin, self.cell, p);
-        let last = self.last_ring(p);
-        let mut ring = 0i64;
+        let (mut ring, last) = self.rings(c);
         loop {
             self.visit_ring(c, ring, |i| {
                 let d = norm2(sub(wide(self.points[i as usize]), p));
@@ -96,25 +109,24 @@ impl<'a> PointIndex<'a> {
         }
     }
 
-    /// A ring beyond which no indexed point lies, seen from `p`.
-    fn last_ring(&self, p: V3) -> i64 {
-        let out: f64 =
-            (0..3).map(|k| (self.bbox.min[k] - p[k]).max(p[k] - self.bbox.max[k]).max(0.0).powi(2)).sum::<f64>().sqrt();
-        ((out + self.bbox.diagonal()) / self.cell).ceil() as i64 + 1
-    }
-
-    /// Call `f` for every point in the cells at Chebyshev distance exactly `ring` from cell `c`.
+    /// Call `f` for every point in the cells at Chebyshev distance exactly `ring` from cell `c`. Only cells
+    /// inside the grid are visited, so a ring costs at most one slab of the grid however far out `c` lies.
     fn visit_ring(&self, c: [i64; 3], ring: i64, mut f: impl FnMut(u32)) {
-        for dz in -ring..=ring {
-            for dy in -ring..=ring {
-                let edge = dz.abs() == ring || dy.abs() == ring;
-                let mut dx = -ring;
-                while dx <= ring {
-                    for &i in self.cell_points([c[0] + dx, c[1] + dy, c[2] + dz]) {
-                        f(i);
+        let span = |k: usize| ((c[k] - ring).max(0), (c[k] + ring).min(self.top[k]));
+        let ((z0, z1), (y0, y1), (x0, x1)) = (span(2), span(1), span(0));
+        for z in z0..=z1 {
+            for y in y0..=y1 {
+                if (z - c[2]).abs() == ring || (y - c[1]).abs() == ring {
+                    for x in x0..=x1 {
+                        self.cell_points([x, y, z]).iter().for_each(|&i| f(i));
                     }
-                    // Inside the shell only the two x-faces belong to this ring.
-                    dx += if edge || ring == 0 || dx == ring { 1 } else { 2 * ring };
+                } else {
+                    // Inside the shell (ring > 0 here) only the two x-faces belong to this ring.
+                    for x in [c[0] - ring, c[0] + ring] {
+                        if (x0..=x1).contains(&x) {
+                            self.cell_points([x, y, z]).iter().for_each(|&i| f(i));
+                        }
+                    }
                 }
             }
         }
@@ -123,9 +135,10 @@ impl<'a> PointIndex<'a> {
     /// Squared distance from `p` to the nearest indexed point within `radius` (None beyond it).
     pub fn nearest_within(&self, p: V3, radius: f64) -> Option<(u32, f64)> {
         let c = Self::coords(self.origin, self.cell, p);
-        let rings = ((radius / self.cell).ceil() as i64 + 1).min(self.last_ring(p));
+        let (first, last) = self.rings(c);
+        let reach = (radius / self.cell).ceil().min((1u64 << 42) as f64) as i64 + 1;
         let mut best: Option<(u32, f64)> = None;
-        for ring in 0..=rings {
+        for ring in first..=last.min(reach) {
             self.visit_ring(c, ring, |i| {
                 let d = norm2(sub(wide(self.points[i as usize]), p));
                 if d <= radius * radius && best.is_none_or(|(j, bd)| (d, i) < (bd, j)) {
@@ -172,6 +185,48 @@ mod tests {
                 let bd = norm2(sub(wide(pts[b as usize]), p));
                 proptest::prop_assert_eq!(near.map(|x| x.0), (bd <= 0.09).then_some(b));
             }
+        }
+    }
+
+    /// CI regression (proptest, 2026-12-05: `seed = 0, n = 1, k = 1, per_cell = 0.5`): a set of one point has a
+    /// zero diagonal, the cell came out at `f64::MIN_POSITIVE` and the last ring overflowed `i64`.
+    #[test]
+    fn one_point_and_repeated_points_answer_every_query() {
+        for pts in [vec![[0.25f32, 0.5, 0.75]], vec![[1.0f32, 1.0, 1.0]; 50]] {
+            for per_cell in [0.5, 16.0] {
+                let idx = PointIndex::new(&pts, per_cell);
+                let mut out = Vec::new();
+                for p in [[0.25, 0.5, 0.75], [0.0, 0.0, 0.0], [1e12, -1e12, 3.0], [f64::MAX, 0.0, f64::MIN]] {
+                    idx.knn(p, 3, &mut out);
+                    assert_eq!(
+                        out.iter().map(|x| x.0).collect::<Vec<_>>(),
+                        brute(&pts, p, 3),
+                        "{} points, query {p:?}",
+                        pts.len()
+                    );
+                    let near = idx.nearest_within(p, 1.0);
+                    let b = brute(&pts, p, 1)[0];
+                    assert_eq!(
+                        near.map(|x| x.0),
+                        (norm2(sub(wide(pts[b as usize]), p)) <= 1.0).then_some(b),
+                        "query {p:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// A query a million diagonals away costs one pass over the grid, not a million empty rings.
+    #[test]
+    fn a_far_query_finds_the_nearest_points() {
+        let pts: Vec<[f32; 3]> =
+            (0..1000).map(|i| [(i % 10) as f32, ((i / 10) % 10) as f32, (i / 100) as f32]).collect();
+        let idx = PointIndex::new(&pts, 4.0);
+        let mut out = Vec::new();
+        for p in [[1e7, 4.5, 4.5], [-3e6, -3e6, -3e6], [4.5, 4.5, 1e9]] {
+            idx.knn(p, 5, &mut out);
+            assert_eq!(out.iter().map(|x| x.0).collect::<Vec<_>>(), brute(&pts, p, 5), "query {p:?}");
+            assert_eq!(idx.nearest_within(p, 10.0), None, "query {p:?}");
         }
     }
 }

@@ -672,7 +672,7 @@ fn read_input(
     opts: &ConvertOptions,
 ) -> Result<(Geometry, Option<crate::stages::reconstruct::fusion::FusionReport>)> {
     let read = ReadOptions { memory_budget: read.memory_budget.min(opts.memory_budget / CHAIN_MEMORY_FACTOR), ..*read };
-    super::reconstruct::read_input(input, &read).map_err(|e| {
+    super::reconstruct::read_input(input, &read, &opts.reconstruct.fusion).map_err(|e| {
         if e.code == ErrorCode::ResourceMemoryBudget {
             e.with_hint(format!(
                 "the conversion needs about {CHAIN_MEMORY_FACTOR}x the input mesh's memory; raise the memory budget or decimate the scan"

@@ -95,7 +95,7 @@ pub fn inspect(geometry: &Geometry) -> (Option<TopologyReport>, Option<CloudSumm
 pub fn inspect_file(path: &Path, options: &ReadOptions) -> Result<InspectReport> {
     let t0 = Instant::now();
     let (g, views) = if crate::geometry::io::scanset::is_scan_set(path) {
-        let views = crate::geometry::io::scanset::read_conf(path, options)?;
+        let views = crate::geometry::io::scanset::read_scan_set(path, options)?;
         let placed: Vec<[f32; 3]> = views.iter().flat_map(|v| v.placed()).collect();
         (Geometry::Cloud(crate::geometry::mesh::PointCloud::new(placed, None, None)?), Some(views))
     } else {

@@ -8,7 +8,7 @@ use crate::geometry::io::{ReadOptions, ensure_not_input, ensure_replaceable, rea
 use crate::geometry::mesh::{Geometry, PointCloud, PolyMesh, TriMesh};
 use crate::stages::Progress;
 use crate::stages::quality::{CompareOptions, DistanceReport, compare};
-use crate::stages::reconstruct::fusion::FusionReport;
+use crate::stages::reconstruct::fusion::{FuseOptions, FusionReport};
 use crate::stages::reconstruct::{ReconstructOptions, ReconstructReport, reconstruct};
 
 /// What `scanstation reconstruct` reports.
@@ -31,12 +31,12 @@ pub struct ReconstructFileReport {
 /// scanner; [`crate::stages::reconstruct::fusion`]).
 ///
 /// # Errors
-/// The readers' errors; those of [`read_conf`](crate::geometry::io::scanset::read_conf) and
+/// The readers' errors; those of [`read_scan_set`](crate::geometry::io::scanset::read_scan_set) and
 /// [`fuse`](crate::stages::reconstruct::fusion::fuse).
-pub fn read_input(path: &Path, read: &ReadOptions) -> Result<(Geometry, Option<FusionReport>)> {
+pub fn read_input(path: &Path, read: &ReadOptions, fuse: &FuseOptions) -> Result<(Geometry, Option<FusionReport>)> {
     if crate::geometry::io::scanset::is_scan_set(path) {
-        let views = crate::geometry::io::scanset::read_conf(path, read)?;
-        let (cloud, report) = crate::stages::reconstruct::fusion::fuse(&views).map_err(|e| e.in_file(path))?;
+        let views = crate::geometry::io::scanset::read_scan_set(path, read)?;
+        let (cloud, report) = crate::stages::reconstruct::fusion::fuse(&views, fuse).map_err(|e| e.in_file(path))?;
         return Ok((Geometry::Cloud(cloud), Some(report)));
     }
     Ok((read_geometry(path, read)?, None))
@@ -85,7 +85,7 @@ pub fn reconstruct_file(
 ) -> Result<ReconstructFileReport> {
     ensure_not_input(output, &[input])?;
     ensure_replaceable(output)?;
-    let (geometry, fusion) = read_input(input, read)?;
+    let (geometry, fusion) = read_input(input, read, &opts.fusion)?;
     let cloud = cloud_of(&geometry)?;
     let cmp = CompareOptions { memory_budget: opts.memory_budget, ..Default::default() };
     let (mesh, report, distance) = reconstruct_measured(&cloud, opts, &cmp, progress).map_err(|e| e.in_file(input))?;

@@ -123,6 +123,9 @@ pub struct ReconstructArgs {
     /// Keep the vertices where the grid put them (no projection onto the points' local planes).
     #[arg(long)]
     pub no_project: bool,
+    /// Scan sets: place the views by their given poses only (no multi-view ICP refinement).
+    #[arg(long)]
+    pub no_refine: bool,
 }
 
 impl ReconstructArgs {
@@ -134,6 +137,7 @@ impl ReconstructArgs {
             estimate_normals: self.estimate_normals,
             project: !self.no_project,
             memory_budget,
+            fusion: scanstation::stages::reconstruct::fusion::FuseOptions { refine: !self.no_refine },
             ..Default::default()
         }
     }

@@ -264,8 +264,8 @@ pub fn print_inspect(r: &InspectReport) {
     println!("kind:                  {}", r.kind);
     for v in r.views.iter().flatten() {
         println!(
-            "view {:<16} {:>8} points, t = {:?}, q (x y z w) = {:?}",
-            v.name, v.point_count, v.translation, v.rotation
+            "view {:<16} {:>8} points, t = {:?}, R = {:?}",
+            v.name, v.point_count, v.pose.translation, v.pose.rotation
         );
     }
     if let Some(c) = &r.cloud {

@@ -1,19 +1,35 @@
-//! Scan sets: several range scans (views), each with its pose, listed in a Stanford `.conf` file:
+//! Scan sets: several range scans (views), each with its pose (view frame → common frame, a [`Pose`]).
 //!
-//! ```text
-//! camera tx ty tz qx qy qz qw      (ignored)
-//! bmesh FILE tx ty tz qx qy qz qw  (one view: its file, relative to the .conf, and its pose)
-//! ```
+//! Three ways to give one, all read by [`read_scan_set`]:
 //!
-//! A view's points go to the common frame as `R(q)ᵀ·p + t` (unit quaternion, scalar last): scanalyze stores
-//! the quaternion of the inverse rotation (checked on the Stanford bunny: with `R(q)ᵀ·p + t` 91 % of bun045's
-//! points lie within 1 mm of bun000's, with `R(q)·p + t` 0.3 %). Errors name the line: a malformed pose or a duplicate view is `input.bad-record`, a missing view file `input.not-found`.
+//! 1. **A Stanford `.conf` file** (scanalyze):
+//!    ```text
+//!    camera tx ty tz qx qy qz qw      (ignored)
+//!    bmesh FILE tx ty tz qx qy qz qw  (one view: its file, relative to the .conf, and its pose)
+//!    ```
+//!    A view's points go to the common frame as `R(q)ᵀ·p + t` (unit quaternion, scalar last): scanalyze
+//!    stores the quaternion of the inverse rotation (checked on the Stanford bunny: with `R(q)ᵀ·p + t` 91 % of
+//!    bun045's points lie within 1 mm of bun000's, with `R(q)·p + t` 0.3 %).
+//! 2. **A `scanset.toml` manifest** ([`MANIFEST`]): one `[[view]]` table per view with its `file` and one pose
+//!    form: `matrix` (4×4, row-major, view → common frame), `translation` + `quaternion` (`[x, y, z, w]`,
+//!    the rotation itself: `R(q)·p + t`, unlike `.conf`), or `angle_deg`, a turntable angle about the
+//!    `[axis]` table's `point` and `direction` (see [`Pose::turntable`]). What the station's own scans write.
+//! 3. **A directory** holding one of them (`scanset.toml` first, else its only `.conf` file): what the daemon
+//!    takes when a scan set is renamed into its inbox in one step.
+//!
+//! In every view's frame the scanner looks down −z: a surface it sees faces +z (Stanford's convention and the
+//! station's). Errors name the line: a malformed pose or a duplicate view is `input.bad-record`, a missing
+//! view file `input.not-found`, a set without views `input.no-geometry`.
 
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, ErrorCode, Location, Result};
 use crate::geometry::io::{ReadOptions, read_geometry};
+use crate::geometry::pose::Pose;
 use crate::geometry::vec3::V3;
+
+/// The manifest's file name inside a scan-set directory.
+pub const MANIFEST: &str = "scanset.toml";
 
 /// One view of a scan set.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -22,10 +38,8 @@ pub struct View {
     pub name: String,
     /// Its file.
     pub file: PathBuf,
-    /// Translation of its pose.
-    pub translation: V3,
-    /// Rotation of its pose as a unit quaternion (x, y, z, w).
-    pub rotation: [f64; 4],
+    /// Its pose: view frame → common frame.
+    pub pose: Pose,
     /// Its points in its own frame.
     #[serde(skip)]
     pub points: Vec<[f32; 3]>,
@@ -34,45 +48,120 @@ pub struct View {
 }
 
 impl View {
-    /// The pose's rotation matrix, view frame to common frame: R(q)ᵀ (see the module docs).
-    pub fn rotation_matrix(&self) -> [[f64; 3]; 3] {
-        let [x, y, z, w] = self.rotation;
-        let w = -w; // the conjugate quaternion gives the transpose
-        [
-            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
-            [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
-            [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
-        ]
-    }
-
-    /// The view's points in the common frame (the rotation computed once).
+    /// The view's points in the common frame.
     pub fn placed(&self) -> Vec<[f32; 3]> {
-        let (r, t) = (self.rotation_matrix(), self.translation);
-        self.points
-            .iter()
-            .map(|p| {
-                let p = p.map(f64::from);
-                std::array::from_fn(|i| (r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i]) as f32)
-            })
-            .collect()
+        placed(&self.points, &self.pose)
     }
 
-    /// Direction `d` (in the view's frame) in the common frame.
-    pub fn dir_to_world(&self, d: V3) -> V3 {
-        let r = self.rotation_matrix();
-        std::array::from_fn(|i| r[i][0] * d[0] + r[i][1] * d[1] + r[i][2] * d[2])
+    /// The direction toward the scanner (the view's +z) in the common frame.
+    pub fn toward_scanner(&self) -> V3 {
+        self.pose.apply_dir([0.0, 0.0, 1.0])
     }
 }
 
-/// Largest `.conf` file, bytes.
+/// `points` moved by `pose`.
+pub fn placed(points: &[[f32; 3]], pose: &Pose) -> Vec<[f32; 3]> {
+    points.iter().map(|p| pose.apply(p.map(f64::from)).map(|c| c as f32)).collect()
+}
+
+/// Largest `.conf` or manifest file, bytes.
 pub const MAX_CONF_BYTES: u64 = 1 << 20;
 
-/// Whether `path` names a scan set (a `.conf` file).
+/// Most views in one scan set (a turntable scan at 1° steps has 360).
+pub const MAX_VIEWS: usize = 4096;
+
+/// Whether `path` names a scan set: a `.conf` file, a manifest, or a directory holding either.
 pub fn is_scan_set(path: &Path) -> bool {
+    is_conf(path) || is_manifest(path) || (path.is_dir() && manifest_in(path).is_ok())
+}
+
+fn is_conf(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("conf"))
 }
 
-/// Read a `.conf` scan set and every view it lists (each within `options`).
+fn is_manifest(path: &Path) -> bool {
+    path.file_name().is_some_and(|n| n == MANIFEST)
+}
+
+/// The manifest a scan-set directory holds: `scanset.toml`, else its only `.conf` file.
+///
+/// # Errors
+/// `input.no-geometry` for a directory with neither, `input.bad-record` for one with several `.conf` files.
+pub fn manifest_in(dir: &Path) -> Result<PathBuf> {
+    let toml = dir.join(MANIFEST);
+    if toml.is_file() {
+        return Ok(toml);
+    }
+    let mut confs: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::new(ErrorCode::InputIo, format!("cannot list the scan set: {e}")).in_file(dir))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| is_conf(p) && p.is_file())
+        .collect();
+    confs.sort();
+    match confs.len() {
+        1 => Ok(confs.remove(0)),
+        0 => Err(Error::new(
+            ErrorCode::InputNoGeometry,
+            format!("the directory holds no scan set: neither {MANIFEST} nor a .conf file"),
+        )
+        .in_file(dir)),
+        n => Err(Error::new(ErrorCode::InputBadRecord, format!("the directory holds {n} .conf files; keep one"))
+            .in_file(dir)),
+    }
+}
+
+/// Read a scan set in any of its forms (see the module docs) and every view it lists, each within `options`.
+///
+/// # Errors
+/// Those of [`read_conf`] and [`read_manifest`]; for a directory, those of [`manifest_in`].
+pub fn read_scan_set(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
+    let file = if path.is_dir() { manifest_in(path)? } else { path.to_path_buf() };
+    if is_conf(&file) { read_conf(&file, options) } else { read_manifest(&file, options) }
+}
+
+/// Collects views, checking names, files and the view count.
+struct Views<'a> {
+    path: &'a Path,
+    options: &'a ReadOptions,
+    views: Vec<View>,
+}
+
+impl Views<'_> {
+    fn push(&mut self, name: &str, pose: Pose, loc: Location) -> Result<()> {
+        let bad = |m: String| Error::new(ErrorCode::InputBadRecord, m).in_file(self.path).at(loc);
+        if self.views.len() >= MAX_VIEWS {
+            return Err(bad(format!("more than {MAX_VIEWS} views")));
+        }
+        if self.views.iter().any(|v| v.name == name) {
+            return Err(bad(format!("view {name} is listed twice")));
+        }
+        let rel = Path::new(name);
+        if name.is_empty()
+            || rel.is_absolute()
+            || rel.components().any(|c| matches!(c, std::path::Component::ParentDir))
+        {
+            return Err(bad(format!("view file {name:?} must be a relative path inside the scan set's directory")));
+        }
+        let file = self.path.parent().unwrap_or(Path::new(".")).join(rel);
+        if !file.is_file() {
+            return Err(Error::new(ErrorCode::InputNotFound, format!("view {name} is missing: {}", file.display()))
+                .in_file(self.path)
+                .at(loc));
+        }
+        let points = read_geometry(&file, self.options)?.positions().to_vec();
+        self.views.push(View { name: name.to_string(), file, pose, point_count: points.len(), points });
+        Ok(())
+    }
+
+    fn finish(self) -> Result<Vec<View>> {
+        if self.views.is_empty() {
+            return Err(Error::new(ErrorCode::InputNoGeometry, "the scan set lists no views").in_file(self.path));
+        }
+        Ok(self.views)
+    }
+}
+
+/// Read a Stanford `.conf` scan set and every view it lists (each within `options`).
 ///
 /// # Errors
 /// `input.bad-record` for a malformed line, a pose that is not finite or whose quaternion is not of unit
@@ -80,8 +169,7 @@ pub fn is_scan_set(path: &Path) -> bool {
 /// readers' errors for a view; `input.no-geometry` for a set without views.
 pub fn read_conf(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
     let text = super::read_small_text(path, MAX_CONF_BYTES, "the scan set")?;
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let mut views: Vec<View> = Vec::new();
+    let mut views = Views { path, options, views: Vec::new() };
     for (k, line) in text.lines().enumerate() {
         let loc = Location::Line(k as u64 + 1);
         let bad = |m: String| Error::new(ErrorCode::InputBadRecord, m).in_file(path).at(loc);
@@ -105,33 +193,115 @@ pub fn read_conf(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
             .map(|t| t.parse::<f64>().ok().filter(|v| v.is_finite()))
             .collect::<Option<Vec<f64>>>()
             .ok_or_else(|| bad("the pose has a value that is not a finite number".into()))?;
-        let q = [nums[3], nums[4], nums[5], nums[6]];
-        let len = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if (len - 1.0).abs() > 0.01 {
-            return Err(bad(format!("the rotation quaternion has length {len:.4}, not 1")));
-        }
-        let name = toks[1].to_string();
-        if views.iter().any(|v| v.name == name) {
-            return Err(bad(format!("view {name} is listed twice")));
-        }
-        let file = dir.join(&name);
-        if !file.is_file() {
-            return Err(Error::new(ErrorCode::InputNotFound, format!("view {name} is missing: {}", file.display()))
-                .in_file(path)
-                .at(loc));
-        }
-        let points = read_geometry(&file, options)?.positions().to_vec();
-        views.push(View {
-            name,
-            file,
-            translation: [nums[0], nums[1], nums[2]],
-            rotation: q.map(|v| v / len),
-            point_count: points.len(),
-            points,
-        });
+        // scanalyze's quaternion is the inverse rotation's: its conjugate gives R(q)ᵀ.
+        let pose =
+            Pose::from_quaternion([nums[0], nums[1], nums[2]], [-nums[3], -nums[4], -nums[5], nums[6]]).map_err(bad)?;
+        views.push(toks[1], pose, loc)?;
     }
-    if views.is_empty() {
-        return Err(Error::new(ErrorCode::InputNoGeometry, "the scan set lists no views (`bmesh` lines)").in_file(path));
+    views.finish()
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Manifest {
+    axis: Option<Axis>,
+    #[serde(default)]
+    view: Vec<ManifestView>,
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Axis {
+    point: V3,
+    direction: V3,
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ManifestView {
+    file: String,
+    matrix: Option<[[f64; 4]; 4]>,
+    translation: Option<V3>,
+    quaternion: Option<[f64; 4]>,
+    angle_deg: Option<f64>,
+}
+
+/// Read a `scanset.toml` manifest (see the module docs) and every view it lists.
+///
+/// # Errors
+/// `input.bad-record` for TOML that does not parse or has unknown keys (with its line), a view with no pose
+/// or more than one form of pose, a turntable angle without an `[axis]`, a pose refused by [`Pose`]'s
+/// constructors, or a view listed twice; `input.not-found` for a missing view file; the readers' errors for a
+/// view; `input.no-geometry` for a manifest without views.
+pub fn read_manifest(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
+    let text = super::read_small_text(path, MAX_CONF_BYTES, "the scan set")?;
+    let line_of = |offset: usize| Location::Line(text[..offset.min(text.len())].matches('\n').count() as u64 + 1);
+    let manifest: Manifest = toml::from_str(&text).map_err(|e| {
+        let err = Error::new(ErrorCode::InputBadRecord, format!("the manifest: {}", e.message())).in_file(path);
+        match e.span() {
+            Some(s) => err.at(line_of(s.start)),
+            None => err,
+        }
+    })?;
+    // Lines of the `[[view]]` headers, to name the view's line in errors.
+    let headers: Vec<usize> = text.match_indices("[[view]]").map(|(i, _)| i).collect();
+    let mut views = Views { path, options, views: Vec::new() };
+    for (k, v) in manifest.view.iter().enumerate() {
+        let loc = headers.get(k).map_or(Location::Line(1), |&o| line_of(o));
+        let bad =
+            |m: String| Error::new(ErrorCode::InputBadRecord, format!("view {}: {m}", v.file)).in_file(path).at(loc);
+        let forms = [v.matrix.is_some(), v.translation.is_some() || v.quaternion.is_some(), v.angle_deg.is_some()];
+        match forms.iter().filter(|f| **f).count() {
+            0 => return Err(bad("no pose: give `matrix`, `translation` + `quaternion`, or `angle_deg`".into())),
+            1 => {}
+            _ => return Err(bad("more than one form of pose; give one".into())),
+        }
+        let pose = if let Some(m) = v.matrix {
+            Pose::from_matrix(m)
+        } else if let Some(angle) = v.angle_deg {
+            match &manifest.axis {
+                Some(a) => Pose::turntable(a.point, a.direction, angle),
+                None => Err("a turntable angle needs the `[axis]` table (point, direction)".into()),
+            }
+        } else {
+            match (v.translation, v.quaternion) {
+                (Some(t), Some(q)) => Pose::from_quaternion(t, q),
+                _ => Err("`translation` and `quaternion` go together".into()),
+            }
+        }
+        .map_err(bad)?;
+        views.push(&v.file, pose, loc)?;
     }
-    Ok(views)
+    views.finish()
+}
+
+/// Write a `scanset.toml` manifest for `views` (file names relative to the manifest, poses as matrices).
+///
+/// # Errors
+/// `resource.output` when the file cannot be written.
+pub fn write_manifest(path: &Path, views: &[(String, Pose)]) -> Result<()> {
+    let mut s = String::from("# scan set: one [[view]] per range scan, its pose view frame -> common frame\n");
+    for (name, pose) in views {
+        let r = &pose.rotation;
+        let t = pose.translation;
+        s += &format!("\n[[view]]\nfile = {}\nmatrix = [\n", toml_string(name));
+        for i in 0..3 {
+            s += &format!("  [{:?}, {:?}, {:?}, {:?}],\n", r[i][0], r[i][1], r[i][2], t[i]);
+        }
+        s += "  [0.0, 0.0, 0.0, 1.0],\n]\n";
+    }
+    super::write::write_atomic(path, |w| std::io::Write::write_all(w, s.as_bytes()))
+}
+
+fn toml_string(s: &str) -> String {
+    let mut out = String::from("\"");
+    for c in s.chars() {
+        match c {
+            '"' => out += "\\\"",
+            '\\' => out += "\\\\",
+            c if c.is_control() => out += &format!("\\u{:04X}", c as u32),
+            c => out.push(c),
+        }
+    }
+    out + "\""
 }

@@ -13,6 +13,7 @@ pub mod fusion;
 pub mod normals;
 pub mod poisson;
 pub mod project;
+pub mod register;
 
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -63,6 +64,8 @@ pub struct ReconstructOptions {
     pub project: bool,
     /// Most bytes the stage may allocate.
     pub memory_budget: u64,
+    /// How the views of a scan set are fused ([`fusion`]).
+    pub fusion: fusion::FuseOptions,
 }
 
 impl Default for ReconstructOptions {
@@ -74,6 +77,7 @@ impl Default for ReconstructOptions {
             estimate_normals: false,
             project: true,
             memory_budget: 8 << 30,
+            fusion: fusion::FuseOptions::default(),
         }
     }
 }

@@ -110,13 +110,21 @@ pub const FLAT_RATIO: f64 = 1e-10;
 
 /// PCA normals (unoriented), one per point, from its neighbours.
 pub fn pca_normals(points: &[[f32; 3]], nb: &Neighbours) -> Vec<V3> {
-    (0..points.len())
+    pca_normals_and_spread(points, nb).0
+}
+
+/// PCA normals and the RMS distance of the neighbourhoods from their planes (noise plus curvature over the
+/// neighbourhood: a range scan's noise level).
+pub fn pca_normals_and_spread(points: &[[f32; 3]], nb: &Neighbours) -> (Vec<V3>, f64) {
+    let rows: Vec<(V3, f64)> = (0..points.len())
         .into_par_iter()
         .map(|i| {
-            let (_, vecs) = principal(nb.of(i).iter().map(|&j| wide(points[j as usize])));
-            vecs[0]
+            let (vals, vecs) = principal(nb.of(i).iter().map(|&j| wide(points[j as usize])));
+            (vecs[0], vals[0])
         })
-        .collect()
+        .collect();
+    let spread = (rows.iter().map(|r| r.1).sum::<f64>() / rows.len().max(1) as f64).sqrt();
+    (rows.into_iter().map(|r| r.0).collect(), spread)
 }
 
 /// Given normals: finite, non-zero, made unit.
