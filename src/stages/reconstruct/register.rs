@@ -46,7 +46,7 @@ pub const SAMPLES_PER_VIEW: usize = 4000;
 pub const MIN_CORRESPONDENCES: usize = 50;
 
 /// Most sweeps over all views.
-pub const MAX_SWEEPS: usize = 40;
+pub const MAX_SWEEPS: usize = 60;
 
 /// The poses have stopped when no view moved more than this share of its mean spacing in a sweep (motion of
 /// a view: rotation × its radius plus translation).
