@@ -1013,3 +1013,56 @@ fn a_point_cloud_in_the_inbox_becomes_a_solid() {
     assert_eq!(report["convert"]["reconstruct"]["report"]["points"], 2562, "{}", report["convert"]["reconstruct"]);
     assert!(bundle.join("ball.step").is_file(), "{:?}", visible(&bundle));
 }
+
+/// A scan set renamed into the inbox as a directory (four views of a sphere on a turntable, their table
+/// angles in `scanset.toml`) becomes one job: fused, reconstructed and converted, its bundle in the outbox
+/// with the fusion in the report. A directory holding no scan set goes to quarantine whole, with
+/// `input.no-geometry`, its files kept.
+#[test]
+fn a_scan_set_directory_in_the_inbox_becomes_one_solid() {
+    need("busctl", "systemd");
+    let dir = common::scratch("daemon-scanset");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let mut st = Station::new(&dir, &bus, false, "");
+    st.start();
+    let sphere = icosphere(1.0, 5, [0.0; 3]);
+    let set = dir.join("ball-set");
+    std::fs::create_dir_all(&set).unwrap();
+    let mut manifest = String::from("[axis]\npoint = [0.0, 0.0, 0.0]\ndirection = [0.0, 1.0, 0.0]\n");
+    for k in 0..4 {
+        // The table turned by θ about y; the scanner looks down −z and sees what faces +z.
+        let t = (90.0 * k as f64).to_radians();
+        let xyz: String = sphere
+            .positions
+            .iter()
+            .map(|p| p.map(f64::from))
+            .map(|p| [t.cos() * p[0] + t.sin() * p[2], p[1], -t.sin() * p[0] + t.cos() * p[2]])
+            .filter(|q| q[2] > 0.2)
+            .map(|q| format!("{} {} {}\n", q[0], q[1], q[2]))
+            .collect();
+        std::fs::write(set.join(format!("v{k}.xyz")), xyz).unwrap();
+        manifest += &format!("\n[[view]]\nfile = \"v{k}.xyz\"\nangle_deg = {}\n", 90 * k);
+    }
+    std::fs::write(set.join("scanset.toml"), manifest).unwrap();
+    std::fs::rename(&set, st.inbox().join("ball-set")).unwrap();
+    let junk = dir.join("holiday-photos");
+    std::fs::create_dir_all(&junk).unwrap();
+    std::fs::write(junk.join("a.txt"), "not a scan").unwrap();
+    std::fs::rename(&junk, st.inbox().join("holiday-photos")).unwrap();
+    st.wait_done(2, Duration::from_secs(180));
+    let out = visible(&st.spool("outbox"));
+    assert!(out.len() == 1 && out[0].starts_with("ball-set-"), "outbox: {out:?}\n{}", st.log());
+    let bundle = st.spool("outbox").join(&out[0]);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(bundle.join("ball-set.report.json")).unwrap()).unwrap();
+    let fusion = &report["convert"]["reconstruct"]["fusion"];
+    assert_eq!(fusion["views"].as_array().map(Vec::len), Some(4), "{fusion}");
+    assert!(bundle.join("ball-set.step").is_file(), "{:?}", visible(&bundle));
+    let q = visible(&st.spool("quarantine"));
+    assert!(q.len() == 1 && q[0].starts_with("holiday-photos-"), "quarantine: {q:?}\n{}", st.log());
+    let qdir = st.spool("quarantine").join(&q[0]);
+    assert!(qdir.join("holiday-photos/a.txt").is_file(), "the directory is kept whole: {:?}", visible(&qdir));
+    let err: serde_json::Value = serde_json::from_slice(&std::fs::read(qdir.join("error.json")).unwrap()).unwrap();
+    assert_eq!(err["error_code"], "input.no-geometry", "{err}");
+    assert!(visible(&st.inbox()).is_empty(), "inbox: {:?}", visible(&st.inbox()));
+}

@@ -133,8 +133,9 @@ pub fn publish_dir(part: &Path, public: &Path) -> std::io::Result<()> {
     sync_dir(public.parent().unwrap_or(Path::new(".")))
 }
 
-/// Size and modification time of a file (None when gone or not a regular file).
+/// Size and modification time of a file, or of a directory itself (its mtime changes as entries come and
+/// go); None when gone or anything else.
 pub fn stat(path: &Path) -> Option<(u64, i64, i64)> {
     let m = std::fs::symlink_metadata(path).ok()?;
-    m.is_file().then(|| (m.len(), m.mtime(), m.mtime_nsec()))
+    (m.is_file() || m.is_dir()).then(|| (if m.is_dir() { 0 } else { m.len() }, m.mtime(), m.mtime_nsec()))
 }

@@ -34,7 +34,8 @@ pub struct ReconstructFileReport {
 /// The readers' errors; those of [`read_scan_set`](crate::geometry::io::scanset::read_scan_set) and
 /// [`fuse`](crate::stages::reconstruct::fusion::fuse).
 pub fn read_input(path: &Path, read: &ReadOptions, fuse: &FuseOptions) -> Result<(Geometry, Option<FusionReport>)> {
-    if crate::geometry::io::scanset::is_scan_set(path) {
+    // A directory is read as a scan set (one without a manifest is refused by name).
+    if crate::geometry::io::scanset::is_scan_set(path) || path.is_dir() {
         let views = crate::geometry::io::scanset::read_scan_set(path, read)?;
         let (cloud, report) = crate::stages::reconstruct::fusion::fuse(&views, fuse).map_err(|e| e.in_file(path))?;
         return Ok((Geometry::Cloud(cloud), Some(report)));

@@ -35,14 +35,14 @@ pub(super) struct Hashing {
 impl Station {
     /// A new record for the claimed `input`, hashing it here. Cost: reads the whole input.
     pub(super) fn new_record(&self, id: JobId, input: &Path, source: String) -> std::io::Result<JobRecord> {
-        let sha = crate::pipeline::provenance::sha256_file(input).map_err(std::io::Error::other)?;
+        let sha = crate::pipeline::provenance::sha256_input(input).map_err(std::io::Error::other)?;
         Ok(Self::record(id, input, source, sha))
     }
 
     /// A new queued record for the claimed `input` whose hash is `sha`.
     fn record(id: JobId, input: &Path, source: String, sha: String) -> JobRecord {
         let name = input.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let size = std::fs::metadata(input).map(|m| m.len()).unwrap_or(0);
+        let size = crate::pipeline::provenance::input_size(input);
         JobRecord {
             schema: SCHEMA,
             id,
@@ -157,7 +157,7 @@ impl Station {
             let copied = if in_inbox { Ok(()) } else { copy_durably(&src, &dest, &work) };
             let sha256 = copied
                 .map_err(|e| Error::new(ErrorCode::InputIo, format!("{what}: {e}")))
-                .and_then(|()| crate::pipeline::provenance::sha256_file(&dest));
+                .and_then(|()| crate::pipeline::provenance::sha256_input(&dest));
             let _ = tx.send(Hashed { id, sha256 });
         });
     }
@@ -178,7 +178,9 @@ impl Station {
             return;
         }
         let src = self.spool.inbox.join(name);
-        if !src.is_file() {
+        // A file, or a directory renamed in whole (a scan set; README, "Watch folders").
+        let kind = std::fs::symlink_metadata(&src).map(|m| m.file_type());
+        if !kind.is_ok_and(|k| k.is_file() || k.is_dir()) {
             return;
         }
         let id = JobId::new();
@@ -210,7 +212,7 @@ impl Station {
         });
         let tx = self.intake_tx.clone();
         tokio::task::spawn_blocking(move || {
-            let sha256 = crate::pipeline::provenance::sha256_file(&dest);
+            let sha256 = crate::pipeline::provenance::sha256_input(&dest);
             let _ = tx.send(Hashed { id, sha256 });
         });
     }
