@@ -1016,7 +1016,7 @@ fn a_point_cloud_in_the_inbox_becomes_a_solid() {
 
 /// A scan set renamed into the inbox as a directory (four views of a sphere on a turntable, their table
 /// angles in `scanset.toml`) becomes one job: fused, reconstructed and converted, its bundle in the outbox
-/// with the fusion in the report. A directory holding no scan set goes to quarantine whole, with
+/// with the fusion in the report; the same views as an E57 file too. A directory holding no scan set goes to quarantine whole, with
 /// `input.no-geometry`, its files kept.
 #[test]
 fn a_scan_set_directory_in_the_inbox_becomes_one_solid() {
@@ -1028,31 +1028,47 @@ fn a_scan_set_directory_in_the_inbox_becomes_one_solid() {
     let sphere = icosphere(1.0, 5, [0.0; 3]);
     let set = dir.join("ball-set");
     std::fs::create_dir_all(&set).unwrap();
-    let mut manifest = String::from("[axis]\npoint = [0.0, 0.0, 0.0]\ndirection = [0.0, 1.0, 0.0]\n");
+    let mut manifest = String::from("[axis]\npoint = [0.0, 0.0, -3.0]\ndirection = [0.0, 1.0, 0.0]\n");
     for k in 0..4 {
-        // The table turned by θ about y; the scanner looks down −z and sees what faces +z.
+        // The table turned by θ about its vertical axis 3 units in front of the scanner, which sits at the
+        // origin looking down −z and sees what faces it.
         let t = (90.0 * k as f64).to_radians();
         let xyz: String = sphere
             .positions
             .iter()
             .map(|p| p.map(f64::from))
             .map(|p| [t.cos() * p[0] + t.sin() * p[2], p[1], -t.sin() * p[0] + t.cos() * p[2]])
-            .filter(|q| q[2] > 0.2)
+            .filter(|q| q[2] > 0.4)
+            .map(|q| [q[0], q[1], q[2] - 3.0])
             .map(|q| format!("{} {} {}\n", q[0], q[1], q[2]))
             .collect();
         std::fs::write(set.join(format!("v{k}.xyz")), xyz).unwrap();
         manifest += &format!("\n[[view]]\nfile = \"v{k}.xyz\"\nangle_deg = {}\n", 90 * k);
     }
     std::fs::write(set.join("scanset.toml"), manifest).unwrap();
+    // The same views as an E57 file (one point cloud per view, its pose as the cloud's transform).
+    let views = scanstation::geometry::io::scanset::read_scan_set(&set, &Default::default()).unwrap();
+    let listed: Vec<_> = views.iter().map(|v| (v.name.clone(), v.pose, v.points.clone())).collect();
+    scanstation::geometry::io::e57::write_e57(&dir.join("ball.e57.part"), &listed).unwrap();
+    std::fs::rename(dir.join("ball.e57.part"), st.inbox().join("ball.e57")).unwrap();
     std::fs::rename(&set, st.inbox().join("ball-set")).unwrap();
     let junk = dir.join("holiday-photos");
     std::fs::create_dir_all(&junk).unwrap();
     std::fs::write(junk.join("a.txt"), "not a scan").unwrap();
     std::fs::rename(&junk, st.inbox().join("holiday-photos")).unwrap();
-    st.wait_done(2, Duration::from_secs(180));
-    let out = visible(&st.spool("outbox"));
-    assert!(out.len() == 1 && out[0].starts_with("ball-set-"), "outbox: {out:?}\n{}", st.log());
-    let bundle = st.spool("outbox").join(&out[0]);
+    st.wait_done(3, Duration::from_secs(240));
+    let mut out = visible(&st.spool("outbox"));
+    out.sort();
+    assert!(
+        out.len() == 2 && out[0].starts_with("ball-") && out[1].starts_with("ball-set-"),
+        "outbox: {out:?}\n{}",
+        st.log()
+    );
+    let e57: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(st.spool("outbox").join(&out[0]).join("ball.report.json")).unwrap())
+            .unwrap();
+    assert_eq!(e57["convert"]["reconstruct"]["fusion"]["views"].as_array().map(Vec::len), Some(4), "ball.e57");
+    let bundle = st.spool("outbox").join(&out[1]);
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(bundle.join("ball-set.report.json")).unwrap()).unwrap();
     let fusion = &report["convert"]["reconstruct"]["fusion"];

@@ -300,7 +300,7 @@ impl Config {
         let accept: Vec<String> = raw
             .watch
             .accept
-            .unwrap_or_else(|| ["ply", "obj", "stl", "off", "xyz", "pts"].map(String::from).to_vec())
+            .unwrap_or_else(|| ["ply", "obj", "stl", "off", "xyz", "pts", "e57", "conf"].map(String::from).to_vec())
             .into_iter()
             .map(|a| a.trim_start_matches('.').to_ascii_lowercase())
             .collect();

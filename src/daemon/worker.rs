@@ -274,7 +274,7 @@ pub fn error_json(rec: &JobRecord, digest: &str, stage: &str, e: &Error) -> serd
 fn default_hint(code: ErrorCode) -> &'static str {
     use ErrorCode::*;
     match code {
-        InputUnknownFormat => "use PLY, OBJ, STL, OFF or XYZ (optionally .gz)",
+        InputUnknownFormat => "use PLY, OBJ, STL, OFF or XYZ (optionally .gz), E57, or a scan-set directory",
         InputDuplicate => "the same content was processed recently; see the earlier job named in the message",
         InputTooLarge => "raise limits.max_input_size or decimate the scan",
         ResourceMemoryBudget => "raise limits.memory_budget or lower the resolution (vertices)",

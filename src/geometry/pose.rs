@@ -101,6 +101,29 @@ impl Pose {
         Ok(Pose { rotation, translation: sub(point, turn.apply_dir(point)) })
     }
 
+    /// The rotation as a unit quaternion `(x, y, z, w)`, `w ≥ 0` (Shepperd's method: from the largest of the
+    /// four squared components, so it stays exact near every angle).
+    pub fn quaternion(&self) -> [f64; 4] {
+        let r = &self.rotation;
+        let t = r[0][0] + r[1][1] + r[2][2];
+        let q = if t > r[0][0].max(r[1][1]).max(r[2][2]) {
+            let s = (1.0 + t).sqrt() * 2.0;
+            [(r[2][1] - r[1][2]) / s, (r[0][2] - r[2][0]) / s, (r[1][0] - r[0][1]) / s, 0.25 * s]
+        } else if r[0][0] >= r[1][1] && r[0][0] >= r[2][2] {
+            let s = (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt() * 2.0;
+            [0.25 * s, (r[0][1] + r[1][0]) / s, (r[0][2] + r[2][0]) / s, (r[2][1] - r[1][2]) / s]
+        } else if r[1][1] >= r[2][2] {
+            let s = (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt() * 2.0;
+            [(r[0][1] + r[1][0]) / s, 0.25 * s, (r[1][2] + r[2][1]) / s, (r[0][2] - r[2][0]) / s]
+        } else {
+            let s = (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt() * 2.0;
+            [(r[0][2] + r[2][0]) / s, (r[1][2] + r[2][1]) / s, 0.25 * s, (r[1][0] - r[0][1]) / s]
+        };
+        let len = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let sign = if q[3] < 0.0 { -1.0 } else { 1.0 };
+        q.map(|v| sign * v / len)
+    }
+
     /// `R·p + t`.
     pub fn apply(&self, p: V3) -> V3 {
         add(self.apply_dir(p), self.translation)
@@ -183,6 +206,15 @@ mod tests {
         let (angle, shift) = q.difference(&Pose::IDENTITY);
         assert!((angle - 90.0).abs() < 1e-9 && (shift - 14f64.sqrt()).abs() < 1e-12, "{angle} {shift}");
         assert!(close(q.then_after(&m).apply(p), q.apply(m.apply(p))));
+        // The quaternion round trip, near 0°, 90° and 180° about several axes.
+        for (axis, deg) in
+            [([0.0, 0.0, 1.0], 90.0), ([1.0, 2.0, 3.0], 179.9), ([0.3, -1.0, 0.2], 0.01), ([1.0, 0.0, 0.0], 180.0)]
+        {
+            let n = norm(axis);
+            let pose = Pose { rotation: axis_angle(scale(axis, 1.0 / n), f64::to_radians(deg)), translation: [0.0; 3] };
+            let back = Pose::from_quaternion([0.0; 3], pose.quaternion()).unwrap();
+            assert!(back.difference(&pose).0 < 1e-9, "{axis:?} {deg}°");
+        }
     }
 
     #[test]

@@ -5,6 +5,7 @@
 //! hold (for gzip, the deflate limit of 1032 output bytes per input byte) and against the memory budget.
 //! Every error names the file and the line (text formats) or byte offset (binary formats).
 
+pub mod e57;
 mod obj;
 mod off;
 mod ply;

@@ -14,7 +14,8 @@
 //!    form: `matrix` (4×4, row-major, view → common frame), `translation` + `quaternion` (`[x, y, z, w]`,
 //!    the rotation itself: `R(q)·p + t`, unlike `.conf`), or `angle_deg`, a turntable angle about the
 //!    `[axis]` table's `point` and `direction` (see [`Pose::turntable`]). What the station's own scans write.
-//! 3. **A directory** holding one of them (`scanset.toml` first, else its only `.conf` file): what the daemon
+//! 3. **An E57 file** ([`super::e57`]): each point cloud a view, the scanner at its frame's origin.
+//! 4. **A directory** holding one of them (`scanset.toml` first, else its only `.conf` file): what the daemon
 //!    takes when a scan set is renamed into its inbox in one step.
 //!
 //! In every view's frame the scanner looks down −z: a surface it sees faces +z (Stanford's convention and the
@@ -45,6 +46,9 @@ pub struct View {
     pub points: Vec<[f32; 3]>,
     /// Its points' count.
     pub point_count: usize,
+    /// Where the scanner stood in the view's frame, when known (E57: the origin); `None`: far along +z
+    /// (the scanner looks down −z, Stanford's convention and the station's).
+    pub scanner: Option<V3>,
 }
 
 impl View {
@@ -53,9 +57,16 @@ impl View {
         placed(&self.points, &self.pose)
     }
 
-    /// The direction toward the scanner (the view's +z) in the common frame.
-    pub fn toward_scanner(&self) -> V3 {
-        self.pose.apply_dir([0.0, 0.0, 1.0])
+    /// The unit direction from the view's point `p` (its own frame) toward its scanner, in its own frame.
+    pub fn toward_scanner(&self, p: V3) -> V3 {
+        match self.scanner {
+            None => [0.0, 0.0, 1.0],
+            Some(s) => {
+                let d = crate::geometry::vec3::sub(s, p);
+                let n = crate::geometry::vec3::norm(d);
+                if n > 0.0 { crate::geometry::vec3::scale(d, 1.0 / n) } else { [0.0, 0.0, 1.0] }
+            }
+        }
     }
 }
 
@@ -70,9 +81,9 @@ pub const MAX_CONF_BYTES: u64 = 1 << 20;
 /// Most views in one scan set (a turntable scan at 1° steps has 360).
 pub const MAX_VIEWS: usize = 4096;
 
-/// Whether `path` names a scan set: a `.conf` file, a manifest, or a directory holding either.
+/// Whether `path` names a scan set: an E57 file, a `.conf` file, a manifest, or a directory holding either.
 pub fn is_scan_set(path: &Path) -> bool {
-    is_conf(path) || is_manifest(path) || (path.is_dir() && manifest_in(path).is_ok())
+    super::e57::is_e57(path) || is_conf(path) || is_manifest(path) || (path.is_dir() && manifest_in(path).is_ok())
 }
 
 fn is_conf(path: &Path) -> bool {
@@ -115,6 +126,9 @@ pub fn manifest_in(dir: &Path) -> Result<PathBuf> {
 /// # Errors
 /// Those of [`read_conf`] and [`read_manifest`]; for a directory, those of [`manifest_in`].
 pub fn read_scan_set(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
+    if super::e57::is_e57(path) {
+        return super::e57::read_e57(path, options);
+    }
     let file = if path.is_dir() { manifest_in(path)? } else { path.to_path_buf() };
     if is_conf(&file) { read_conf(&file, options) } else { read_manifest(&file, options) }
 }
@@ -149,7 +163,7 @@ impl Views<'_> {
                 .at(loc));
         }
         let points = read_geometry(&file, self.options)?.positions().to_vec();
-        self.views.push(View { name: name.to_string(), file, pose, point_count: points.len(), points });
+        self.views.push(View { name: name.to_string(), file, pose, point_count: points.len(), points, scanner: None });
         Ok(())
     }
 

@@ -3,7 +3,8 @@
 //!
 //! Steps ([`fuse`]):
 //! 1. each view's normals are estimated within the view (PCA over its own neighbours, in its own frame) and
-//!    turned toward its scanner (the view's +z, see [`crate::geometry::io::scanset`]);
+//!    turned toward its scanner (the view's +z, or its scanner's position where known: E57; see
+//!    [`crate::geometry::io::scanset`]);
 //! 2. each view's fit to the others is measured at the given poses: overlap share and RMS point-to-plane
 //!    residual to the nearest agreeing point of another view within [`OVERLAP_SPACINGS`];
 //! 3. the poses are refined by multi-view point-to-plane ICP ([`super::register`]) and measured again. The
@@ -141,14 +142,15 @@ pub const EDGE_SHIFT: f64 = 0.3;
 
 /// Each point's confidence: its incidence cosine toward the scanner (the normal's z in the view's frame),
 /// zero on the view's edge.
-fn confidences(points: &[[f32; 3]], nb: &Neighbours, normals: &[V3]) -> Vec<f32> {
-    use crate::geometry::vec3::{add, norm, scale, sub, wide};
+fn confidences(view: &View, nb: &Neighbours, normals: &[V3]) -> Vec<f32> {
+    use crate::geometry::vec3::{add, dot, norm, scale, sub, wide};
+    let points = &view.points;
     (0..points.len())
         .map(|i| {
             let ids = nb.of(i);
             let c = scale(ids.iter().fold([0.0; 3], |s, &j| add(s, wide(points[j as usize]))), 1.0 / ids.len() as f64);
             let edge = norm(sub(c, wide(points[i]))) > EDGE_SHIFT * nb.radius[i];
-            if edge { 0.0 } else { normals[i][2].abs() as f32 }
+            if edge { 0.0 } else { dot(normals[i], view.toward_scanner(wide(points[i]))).abs() as f32 }
         })
         .collect()
 }
@@ -216,9 +218,15 @@ pub fn fuse(views: &[View], opts: &FuseOptions) -> Result<(PointCloud, FusionRep
         let nb = Neighbours::new(idx, &v.points, VIEW_NEIGHBOURS);
         spacings.push(nb.mean_nearest(&v.points));
         let (n, spread) = pca_normals_and_spread(&v.points, &nb);
-        normals.push(n.into_iter().map(|n| if n[2] < 0.0 { n.map(|c| -c) } else { n }).collect());
+        let toward = |i: usize| v.toward_scanner(crate::geometry::vec3::wide(v.points[i]));
+        normals.push(
+            n.into_iter()
+                .enumerate()
+                .map(|(i, n)| if crate::geometry::vec3::dot(n, toward(i)) < 0.0 { n.map(|c| -c) } else { n })
+                .collect(),
+        );
         spreads.push(spread);
-        confidence.push(confidences(&v.points, &nb, normals.last().unwrap()));
+        confidence.push(confidences(v, &nb, normals.last().unwrap()));
     }
     let clouds: Vec<ViewCloud> = (0..views.len())
         .map(|k| ViewCloud {
