@@ -7,7 +7,9 @@
 //!    [`crate::geometry::io::scanset`]);
 //! 2. each view's fit to the others is measured at the given poses: overlap share and RMS point-to-plane
 //!    residual to the nearest agreeing point of another view within [`OVERLAP_SPACINGS`];
-//! 3. the poses are refined by multi-view point-to-plane ICP ([`super::register`]) and measured again. The
+//! 3. the poses are refined by multi-view point-to-plane ICP ([`super::register`]) and measured again: only
+//!    the views that do not fit ([`MISFIT_FACTOR`]) move while the others hold the frame, unless the views'
+//!    median residual exceeds [`GLOBAL_FACTOR`] × their own noise (then all but the first). The
 //!    refined poses are kept only when they fit better: pooled RMS residual down by at least
 //!    [`MIN_IMPROVEMENT`] with no fewer pairs. Good poses are never degraded: when ICP cannot improve them
 //!    measurably the given ones stay, and the report says which were used and why;
