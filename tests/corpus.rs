@@ -594,10 +594,7 @@ fn bunny_scans_fuse_into_one_closed_mesh_near_the_zippered_bunny() {
     let centre = [-0.027, 0.11, 0.0];
     let perturb = |axis: [f64; 3], deg: f64, shift: [f64; 3]| {
         let len = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
-        let rotation = axis_angle(axis.map(|c| c / len), deg.to_radians());
-        let turn = Pose { rotation, translation: [0.0; 3] };
-        let c = turn.apply(centre);
-        Pose { rotation, translation: std::array::from_fn(|i| centre[i] - c[i] + shift[i]) }
+        Pose::about(axis_angle(axis.map(|c| c / len), deg.to_radians()), centre, shift)
     };
     let set = |what: &str, pose_of: &dyn Fn(usize) -> Pose| {
         let d = scratch.join(what);

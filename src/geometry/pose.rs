@@ -95,10 +95,13 @@ impl Pose {
         if len < 1e-12 {
             return Err("the turntable axis direction is zero".into());
         }
-        let rotation = axis_angle(scale(direction, 1.0 / len), -angle_deg.to_radians());
-        let turn = Pose { rotation, translation: [0.0; 3] };
-        // w = R (p − a) + a
-        Ok(Pose { rotation, translation: sub(point, turn.apply_dir(point)) })
+        Ok(Pose::about(axis_angle(scale(direction, 1.0 / len), -angle_deg.to_radians()), point, [0.0; 3]))
+    }
+
+    /// `rotation` about `centre`, then `shift`: `w = R·(p − c) + c + shift`.
+    pub fn about(rotation: [[f64; 3]; 3], centre: V3, shift: V3) -> Pose {
+        let turned = Pose { rotation, translation: [0.0; 3] }.apply_dir(centre);
+        Pose { rotation, translation: add(sub(centre, turned), shift) }
     }
 
     /// The rotation as a unit quaternion `(x, y, z, w)`, `w ≥ 0` (Shepperd's method: from the largest of the

@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 use crate::error::{Error, ErrorCode, Location, Result};
 use crate::geometry::io::{ReadOptions, read_geometry};
 use crate::geometry::pose::Pose;
-use crate::geometry::vec3::V3;
+use crate::geometry::vec3::{V3, norm, scale, sub};
 
 /// The manifest's file name inside a scan-set directory.
 pub const MANIFEST: &str = "scanset.toml";
@@ -62,9 +62,9 @@ impl View {
         match self.scanner {
             None => [0.0, 0.0, 1.0],
             Some(s) => {
-                let d = crate::geometry::vec3::sub(s, p);
-                let n = crate::geometry::vec3::norm(d);
-                if n > 0.0 { crate::geometry::vec3::scale(d, 1.0 / n) } else { [0.0, 0.0, 1.0] }
+                let d = sub(s, p);
+                let n = norm(d);
+                if n > 0.0 { scale(d, 1.0 / n) } else { [0.0, 0.0, 1.0] }
             }
         }
     }

@@ -30,7 +30,7 @@ use crate::geometry::io::scanset::{View, placed};
 use crate::geometry::mesh::PointCloud;
 use crate::geometry::points::PointIndex;
 use crate::geometry::pose::Pose;
-use crate::geometry::vec3::V3;
+use crate::geometry::vec3::{V3, add, dot, norm, scale, sub, wide};
 
 /// Overlap reach, in mean point spacings of the view.
 pub const OVERLAP_SPACINGS: f64 = 3.0;
@@ -145,7 +145,6 @@ pub const EDGE_SHIFT: f64 = 0.3;
 /// Each point's confidence: its incidence cosine toward the scanner (the normal's z in the view's frame),
 /// zero on the view's edge.
 fn confidences(view: &View, nb: &Neighbours, normals: &[V3]) -> Vec<f32> {
-    use crate::geometry::vec3::{add, dot, norm, scale, sub, wide};
     let points = &view.points;
     (0..points.len())
         .map(|i| {
@@ -165,7 +164,7 @@ fn relative_confidence(positions: &[[f32; 3]], conf: &[f32]) -> Vec<f32> {
     (0..positions.len())
         .into_par_iter()
         .map_init(Vec::new, |buf, i| {
-            index.knn(crate::geometry::vec3::wide(positions[i]), CONFIDENCE_NEIGHBOURS, buf);
+            index.knn(wide(positions[i]), CONFIDENCE_NEIGHBOURS, buf);
             let best = buf.iter().map(|&(j, _)| conf[j as usize]).fold(0.0f32, f32::max);
             if best > 0.0 { conf[i] / best } else { 1.0 }
         })
@@ -220,12 +219,9 @@ pub fn fuse(views: &[View], opts: &FuseOptions) -> Result<(PointCloud, FusionRep
         let nb = Neighbours::new(idx, &v.points, VIEW_NEIGHBOURS);
         spacings.push(nb.mean_nearest(&v.points));
         let (n, spread) = pca_normals_and_spread(&v.points, &nb);
-        let toward = |i: usize| v.toward_scanner(crate::geometry::vec3::wide(v.points[i]));
+        let toward = |i: usize| v.toward_scanner(wide(v.points[i]));
         normals.push(
-            n.into_iter()
-                .enumerate()
-                .map(|(i, n)| if crate::geometry::vec3::dot(n, toward(i)) < 0.0 { n.map(|c| -c) } else { n })
-                .collect(),
+            n.into_iter().enumerate().map(|(i, n)| if dot(n, toward(i)) < 0.0 { n.map(|c| -c) } else { n }).collect(),
         );
         spreads.push(spread);
         confidence.push(confidences(v, &nb, normals.last().unwrap()));

@@ -23,8 +23,8 @@ use nalgebra::{Matrix6, SymmetricEigen, Vector3, Vector6};
 use rayon::prelude::*;
 
 use crate::geometry::points::PointIndex;
-use crate::geometry::pose::Pose;
-use crate::geometry::vec3::{Aabb, V3, cross, dot, norm, scale, sub, wide};
+use crate::geometry::pose::{Pose, axis_angle};
+use crate::geometry::vec3::{Aabb, V3, add, cross, dot, norm, norm2, scale, sub, wide};
 
 /// Correspondences must have normals within this angle (degrees): the two views' normals both face their
 /// scanners, so on a shared surface they agree; across a thin wall they do not.
@@ -130,17 +130,16 @@ fn pair(views: &[ViewCloud], poses: &[Pose], boxes: &[Aabb], a: usize, i: usize,
     best.map(|(_, pr)| pr)
 }
 
+/// A view's box in the common frame.
+fn view_box(v: &ViewCloud, pose: &Pose) -> Aabb {
+    let mut b = Aabb::EMPTY;
+    v.points.iter().for_each(|&p| b.add(pose.apply(wide(p))));
+    b
+}
+
 /// The views' boxes in the common frame.
 fn boxes(views: &[ViewCloud], poses: &[Pose]) -> Vec<Aabb> {
-    views
-        .iter()
-        .zip(poses)
-        .map(|(v, pose)| {
-            let mut b = Aabb::EMPTY;
-            v.points.iter().for_each(|&p| b.add(pose.apply(wide(p))));
-            b
-        })
-        .collect()
+    views.iter().zip(poses).map(|(v, pose)| view_box(v, pose)).collect()
 }
 
 /// How each view fits the others at `poses`, over all its points, with the reach `reach_spacings` × its
@@ -175,9 +174,11 @@ pub fn refine(views: &[ViewCloud], poses: &mut [Pose], movable: &[bool]) -> Refi
     for sweep in 0..MAX_SWEEPS {
         let reach_spacings = (INITIAL_REACH_SPACINGS * 0.7f64.powi(sweep as i32)).max(super::fusion::OVERLAP_SPACINGS);
         let mut worst: f64 = 0.0;
+        // Only the view that just moved changes its box.
+        let mut boxes = boxes(views, poses);
         for a in (0..views.len()).filter(|&a| movable[a]) {
-            let boxes = boxes(views, poses);
             let moved = step(views, poses, &boxes, a, reach_spacings * views[a].spacing);
+            boxes[a] = view_box(&views[a], &poses[a]);
             worst = worst.max(moved / views[a].spacing);
         }
         last = worst;
@@ -209,12 +210,9 @@ fn step(views: &[ViewCloud], poses: &mut [Pose], boxes: &[Aabb], a: usize, reach
     let sigma = (1.4826 * abs[abs.len() / 2]).max(1e-3 * v.spacing);
     let c = TUKEY_C * sigma;
     // 3. The normal equations about the pairs' centroid, rotation scaled by the radius for conditioning.
-    let centre =
-        scale(pairs.iter().fold([0.0; 3], |s, p| crate::geometry::vec3::add(s, p.p)), 1.0 / pairs.len() as f64);
-    let radius = (pairs.iter().map(|p| crate::geometry::vec3::norm2(sub(p.p, centre))).sum::<f64>()
-        / pairs.len() as f64)
-        .sqrt()
-        .max(v.spacing);
+    let centre = scale(pairs.iter().fold([0.0; 3], |s, p| add(s, p.p)), 1.0 / pairs.len() as f64);
+    let radius =
+        (pairs.iter().map(|p| norm2(sub(p.p, centre))).sum::<f64>() / pairs.len() as f64).sqrt().max(v.spacing);
     let mut ata = Matrix6::<f64>::zeros();
     let mut atb = Vector6::<f64>::zeros();
     for pr in &pairs {
@@ -247,17 +245,10 @@ fn step(views: &[ViewCloud], poses: &mut [Pose], boxes: &[Aabb], a: usize, reach
     let tau = [x[3], x[4], x[5]];
     let angle = omega.norm();
     let rot = if angle > 0.0 {
-        crate::geometry::pose::axis_angle([omega[0] / angle, omega[1] / angle, omega[2] / angle], angle)
+        axis_angle([omega[0] / angle, omega[1] / angle, omega[2] / angle], angle)
     } else {
         Pose::IDENTITY.rotation
     };
-    let about = Pose {
-        rotation: rot,
-        translation: crate::geometry::vec3::add(
-            sub(centre, Pose { rotation: rot, translation: [0.0; 3] }.apply(centre)),
-            tau,
-        ),
-    };
-    poses[a] = about.then_after(&poses[a]);
+    poses[a] = Pose::about(rot, centre, tau).then_after(&poses[a]);
     angle * radius + norm(tau)
 }
