@@ -161,6 +161,32 @@ fn bad_clouds_get_stable_codes() {
     assert_eq!(e.code, ErrorCode::ResourceMemoryBudget, "{e}");
 }
 
+/// A budget: the grid's resolution comes down to fit it, points that do not fit beside the grid are merged per
+/// cell (reported), and a budget without room for the coarsest grid and 20k points fails at once.
+#[test]
+fn a_tight_budget_lowers_the_resolution_and_thins_the_points() {
+    let c = cloud(Shape::Torus, 300_000, 0.05, true, 11);
+    let free = run(&c).expect("default budget");
+    assert!(free.1.thinning.is_none(), "8 GiB holds 300k points");
+    let opts = ReconstructOptions { memory_budget: 64 << 20, ..Default::default() };
+    let (m, r) = reconstruct(&c, &opts, &NoProgress).expect("64 MiB");
+    let t = r.thinning.as_ref().expect("thinned at 64 MiB");
+    let topo = TopologyReport::compute(&PolyMesh::from(m.clone()));
+    let rms = rms_pct(Shape::Torus, &m);
+    println!("64 MiB: {t:?}, grid {:?} (free: {:?}), RMS {rms:.4} % (free: {:.4} %)", r.grid_nodes, free.1.grid_nodes, rms_pct(Shape::Torus, &free.0));
+    assert_eq!(t.points_before, 300_000);
+    assert!(t.points_after <= t.max_points && t.points_after >= 20_000, "{t:?}");
+    assert!(r.grid_nodes[0] < free.1.grid_nodes[0], "resolution lowered: {:?}", r.grid_nodes);
+    let grid_bytes = r.grid_nodes.iter().product::<usize>() as u64 * scanstation::stages::reconstruct::BYTES_PER_NODE;
+    assert!(grid_bytes <= (64 << 20) * 6 / 10, "grid {grid_bytes} bytes");
+    assert!(topo.closed && topo.nonmanifold_edges == 0 && topo.genus == Some(1), "{topo:?}");
+    assert!(rms < 0.1, "thinned torus RMS {rms:.4} % of the diagonal");
+    let opts = ReconstructOptions { memory_budget: 16 << 20, ..Default::default() };
+    let e = reconstruct(&c, &opts, &NoProgress).unwrap_err();
+    assert_eq!(e.code, ErrorCode::ResourceMemoryBudget, "{e}");
+    assert!(e.message.contains("the budget is 16 MiB") && e.message.contains("resolution 64"), "{e}");
+}
+
 /// Scan sets: a malformed pose, a duplicate view and a missing view file get stable codes with the line;
 /// four turntable-like views of a sphere (scanners at ±x, ±y, each view holding what its scanner sees, in
 /// its own frame with the scanner on +z) fuse with overlap between neighbours and reconstruct one closed

@@ -259,6 +259,12 @@ impl PointCloud {
     pub fn bbox(&self) -> Aabb {
         Aabb::of_points(&self.positions)
     }
+
+    /// Bytes its arrays hold (positions, normals, colours).
+    pub fn heap_bytes(&self) -> u64 {
+        let per_point = 12 + if self.normals.is_some() { 12 } else { 0 } + if self.colors.is_some() { 3 } else { 0 };
+        self.positions.len() as u64 * per_point
+    }
 }
 
 /// What a reader returns: a mesh (faces present) or a point cloud.

@@ -641,13 +641,15 @@ fn reconstruct_stage(
     progress: &dyn Progress,
     stages: &mut Vec<StageReport>,
 ) -> Result<(Option<PolyMesh>, Option<ReconstructStep>)> {
-    let Geometry::Cloud(cloud) = input_geom else { return Ok((None, None)) };
+    if !matches!(input_geom, Geometry::Cloud(_)) {
+        return Ok((None, None));
+    }
     check_cancelled(progress)?;
     let clock = Clock::start();
     let span = ProgressSpan::new(progress, 0.02, 0.08, "reconstruct");
     let ro = ReconstructOptions { memory_budget: opts.memory_budget, ..opts.reconstruct.clone() };
     let (m, report, distance) =
-        super::reconstruct::reconstruct_measured(cloud, &ro, cmp_opts, &span).map_err(|e| e.in_file(input))?;
+        super::reconstruct::reconstruct_measured(input_geom, &ro, cmp_opts, &span).map_err(|e| e.in_file(input))?;
     stages.push(clock.stop("reconstruct", Some(distance.clone())));
     Ok((Some(PolyMesh::from(m)), Some(ReconstructStep { fusion, report, distance })))
 }

@@ -119,6 +119,12 @@ pub fn print_reconstruct(r: &pipeline::ReconstructFileReport) {
         m.grid_nodes,
         m.cell_size
     );
+    if let Some(t) = &m.thinning {
+        println!(
+            "  thinned to fit the memory budget: {} points merged into {} (cells of {:.4}; room for {})",
+            t.points_before, t.points_after, t.cell, t.max_points
+        );
+    }
     if let Some(o) = &m.orientation {
         println!(
             "  orientation: {} normals turned along the tree, {} uncertain, {} parts{}",

@@ -14,6 +14,7 @@ pub mod normals;
 pub mod poisson;
 pub mod project;
 pub mod register;
+pub mod thin;
 
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -48,6 +49,89 @@ pub const BYTES_PER_NODE: u64 = 80;
 /// Bytes per point: position, normal, area, screening weight, neighbour lists (16 × 4 B, twice for the
 /// symmetric graph) and the orientation's heap and flags.
 pub const BYTES_PER_POINT: u64 = 12 + 24 + 16 + 2 * 4 * NEIGHBOURS as u64 + 40;
+
+/// Side of the cells a thinned cloud is merged into, in grid cells: a quarter (the grid and the projection use
+/// nothing finer; see [`thin`]).
+pub const THIN_CELL: f64 = 0.25;
+
+/// Fewest merged points thinning may leave: a budget with no room for them beside the grid is too small.
+pub const MIN_KEPT_POINTS: usize = 20_000;
+
+/// Share of the stage's budget (after the input cloud) an automatic resolution may give the grid; the rest
+/// holds the points, thinned if need be.
+pub const GRID_SHARE: f64 = 0.6;
+
+/// Bytes of the budget left to the process itself and the allocator's slack: 16 MiB (the CLI's resident size is
+/// 6 MiB when a reader refuses at once; a 10M-point torus at `--memory-budget 250M` peaked 12 MiB above the
+/// plan's sum before this allowance, 2026-12-05).
+pub const PROCESS_BYTES: u64 = 16 << 20;
+
+/// Lowest resolution the budget may push an automatic resolution down to.
+pub const MIN_RESOLUTION: usize = 64;
+
+/// How the budget is shared: the resolution, and the most points that fit beside the grid (`None`: all do).
+#[derive(Clone, Debug)]
+struct MemoryPlan {
+    resolution: usize,
+    max_points: Option<usize>,
+    /// Bytes of the input cloud, the grid, and the points at their fewest.
+    input: u64,
+    grid: u64,
+    points: u64,
+}
+
+impl MemoryPlan {
+    /// `resource.memory`: the budget cannot hold the plan; `why` adds what was tried.
+    fn too_small(&self, opts: &ReconstructOptions, why: &str) -> Error {
+        Error::new(
+            ErrorCode::ResourceMemoryBudget,
+            format!(
+                "reconstruction at resolution {} needs about {} MiB (the input {} MiB, the grid {} MiB, the points {} MiB{why}, the process {} MiB); the budget is {} MiB",
+                self.resolution,
+                (self.input + self.grid + self.points + PROCESS_BYTES) >> 20,
+                self.input >> 20,
+                self.grid >> 20,
+                self.points >> 20,
+                PROCESS_BYTES >> 20,
+                opts.memory_budget >> 20
+            ),
+        )
+        .with_hint("raise the memory budget or lower the resolution")
+    }
+}
+
+/// Share `opts.memory_budget` between the input cloud, the grid and the points, before allocating any of them:
+/// an automatic resolution is lowered (down to [`MIN_RESOLUTION`]) until the grid takes at most
+/// [`GRID_SHARE`] of what the input leaves; points that do not fit beside the grid are thinned.
+///
+/// # Errors
+/// `resource.memory` when not even [`MIN_KEPT_POINTS`] points (or all, if fewer) fit beside the grid.
+fn plan_memory(cloud: &PointCloud, bbox: &Aabb, opts: &ReconstructOptions) -> Result<MemoryPlan> {
+    let n = cloud.positions.len();
+    let input = cloud.heap_bytes();
+    let budget = opts.memory_budget.saturating_sub(input).saturating_sub(PROCESS_BYTES);
+    let grid_bytes = |res: usize| (poisson::finest_grid(bbox, res).len() as u64).saturating_mul(BYTES_PER_NODE);
+    let mut resolution = if opts.resolution > 0 { opts.resolution } else { auto_resolution(n, opts.max_resolution) };
+    if opts.resolution == 0 {
+        while resolution > MIN_RESOLUTION && grid_bytes(resolution) as f64 > GRID_SHARE * budget as f64 {
+            resolution = (resolution * 15 / 16).max(MIN_RESOLUTION);
+        }
+    }
+    let grid = grid_bytes(resolution);
+    let fits = (budget.saturating_sub(grid) / BYTES_PER_POINT).min(usize::MAX as u64) as usize;
+    let least = n.min(MIN_KEPT_POINTS);
+    let plan = MemoryPlan {
+        resolution,
+        max_points: (fits < n).then_some(fits),
+        input,
+        grid,
+        points: least as u64 * BYTES_PER_POINT,
+    };
+    if fits < least {
+        return Err(plan.too_small(opts, ""));
+    }
+    Ok(plan)
+}
 
 /// Settings of [`reconstruct`].
 #[derive(Clone, Debug)]
@@ -87,6 +171,8 @@ impl Default for ReconstructOptions {
 pub struct ReconstructReport {
     /// Input points.
     pub points: usize,
+    /// Present when the points did not fit the budget beside the grid and were merged per cell ([`thin`]).
+    pub thinning: Option<thin::Thinning>,
     /// Whether the cloud's own normals were used.
     pub normals_given: bool,
     /// Orientation of estimated normals (absent when given).
@@ -165,21 +251,24 @@ pub fn reconstruct(
         ));
     }
     normals::check_not_flat(points)?;
-    let res = if opts.resolution > 0 { opts.resolution } else { auto_resolution(n, opts.max_resolution) };
     let bbox = Aabb::of_points(points);
-    let nodes = poisson::finest_grid(&bbox, res).len() as u64;
-    let need = nodes.saturating_mul(BYTES_PER_NODE).saturating_add((n as u64).saturating_mul(BYTES_PER_POINT));
-    if need > opts.memory_budget {
-        return Err(Error::new(
-            ErrorCode::ResourceMemoryBudget,
-            format!(
-                "reconstructing {n} points on a grid of {nodes} nodes needs about {} MiB; the budget is {} MiB",
-                need >> 20,
-                opts.memory_budget >> 20
-            ),
-        )
-        .with_hint("raise the memory budget or lower the resolution"));
-    }
+    let plan = plan_memory(cloud, &bbox, opts)?;
+    let res = plan.resolution;
+    let thinned = match plan.max_points {
+        Some(max) => {
+            let cell = poisson::finest_grid(&bbox, res).h * THIN_CELL;
+            let widest = cell * (1u64 << (thin::MAX_ATTEMPTS - 1)) as f64;
+            let why = format!(", {max} at most, not reached by merging cells of up to {widest:.3e}");
+            Some(thin::thin(cloud, cell, max).ok_or_else(|| plan.too_small(opts, &why))?)
+        }
+        None => None,
+    };
+    let (cloud, thinning) = match &thinned {
+        Some((c, t)) => (c, Some(t.clone())),
+        None => (cloud, None),
+    };
+    let (input_points, points) = (n, &cloud.positions);
+    lap("plan", &mut t);
     progress.report(0.0, "neighbours");
     // 2. Neighbours, spacing and the area each point stands for (π r_k² / k).
     let index = PointIndex::new(points, INDEX_POINTS_PER_CELL);
@@ -234,7 +323,8 @@ pub fn reconstruct(
     lap("far", &mut t);
     progress.report(1.0, "done");
     let report = ReconstructReport {
-        points: n,
+        points: input_points,
+        thinning,
         normals_given: given.is_some(),
         orientation,
         mean_spacing,
