@@ -1082,3 +1082,43 @@ fn a_scan_set_directory_in_the_inbox_becomes_one_solid() {
     assert_eq!(err["error_code"], "input.no-geometry", "{err}");
     assert!(visible(&st.inbox()).is_empty(), "inbox: {:?}", visible(&st.inbox()));
 }
+
+/// The reconstruction issue's acceptance on real data (corpus suite, `.ci/run`): the Stanford bunny's ten
+/// range scans with `bun.conf`, renamed into the inbox as one directory, come out as one outbox bundle whose
+/// solid passes every quality gate, the fusion's ten views in its report.
+#[cfg(feature = "corpus")]
+#[test]
+fn corpus_the_bunny_scan_set_in_the_inbox_becomes_a_solid() {
+    need("busctl", "systemd");
+    let data = std::env::var_os("SCANSTATION_SHARED_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let scans = data.join("bunny/scans");
+    assert!(scans.join("bun.conf").is_file(), "{}: the shared data is missing (SCANSTATION_SHARED_DATA)", scans.display());
+    let dir = common::scratch("daemon-bunny");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let mut st = Station::new(&dir, &bus, false, "");
+    // The defaults' resolution and gates (10,000 control vertices, 0.05 %), not the fast tests' 100.
+    let cfg = std::fs::read_to_string(&st.config).unwrap();
+    let cfg = cfg.replace("vertices = 100\n", "vertices = 10000\n").replace("max_rms_pct = 1.0\n", "");
+    std::fs::write(&st.config, cfg).unwrap();
+    st.start();
+    // Staged beside the inbox (the shared data is never moved), then renamed in as one directory.
+    let set = dir.join("bunny-scans");
+    std::fs::create_dir_all(&set).unwrap();
+    for e in std::fs::read_dir(&scans).unwrap().flatten() {
+        std::fs::copy(e.path(), set.join(e.file_name())).unwrap();
+    }
+    std::fs::rename(&set, st.inbox().join("bunny-scans")).unwrap();
+    st.wait_done(1, Duration::from_secs(900));
+    let out = visible(&st.spool("outbox"));
+    assert!(out.len() == 1 && out[0].starts_with("bunny-scans-"), "bun.conf: outbox {out:?}\n{}", st.log());
+    let bundle = st.spool("outbox").join(&out[0]);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(bundle.join("bunny-scans.report.json")).unwrap()).unwrap();
+    let convert = &report["convert"];
+    assert_eq!(convert["status"], "ok", "bun.conf: gates {}", convert["gates"]);
+    assert_eq!(convert["reconstruct"]["fusion"]["views"].as_array().map(Vec::len), Some(10), "bun.conf: fusion");
+    assert!(bundle.join("bunny-scans.step").is_file(), "bun.conf: {:?}", visible(&bundle));
+    eprintln!("bun.conf through the daemon: gates {}", convert["gates"]);
+}

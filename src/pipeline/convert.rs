@@ -162,9 +162,11 @@ pub struct Attempt {
     pub control_vertices: usize,
     /// The remesh seed of this try.
     pub seed: u64,
-    /// Crossing triangle pairs of the solid's tessellation (a try with any is built again from another
-    /// seed, up to [`SOLID_RETRIES`] times).
+    /// Crossing triangle pairs of the solid's tessellation (a try with any, or with a folded face, is built
+    /// again from another seed, up to [`SOLID_RETRIES`] times).
     pub solid_self_intersections: usize,
+    /// Faces of the solid that fold over.
+    pub solid_folded_faces: usize,
     /// Two-sided RMS distance of the solid to the input, model units.
     pub solid_rms: f64,
     /// The same in percent of the input's bounding-box diagonal.
@@ -308,7 +310,7 @@ pub const CHAIN_MEMORY_FACTOR: u64 = 8;
 pub const REMESH_RETRIES: usize = 3;
 
 /// Whole remesh → surface → brep chains built again from other seeds when the solid's surface crosses
-/// itself.
+/// itself or a face folds over.
 pub const SOLID_RETRIES: usize = 2;
 
 /// Pairs of intersecting triangles of a polygon mesh, fan-triangulated (the quad net, or the welded solid mesh).
@@ -438,7 +440,7 @@ struct Chain<'a> {
 /// back), step –0.98, quality (the error map) –1.
 ///
 /// Cost: the stages' (a tolerance runs the chain at up to 6 resolutions; a self-crossing solid is built
-/// again up to [`SOLID_RETRIES`] times); memory about [`CHAIN_MEMORY_FACTOR`] times the input mesh's.
+/// again up to [`SOLID_RETRIES`] times, a folded one too); memory about [`CHAIN_MEMORY_FACTOR`] times the input mesh's.
 ///
 /// # Example
 /// ```no_run
@@ -554,7 +556,8 @@ pub fn convert_file(
     check_cancelled(progress)?;
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
-    let cloud_input = matches!(chain.input_geom, Geometry::Cloud(_));
+    let cloud_scatter_pct =
+        reconstruct_step.as_ref().map(|r| r.distance.reference_to_test.rms.pct_of_diagonal);
     let open_input = open_input_measure(&solid_mesh, &chain.input_geom, kept_input_to_solid_rms, &repair_report, diag);
     let error_map_file = super::provenance::error_map_path(output);
     let error_map_scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh), &chain.input_geom)?;
@@ -565,7 +568,7 @@ pub fn convert_file(
     let volume_error_pct = 100.0 * (kept.brep.volume - input_volume) / input_volume.abs().max(f64::MIN_POSITIVE);
     // The RMS the gate judges: points → solid for a cloud, the open-input measure, or the two-sided RMS.
     let rms_pct = open_input.as_ref().map_or(100.0 * kept_rms / diag, |o| o.rms_pct);
-    let rms_pct = if cloud_input { 100.0 * kept_input_to_solid_rms / diag } else { rms_pct };
+    let rms_pct = if cloud_scatter_pct.is_some() { 100.0 * kept_input_to_solid_rms / diag } else { rms_pct };
     let tolerance_pct = if let Resolution::Tolerance(t) = resolution { Some(100.0 * t / diag) } else { None };
     let open = open_input.is_some();
     let measured = Measured {
@@ -574,7 +577,7 @@ pub fn convert_file(
         volume_error_pct,
         rms_pct,
         open_input: open,
-        cloud_input,
+        cloud_scatter_pct,
         tolerance_pct,
     };
     let (status, gates) = judge_logged(&measured, &opts.gates);
@@ -731,31 +734,33 @@ fn resolutions(resolution: Resolution) -> Result<Vec<usize>> {
 }
 
 impl Chain<'_> {
-    /// The solid at `n` control vertices. A solid whose surface crosses itself (a pleat of the fitted surface
-    /// at a thin part, which depends on the quad layout there) is built again from another seed's quads, up
-    /// to [`SOLID_RETRIES`] times; the one with the fewest crossings is kept (the first clean one ends the
-    /// search). Every try goes into `attempts`.
+    /// The solid at `n` control vertices. A solid whose surface crosses itself or has a folded face (a pleat
+    /// of the fitted surface at a thin part or a tight bend, which depends on the quad layout there) is built
+    /// again from another seed's quads, up to [`SOLID_RETRIES`] times; the one with the fewest crossings, then
+    /// the fewest folds, is kept (the first clean one ends the search). Every try goes into `attempts`.
     fn solid_at(&self, n: usize, diag: f64, attempts: &mut Vec<Attempt>) -> Result<SolidTry> {
         let mut best: Option<SolidTry> = None;
         for solid_try in 0..=SOLID_RETRIES {
             let seed = self.opts.seed.wrapping_add((solid_try * (REMESH_RETRIES + 1)) as u64);
             let t = self.chain(n, seed)?;
-            let crossings = t.brep.self_intersections;
+            let (crossings, folds) = (t.brep.self_intersections, t.brep.folded_faces);
             attempts.push(Attempt {
                 target_vertices: n,
                 control_vertices: t.control_vertices,
                 seed,
                 solid_self_intersections: crossings,
+                solid_folded_faces: folds,
                 solid_rms: t.rms,
                 solid_rms_pct: 100.0 * t.rms / diag,
             });
-            if crossings > 0 {
-                tracing::warn!(pairs = crossings, seed, "the solid's surface intersects itself; trying another seed");
+            if crossings > 0 || folds > 0 {
+                tracing::warn!(pairs = crossings, folds, seed, "the solid crosses itself or folds; trying another seed");
             }
-            if best.as_ref().is_none_or(|b| crossings < b.brep.self_intersections) {
+            let flaws = |t: &SolidTry| (t.brep.self_intersections, t.brep.folded_faces);
+            if best.as_ref().is_none_or(|b| (crossings, folds) < flaws(b)) {
                 best = Some(t);
             }
-            if crossings == 0 {
+            if (crossings, folds) == (0, 0) {
                 break;
             }
         }

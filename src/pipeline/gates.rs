@@ -11,11 +11,17 @@
 //! | `crossings` | `quality.self-intersecting` | crossing triangle pairs of the solid's tessellation | 0 |
 //! | `folds` | `quality.folded` | faces whose normal turns over inside the face | 0 |
 //! | `volume` | `quality.volume` | \|solid − input\| / input volume, % | [`GateOptions::max_volume_error_pct`] |
-//! | `rms` | `quality.rms` | RMS distance, % of the input's diagonal | the tolerance, or [`GateOptions::max_rms_pct`] |
+//! | `rms` | `quality.rms` | RMS distance, % of the input's diagonal | the tolerance, or [`GateOptions::max_rms_pct`]; for a cloud √(that² + s²) |
 //!
 //! The RMS is two-sided for a closed input. For an open input (holes that repair filled) the solid's caps and
 //! fills have no scan to be measured against: it is √((scan → solid² + solid → scan away from the caps²) / 2)
 //! ([`OpenInputMeasure`](super::convert::OpenInputMeasure)), and the caps' own distance is reported apart.
+//!
+//! For a point cloud the RMS is points → solid, and the points scatter about any surface: the reconstruction's
+//! own points → surface RMS `s` (the scan's noise and the views' disagreement, measured on the best smooth
+//! surface through them) is added in quadrature to the bound, so the gate judges what the chain after the
+//! reconstruction adds. A clean cloud (s ≈ 0.005 %) keeps the bound as it is; the bunny's ten range scans
+//! (s = 0.040 %, views disagreeing by 0.13–0.20 mm) get 0.064 % (measured 2026-12-05: points → solid 0.0604 %).
 
 use crate::error::{Error, ErrorCode};
 
@@ -138,16 +144,17 @@ pub struct Measured {
     pub rms_pct: f64,
     /// Whether that RMS is an open input's (the caps left out of the solid → scan side).
     pub open_input: bool,
-    /// Whether the input is a point cloud: the RMS is then points → solid only (the other direction measures
-    /// the cloud's sampling, not the solid; it is reported with the reconstruction).
-    pub cloud_input: bool,
+    /// For a point-cloud input, the reconstruction's points → surface RMS, % of the diagonal (the points'
+    /// scatter, added to the bound in quadrature); `None` for a mesh. The RMS is then points → solid only (the
+    /// other direction measures the cloud's sampling, not the solid; it is reported with the reconstruction).
+    pub cloud_scatter_pct: Option<f64>,
     /// The RMS bound from a tolerance, % of the diagonal; `None` for the default goal.
     pub tolerance_pct: Option<f64>,
 }
 
 /// The gates on `m`, in the order of the table above, and the status they give.
 pub fn judge(m: &Measured, opts: &GateOptions) -> (Status, Vec<Gate>) {
-    let rms_what = if m.cloud_input {
+    let rms_what = if m.cloud_scatter_pct.is_some() {
         "RMS distance scan points → solid, % of the diagonal"
     } else if m.open_input {
         "RMS distance solid ↔ scan away from the caps (open input), % of the diagonal"
@@ -155,6 +162,7 @@ pub fn judge(m: &Measured, opts: &GateOptions) -> (Status, Vec<Gate>) {
         "RMS distance solid ↔ scan, % of the diagonal"
     };
     let rms_bound = m.tolerance_pct.unwrap_or(opts.max_rms_pct);
+    let rms_bound = m.cloud_scatter_pct.map_or(rms_bound, |s| rms_bound.hypot(s));
     let gates = vec![
         Gate::new(
             "crossings",
@@ -212,7 +220,7 @@ mod tests {
             volume_error_pct: -0.011,
             rms_pct: 0.0285,
             open_input: false,
-            cloud_input: false,
+            cloud_scatter_pct: None,
             tolerance_pct: None,
         }
     }
@@ -250,5 +258,18 @@ mod tests {
         let m = Measured { volume_error_pct: f64::NAN, ..clean() };
         assert_eq!(judge(&m, &GateOptions::default()).0, Status::Failed);
         assert!(GateOptions { max_rms_pct: 0.0, ..Default::default() }.validated().is_err());
+    }
+
+    /// The bunny's range scans: points → solid 0.0604 % with the points scattering 0.0402 % about the
+    /// reconstruction passes (bound √(0.05² + 0.0402²) = 0.0642 %); 0.07 % does not.
+    #[test]
+    fn a_clouds_scatter_widens_the_rms_bound_in_quadrature() {
+        let m = Measured { rms_pct: 0.0604, cloud_scatter_pct: Some(0.0402), ..clean() };
+        let (status, gates) = judge(&m, &GateOptions::default());
+        assert_eq!(status, Status::Ok, "{gates:?}");
+        assert!((gates[3].bound - 0.0642).abs() < 1e-4, "{:?}", gates[3]);
+        assert!(gates[3].what.contains("points → solid"), "{}", gates[3].what);
+        let m = Measured { rms_pct: 0.07, ..m };
+        assert_eq!(judge(&m, &GateOptions::default()).0, Status::Failed);
     }
 }
