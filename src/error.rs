@@ -25,6 +25,9 @@ pub enum ErrorClass {
     /// The work ran to its end, but its result failed a quality gate (`quality.*`): it is not published as
     /// a success.
     Quality,
+    /// A device of the rig (turntable, trigger) failed, timed out or is gone (`device.*`); the same request
+    /// may succeed once the device is back.
+    Device,
 }
 
 /// Stable error codes. The string form (`ErrorCode::as_str`) never changes once released.
@@ -112,6 +115,18 @@ pub enum ErrorCode {
     Cancelled,
     /// The process stopped (crash, `kill -9`, power loss) while the job ran, and it was not resumed.
     Interrupted,
+    /// A device's port cannot be opened, or its line reached end of file or failed (EIO): unplugged.
+    DeviceUnplugged,
+    /// A device answered as firmware the driver does not speak (the turntable's banner is not Grbl 1.1).
+    DeviceWrongFirmware,
+    /// A device did not answer, or a move did not finish, within its deadline.
+    DeviceTimeout,
+    /// The turntable's firmware raised an alarm (`ALARM:n`: a limit, a failed homing, a reset in motion).
+    DeviceAlarm,
+    /// The turntable's firmware refused a command (`error:n`).
+    DeviceRefused,
+    /// The turntable stopped away from its target.
+    DevicePosition,
     /// Quality gate: the solid's surface crosses itself (pairs of its tessellation's triangles intersect).
     QualitySelfIntersecting,
     /// Quality gate: faces of the solid fold over (their normal turns by more than 90° inside the face).
@@ -167,6 +182,12 @@ impl ErrorCode {
             ErrorCode::DaemonRefused => "daemon.refused",
             ErrorCode::Cancelled => "cancelled",
             ErrorCode::Interrupted => "interrupted",
+            ErrorCode::DeviceUnplugged => "device.unplugged",
+            ErrorCode::DeviceWrongFirmware => "device.wrong-firmware",
+            ErrorCode::DeviceTimeout => "device.timeout",
+            ErrorCode::DeviceAlarm => "device.alarm",
+            ErrorCode::DeviceRefused => "device.refused",
+            ErrorCode::DevicePosition => "device.position",
             ErrorCode::QualitySelfIntersecting => "quality.self-intersecting",
             ErrorCode::QualityFolded => "quality.folded",
             ErrorCode::QualityVolume => "quality.volume",
@@ -189,6 +210,12 @@ impl ErrorCode {
             | ErrorCode::QualityFolded
             | ErrorCode::QualityVolume
             | ErrorCode::QualityRms => ErrorClass::Quality,
+            ErrorCode::DeviceUnplugged
+            | ErrorCode::DeviceWrongFirmware
+            | ErrorCode::DeviceTimeout
+            | ErrorCode::DeviceAlarm
+            | ErrorCode::DeviceRefused
+            | ErrorCode::DevicePosition => ErrorClass::Device,
             _ => ErrorClass::BadInput,
         }
     }

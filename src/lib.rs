@@ -32,6 +32,8 @@
 
 #[cfg(feature = "daemon")]
 pub mod daemon;
+#[cfg(feature = "daemon")]
+pub mod devices;
 pub mod error;
 pub mod geometry;
 pub mod pipeline;

@@ -126,6 +126,10 @@ pub struct ReconstructArgs {
     /// Scan sets: place the views by their given poses only (no multi-view ICP refinement).
     #[arg(long)]
     pub no_refine: bool,
+    /// Split every triangle in four this many times after the projection, the midpoints projected too
+    /// (0 to 2).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=2))]
+    pub split: Option<u8>,
 }
 
 impl ReconstructArgs {
@@ -138,6 +142,7 @@ impl ReconstructArgs {
             project: !self.no_project,
             memory_budget,
             fusion: scanstation::stages::reconstruct::fusion::FuseOptions { refine: !self.no_refine },
+            split: self.split.map_or(scanstation::stages::reconstruct::ReconstructOptions::default().split, usize::from),
             ..Default::default()
         }
     }

@@ -7,6 +7,8 @@ mod args;
 mod client;
 mod print;
 mod ranges;
+#[cfg(feature = "daemon")]
+mod sim;
 
 use std::process::ExitCode;
 
@@ -79,6 +81,18 @@ enum Command {
     Watch(WatchArgs),
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare(CompareArgs),
+    /// Simulated devices of the rig, for a desk without hardware and for tests.
+    #[cfg(feature = "daemon")]
+    #[command(subcommand)]
+    Sim(SimCommand),
+}
+
+/// The simulators.
+#[cfg(feature = "daemon")]
+#[derive(Subcommand)]
+enum SimCommand {
+    /// A Grbl 1.1 turntable on a pty: banner, homing, timed moves, `?` reports; faults from stdin or a socket.
+    Turntable(sim::SimTurntableArgs),
 }
 
 fn main() -> ExitCode {
@@ -124,6 +138,8 @@ fn main() -> ExitCode {
             &NoProgress,
         )
         .map(|r| emit(json, &r, print::print_compare)),
+        #[cfg(feature = "daemon")]
+        Command::Sim(SimCommand::Turntable(a)) => return sim::run(a),
         #[cfg(feature = "daemon")]
         Command::Status(_) | Command::Jobs(_) | Command::Submit(_) | Command::Cancel(_) | Command::Watch(_) => {
             return client::run(&cli.command, json);

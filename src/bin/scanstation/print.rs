@@ -248,6 +248,7 @@ pub fn exit_code(e: &Error) -> ExitCode {
         ErrorClass::BadInput => 2,
         ErrorClass::Resource => 3,
         ErrorClass::Quality => 4,
+        ErrorClass::Device => 5,
         ErrorClass::Internal => 70,
     })
 }

@@ -13,6 +13,7 @@ pub mod fusion;
 pub mod normals;
 pub mod poisson;
 pub mod project;
+pub mod refine;
 pub mod register;
 pub mod thin;
 
@@ -146,6 +147,8 @@ pub struct ReconstructOptions {
     pub estimate_normals: bool,
     /// Move the extracted vertices onto the samples' local planes ([`project`]).
     pub project: bool,
+    /// Times every triangle is split in four after the projection, the midpoints projected too ([`refine`]).
+    pub split: usize,
     /// Most bytes the stage may allocate.
     pub memory_budget: u64,
     /// How the views of a scan set are fused ([`fusion`]).
@@ -160,6 +163,7 @@ impl Default for ReconstructOptions {
             screening: 4.0,
             estimate_normals: false,
             project: true,
+            split: 0,
             memory_budget: 8 << 30,
             fusion: fusion::FuseOptions::default(),
         }
@@ -193,6 +197,9 @@ pub struct ReconstructReport {
     pub components: extract::Components,
     /// Vertices moved onto the samples' planes ([`project`]).
     pub projected_vertices: usize,
+    /// The points' scatter about a smooth surface over their spacing ([`project::noise_ratio`]); above
+    /// [`project::TIGHT_BELOW`] the projection averages over wider neighbourhoods.
+    pub noise_ratio: f64,
     /// Vertices of the result.
     pub vertices: usize,
     /// Triangles of the result.
@@ -316,9 +323,23 @@ pub fn reconstruct(
     lap("extract", &mut t);
     // 6. Vertices onto the samples' planes; how much of the surface is far from every point.
     let reach = FAR_SPACINGS * mean_spacing.max(grid.h * 0.5);
-    let projected =
-        if opts.project { project::onto_samples(&mut mesh, &index, points, &normals, grid.h, reach) } else { 0 };
+    let noise_ratio = project::noise_ratio(&index, points, &normals);
+    let mut projected = if opts.project {
+        project::onto_samples(noise_ratio, 0, &mut mesh, &index, points, &normals, grid.h, reach)
+    } else {
+        0
+    };
     lap("project", &mut t);
+    // 7. Finer triangles where the grid's are coarse: split, the midpoints onto the samples' planes.
+    for _ in 0..opts.split {
+        let (split, first) = refine::midpoint_split(&mesh);
+        mesh = split;
+        if opts.project {
+            projected +=
+                project::onto_samples(noise_ratio, first, &mut mesh, &index, points, &normals, grid.h * 0.5, reach);
+        }
+    }
+    lap("split", &mut t);
     let far_area_share = far_share(&mesh, &index, reach);
     lap("far", &mut t);
     progress.report(1.0, "done");
@@ -335,6 +356,7 @@ pub fn reconstruct(
         iso_value: iso,
         components,
         projected_vertices: projected,
+        noise_ratio,
         vertices: mesh.positions.len(),
         triangles: mesh.triangles.len(),
         far_area_share,

@@ -1,0 +1,405 @@
+//! A simulated Grbl 1.1 turntable: the firmware's replies to the bytes a host sends, with motion timed by
+//! acceleration and top speed, and injectable faults. Pure: the caller feeds bytes and the simulated time,
+//! and writes what comes back to a serial line (a pty in [`super::sim_pty`], a pipe in unit tests).
+//!
+//! What it does, as Grbl does:
+//! - a soft reset (Ctrl-X) stops everything and prints the banner; with homing enabled the machine starts in
+//!   `Alarm` and says `[MSG:'$H'|'$X' to unlock]`; a reset during a move is `ALARM:3` (position lost);
+//! - `$H` homes (taking `home_seconds`, `ok` when done, X = 0), `$X` unlocks, `$I` names the build;
+//! - `G90 G1 X… F…` is answered `ok` at once (buffered) and then moves along a trapezoid; `G0` moves at the
+//!   top speed; motion while in `Alarm` is `error:9`; an unknown command `error:20`, a bad number `error:2`,
+//!   a line over 80 bytes `error:11`;
+//! - `?` answers a status report at once, `!` holds (the table stops where it is), `~` resumes.
+//!
+//! Faults ([`Fault`]): a dropped reply, `error:n` for the next line, `ALARM:n` now, a stalled move (the
+//! table stops but the state stays `Run`). Unplugging is the serial line's business ([`super::sim_pty`]).
+
+use std::collections::VecDeque;
+
+use super::grbl::{FEED_HOLD, MachineState, SOFT_RESET, STATUS_QUERY, position_at};
+
+/// How the simulated firmware behaves.
+#[derive(Clone, Debug)]
+pub struct SimSettings {
+    /// The banner after a reset (a wrong one tests the driver's firmware check).
+    pub banner: String,
+    /// Homing enabled (`$22=1`): locked in `Alarm` after a reset until `$H` or `$X`.
+    pub homing: bool,
+    /// Top speed, degrees per second (Grbl's `$110` is per minute).
+    pub max_speed: f64,
+    /// Acceleration, degrees per second² (`$120`).
+    pub accel: f64,
+    /// Seconds a homing cycle takes.
+    pub home_seconds: f64,
+}
+
+impl Default for SimSettings {
+    fn default() -> Self {
+        SimSettings {
+            banner: "Grbl 1.1h ['$' for help]".into(),
+            homing: true,
+            max_speed: 90.0,
+            accel: 180.0,
+            home_seconds: 1.0,
+        }
+    }
+}
+
+/// A fault to inject.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case", tag = "fault", content = "code")]
+pub enum Fault {
+    /// The next `ok` or `error:n` is never sent.
+    DropReply,
+    /// The next line is answered `error:n` and not executed.
+    Error(u32),
+    /// `ALARM:n` now: motion stops, the machine locks, the position is lost.
+    Alarm(u32),
+    /// The move in progress stops where it is, but the state stays `Run` (a stalled motor, a jammed table).
+    Stall,
+}
+
+/// A move in progress.
+#[derive(Clone, Copy, Debug)]
+struct Motion {
+    from: f64,
+    to: f64,
+    start: f64,
+    speed: f64,
+}
+
+/// The simulated firmware.
+#[derive(Clone, Debug)]
+pub struct GrblSim {
+    settings: SimSettings,
+    state: MachineState,
+    x: f64,
+    motion: Option<Motion>,
+    queue: VecDeque<(f64, f64)>,
+    homing_until: Option<f64>,
+    line: Vec<u8>,
+    line_too_long: bool,
+    drop_reply: bool,
+    error_next: Option<u32>,
+    stalled: bool,
+    feed: f64,
+}
+
+impl GrblSim {
+    /// A firmware just powered on (its banner is in the first [`GrblSim::input`] or [`GrblSim::tick`]
+    /// output after [`GrblSim::power_on`]).
+    pub fn new(settings: SimSettings) -> GrblSim {
+        let state = if settings.homing { MachineState::Alarm } else { MachineState::Idle };
+        GrblSim {
+            settings,
+            state,
+            x: 0.0,
+            motion: None,
+            queue: VecDeque::new(),
+            homing_until: None,
+            line: Vec::new(),
+            line_too_long: false,
+            drop_reply: false,
+            error_next: None,
+            stalled: false,
+            feed: 0.0,
+        }
+    }
+
+    /// What the board prints when it starts (as after a reset; Arduino boards reset when the port opens).
+    pub fn power_on(&mut self) -> Vec<u8> {
+        self.reset(0.0)
+    }
+
+    /// The machine state now.
+    pub fn state(&self) -> MachineState {
+        self.state
+    }
+
+    /// The table's position (degrees) at `now`.
+    pub fn position(&mut self, now: f64) -> f64 {
+        self.advance(now);
+        self.x
+    }
+
+    /// Inject `fault` (at `now`); returns what the firmware prints because of it.
+    pub fn inject(&mut self, fault: Fault, now: f64) -> Vec<u8> {
+        self.advance(now);
+        match fault {
+            Fault::DropReply => self.drop_reply = true,
+            Fault::Error(n) => self.error_next = Some(n),
+            Fault::Stall => self.stalled = true,
+            Fault::Alarm(n) => {
+                self.stop_all();
+                self.state = MachineState::Alarm;
+                return format!("ALARM:{n}\r\n").into_bytes();
+            }
+        }
+        Vec::new()
+    }
+
+    /// The firmware's answer to `bytes` arriving at simulated time `now` (seconds).
+    pub fn input(&mut self, bytes: &[u8], now: f64) -> Vec<u8> {
+        let mut out = self.tick(now);
+        for &b in bytes {
+            match b {
+                STATUS_QUERY => out.extend(self.status_line(now)),
+                FEED_HOLD => self.hold(now),
+                b'~' => {
+                    if self.state == MachineState::Hold {
+                        self.state = MachineState::Idle;
+                    }
+                }
+                SOFT_RESET => out.extend(self.reset(now)),
+                b'\n' => {
+                    let line = String::from_utf8_lossy(&self.line).trim().to_string();
+                    let too_long = std::mem::take(&mut self.line_too_long);
+                    self.line.clear();
+                    if too_long {
+                        out.extend(self.reply(Err(11)));
+                    } else if !line.is_empty() {
+                        let r = self.execute(&line, now);
+                        out.extend(r);
+                    }
+                }
+                b'\r' => {}
+                _ => {
+                    if self.line.len() >= super::grbl::MAX_LINE_BYTES {
+                        self.line_too_long = true;
+                    } else {
+                        self.line.push(b);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Advance to `now`: a finished homing cycle answers its `ok`; finished moves start the next.
+    pub fn tick(&mut self, now: f64) -> Vec<u8> {
+        let mut out = Vec::new();
+        if let Some(t) = self.homing_until
+            && now >= t
+        {
+            self.homing_until = None;
+            self.x = 0.0;
+            self.state = MachineState::Idle;
+            out.extend(self.reply(Ok(())));
+        }
+        self.advance(now);
+        out
+    }
+
+    /// Move the table along its motion to `now`.
+    fn advance(&mut self, now: f64) {
+        let (s, a) = (self.settings.max_speed, self.settings.accel);
+        loop {
+            let Some(m) = self.motion else { break };
+            if self.stalled {
+                // Frozen where it stalled; the state stays Run.
+                return;
+            }
+            let end = m.start + super::grbl::move_seconds(m.to - m.from, m.speed, a);
+            if now < end {
+                self.x = position_at(m.from, m.to, m.speed, a, now - m.start);
+                self.feed = m.speed * 60.0;
+                return;
+            }
+            self.x = m.to;
+            self.motion = None;
+            if let Some((to, speed)) = self.queue.pop_front() {
+                self.motion = Some(Motion { from: self.x, to, start: end, speed: speed.min(s) });
+            } else {
+                self.state = MachineState::Idle;
+                self.feed = 0.0;
+            }
+        }
+    }
+
+    fn stop_all(&mut self) {
+        self.motion = None;
+        self.queue.clear();
+        self.homing_until = None;
+        self.stalled = false;
+        self.feed = 0.0;
+    }
+
+    fn hold(&mut self, now: f64) {
+        self.advance(now);
+        if self.motion.is_some() {
+            self.stop_all();
+            self.state = MachineState::Hold;
+        }
+    }
+
+    fn reset(&mut self, now: f64) -> Vec<u8> {
+        self.advance(now);
+        let moving = self.motion.is_some() || self.homing_until.is_some();
+        self.stop_all();
+        self.line.clear();
+        self.drop_reply = false;
+        self.error_next = None;
+        let mut out = String::new();
+        if moving {
+            out += "ALARM:3\r\n";
+        }
+        out += &format!("\r\n{}\r\n", self.settings.banner);
+        if moving || self.settings.homing || self.state == MachineState::Alarm {
+            self.state = MachineState::Alarm;
+            out += "[MSG:'$H'|'$X' to unlock]\r\n";
+        } else {
+            self.state = MachineState::Idle;
+        }
+        out.into_bytes()
+    }
+
+    fn status_line(&mut self, now: f64) -> Vec<u8> {
+        self.advance(now);
+        format!("<{}|MPos:{:.3},0.000,0.000|FS:{:.0},0>\r\n", self.state.as_str(), self.x, self.feed).into_bytes()
+    }
+
+    /// `ok` or `error:n`, unless a dropped reply was injected.
+    fn reply(&mut self, r: Result<(), u32>) -> Vec<u8> {
+        if std::mem::take(&mut self.drop_reply) {
+            return Vec::new();
+        }
+        match r {
+            Ok(()) => b"ok\r\n".to_vec(),
+            Err(n) => format!("error:{n}\r\n").into_bytes(),
+        }
+    }
+
+    fn execute(&mut self, line: &str, now: f64) -> Vec<u8> {
+        self.advance(now);
+        if let Some(n) = self.error_next.take() {
+            return self.reply(Err(n));
+        }
+        let upper = line.to_ascii_uppercase();
+        match upper.as_str() {
+            "$H" => {
+                if !self.settings.homing {
+                    return self.reply(Err(5));
+                }
+                self.stop_all();
+                self.state = MachineState::Home;
+                self.homing_until = Some(now + self.settings.home_seconds);
+                Vec::new() // `ok` when the cycle ends (tick)
+            }
+            "$X" => {
+                let mut out = Vec::new();
+                if self.state == MachineState::Alarm {
+                    self.state = MachineState::Idle;
+                    out.extend(b"[MSG:Caution: Unlocked]\r\n");
+                }
+                out.extend(self.reply(Ok(())));
+                out
+            }
+            "$I" => {
+                let mut out = b"[VER:1.1h.20190825:]\r\n[OPT:V,15,128]\r\n".to_vec();
+                out.extend(self.reply(Ok(())));
+                out
+            }
+            _ if upper.starts_with('$') => self.reply(Err(3)),
+            _ => match self.gcode(&upper, now) {
+                Ok(()) => self.reply(Ok(())),
+                Err(n) => self.reply(Err(n)),
+            },
+        }
+    }
+
+    /// `G90 G1 X… F…` (or `G0`): queue the move.
+    fn gcode(&mut self, line: &str, now: f64) -> Result<(), u32> {
+        let (mut rapid, mut target, mut feed) = (false, None, None);
+        for word in line.split_whitespace() {
+            let (letter, value) = word.split_at(1);
+            let v: f64 = value.parse().map_err(|_| 2u32)?;
+            if !v.is_finite() {
+                return Err(2);
+            }
+            match (letter, v) {
+                ("G", 90.0) => {}
+                ("G", 0.0) => rapid = true,
+                ("G", 1.0) => rapid = false,
+                ("X", v) => target = Some(v),
+                ("F", v) if v > 0.0 => feed = Some(v),
+                ("F", _) => return Err(2),
+                _ => return Err(20),
+            }
+        }
+        if self.state == MachineState::Alarm {
+            return Err(9);
+        }
+        let Some(to) = target else { return Ok(()) };
+        let speed = if rapid { self.settings.max_speed } else { feed.ok_or(22u32)? / 60.0 };
+        let speed = speed.min(self.settings.max_speed);
+        if self.motion.is_some() {
+            self.queue.push_back((to, speed));
+        } else {
+            self.motion = Some(Motion { from: self.x, to, start: now, speed });
+            self.state = MachineState::Run;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::devices::grbl::{Reply, StatusReport};
+
+    fn lines(b: &[u8]) -> Vec<Reply> {
+        String::from_utf8_lossy(b).lines().filter_map(Reply::parse).collect()
+    }
+
+    fn status(sim: &mut GrblSim, now: f64) -> StatusReport {
+        match lines(&sim.input(b"?", now)).pop() {
+            Some(Reply::Status(s)) => s,
+            other => panic!("no status: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn banner_alarm_home_and_a_timed_move() {
+        let mut sim = GrblSim::new(SimSettings::default());
+        let boot = lines(&sim.power_on());
+        assert_eq!(boot[0], Reply::Banner("1.1h".into()));
+        assert_eq!(boot[1], Reply::Feedback("MSG:'$H'|'$X' to unlock".into()));
+        assert_eq!(lines(&sim.input(b"G90 G1 X45 F720\n", 0.0)), [Reply::Error(9)], "locked");
+        assert!(sim.input(b"$H\n", 0.0).is_empty(), "ok only when homed");
+        assert_eq!(status(&mut sim, 0.5).state, MachineState::Home);
+        assert_eq!(lines(&sim.tick(1.0)), [Reply::Ok]);
+        // 90° at 1440 °/min = 24 °/s (below the 90 °/s top speed), 180 °/s²: 90/24 + 24/180 s.
+        assert_eq!(lines(&sim.input(b"G90 G1 X90 F1440\n", 2.0)), [Reply::Ok]);
+        let t = 90.0 / 24.0 + 24.0 / 180.0;
+        let mid = status(&mut sim, 2.0 + t / 2.0);
+        assert!(mid.state == MachineState::Run && (mid.x - 45.0).abs() < 1e-6, "{mid:?}");
+        let end = status(&mut sim, 2.0 + t + 1e-9);
+        assert_eq!((end.state, end.x), (MachineState::Idle, 90.0));
+    }
+
+    #[test]
+    fn faults_errors_and_resets() {
+        let mut sim = GrblSim::new(SimSettings { homing: false, ..Default::default() });
+        sim.power_on();
+        assert_eq!(lines(&sim.input(b"G1 X10\n", 0.0)), [Reply::Error(22)], "no feed rate");
+        assert_eq!(lines(&sim.input(b"M3 S1000\n", 0.0)), [Reply::Error(20)]);
+        assert_eq!(lines(&sim.input(b"G1 X1e\n", 0.0)), [Reply::Error(2)]);
+        assert!(lines(&sim.input(&[b'X'; 100], 0.0)).is_empty());
+        assert_eq!(lines(&sim.input(b"\n", 0.0)), [Reply::Error(11)], "line too long");
+        sim.inject(Fault::DropReply, 0.0);
+        assert!(lines(&sim.input(b"G0 X1\n", 0.0)).is_empty(), "dropped");
+        sim.inject(Fault::Error(15), 1.0);
+        assert_eq!(lines(&sim.input(b"G0 X2\n", 1.0)), [Reply::Error(15)]);
+        assert_eq!(lines(&sim.input(b"G0 X180\n", 1.0)), [Reply::Ok]);
+        sim.inject(Fault::Stall, 1.5);
+        let stalled = status(&mut sim, 1.5).x;
+        let later = status(&mut sim, 60.0);
+        assert_eq!((later.state, later.x), (MachineState::Run, stalled), "stalled in Run");
+        let reset = lines(&sim.input(&[SOFT_RESET], 61.0));
+        assert_eq!(reset[0], Reply::Alarm(3), "a reset in motion loses the position");
+        assert_eq!(sim.state(), MachineState::Alarm);
+        assert_eq!(lines(&sim.input(b"$X\n", 62.0)), [Reply::Feedback("MSG:Caution: Unlocked".into()), Reply::Ok]);
+        assert_eq!(lines(&sim.inject(Fault::Alarm(1), 63.0)), [Reply::Alarm(1)]);
+        assert_eq!(sim.state(), MachineState::Alarm);
+    }
+}

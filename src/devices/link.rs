@@ -1,0 +1,344 @@
+//! The turntable as a long-lived device: an actor task that owns the port, connects, reconnects with backoff
+//! after an unplug, re-homes before the first move after a reconnect, watches an idle board with a status
+//! poll, and publishes its state and its faults.
+//!
+//! Callers hold a [`TurntableHandle`]: commands go in over a channel (one at a time, in order), the state is a
+//! `watch` value ([`TurntableState`]: `connected`, `homed`, `moving`, `angle`, …), faults a `broadcast`
+//! ([`DeviceFault`]). A fault never ends the actor: an unplugged or silent port is closed and reopened every
+//! [`LinkSettings::reconnect_min`] doubling to [`LinkSettings::reconnect_max`] (sleeping between tries, never
+//! spinning); a timed-out or refused move leaves the board stopped and re-homed before the next one.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
+
+use super::turntable::{MoveReport, Turntable, TurntableSettings, open_serial};
+use crate::error::{Error, ErrorCode, Result};
+
+/// Where the turntable is and how to reach it (`[devices.turntable]`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LinkSettings {
+    /// The serial port (a stable name: `/dev/serial/by-id/…` or a udev symlink).
+    pub port: PathBuf,
+    /// Baud rate (Grbl: 115200).
+    pub baud: u32,
+    /// The driver's settings.
+    pub driver: TurntableSettings,
+    /// First wait before reopening a lost port.
+    pub reconnect_min: Duration,
+    /// Longest wait between reopening tries.
+    pub reconnect_max: Duration,
+    /// Status poll of an idle board (notices an unplug or an alarm between moves).
+    pub idle_poll: Duration,
+}
+
+impl LinkSettings {
+    /// Settings for `port` with the defaults: 115200 baud, reconnecting every 0.25 s up to every 5 s, an idle
+    /// poll every second.
+    pub fn new(port: impl Into<PathBuf>) -> LinkSettings {
+        LinkSettings {
+            port: port.into(),
+            baud: 115_200,
+            driver: TurntableSettings::default(),
+            reconnect_min: Duration::from_millis(250),
+            reconnect_max: Duration::from_secs(5),
+            idle_poll: Duration::from_secs(1),
+        }
+    }
+}
+
+/// What the turntable is doing, as published.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct TurntableState {
+    /// The port is open and the board answered.
+    pub connected: bool,
+    /// The port.
+    pub port: String,
+    /// Firmware name and version (`Grbl 1.1h`), empty before the first connection.
+    pub firmware: String,
+    /// The table's zero is established.
+    pub homed: bool,
+    /// A move is in progress.
+    pub moving: bool,
+    /// The table's angle as last reported, degrees.
+    pub angle: f64,
+    /// Lines from the board that parsed as nothing, over all connections.
+    pub garbage_lines: u64,
+    /// Faults so far.
+    pub faults: u64,
+    /// The last fault (also sent on the fault channel, which only those subscribed at the time see).
+    pub last_fault: Option<DeviceFault>,
+    /// Connections made so far.
+    pub connections: u64,
+}
+
+/// A device fault, as the `Fault` signal carries it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct DeviceFault {
+    /// The device (`turntable`).
+    pub device: &'static str,
+    /// Stable code (`device.unplugged`, …).
+    pub code: ErrorCode,
+    /// For people.
+    pub message: String,
+}
+
+enum Command {
+    Home(oneshot::Sender<Result<()>>),
+    MoveTo(f64, oneshot::Sender<Result<MoveReport>>),
+    Stop(oneshot::Sender<Result<()>>),
+}
+
+/// A handle on the turntable actor; dropping every handle ends it.
+#[derive(Clone)]
+pub struct TurntableHandle {
+    commands: mpsc::Sender<Command>,
+    state: watch::Receiver<TurntableState>,
+    faults: broadcast::Sender<DeviceFault>,
+}
+
+impl TurntableHandle {
+    /// The state now.
+    pub fn state(&self) -> TurntableState {
+        self.state.borrow().clone()
+    }
+
+    /// A receiver of every state change.
+    pub fn watch(&self) -> watch::Receiver<TurntableState> {
+        self.state.clone()
+    }
+
+    /// A receiver of the faults from now on.
+    pub fn faults(&self) -> broadcast::Receiver<DeviceFault> {
+        self.faults.subscribe()
+    }
+
+    /// Home (or unlock, as configured).
+    ///
+    /// # Errors
+    /// `device.*` as [`Turntable::unlock_or_home`]; `device.unplugged` while disconnected.
+    pub async fn home(&self) -> Result<()> {
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::Home(tx)).await?;
+        rx.await.unwrap_or_else(|_| Err(gone()))
+    }
+
+    /// Turn to `degrees`.
+    ///
+    /// # Errors
+    /// As [`Turntable::move_to`]; `device.unplugged` while disconnected.
+    pub async fn move_to(&self, degrees: f64) -> Result<MoveReport> {
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::MoveTo(degrees, tx)).await?;
+        rx.await.unwrap_or_else(|_| Err(gone()))
+    }
+
+    /// Stop where the table is (after the command before it).
+    ///
+    /// # Errors
+    /// `device.unplugged` while disconnected.
+    pub async fn stop(&self) -> Result<()> {
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::Stop(tx)).await?;
+        rx.await.unwrap_or_else(|_| Err(gone()))
+    }
+
+    async fn send(&self, c: Command) -> Result<()> {
+        self.commands.send(c).await.map_err(|_| gone())
+    }
+}
+
+fn gone() -> Error {
+    Error::new(ErrorCode::DeviceUnplugged, "the turntable's task has ended")
+}
+
+/// Start the turntable actor on the current tokio runtime.
+pub fn spawn_turntable(settings: LinkSettings) -> TurntableHandle {
+    let (ctx, crx) = mpsc::channel(16);
+    let state = TurntableState { port: settings.port.display().to_string(), ..Default::default() };
+    let (stx, srx) = watch::channel(state);
+    let (ftx, _) = broadcast::channel(64);
+    let actor = Actor { settings, commands: crx, state: stx, faults: ftx.clone(), garbage_base: 0 };
+    tokio::spawn(actor.run());
+    TurntableHandle { commands: ctx, state: srx, faults: ftx }
+}
+
+struct Actor {
+    settings: LinkSettings,
+    commands: mpsc::Receiver<Command>,
+    state: watch::Sender<TurntableState>,
+    faults: broadcast::Sender<DeviceFault>,
+    /// Garbage lines of the connections before this one.
+    garbage_base: u64,
+}
+
+/// Why a connected phase ended.
+enum Ended {
+    /// Every handle was dropped.
+    Closed,
+    /// The line failed; reconnect.
+    Lost,
+}
+
+impl Actor {
+    async fn run(mut self) {
+        let mut wait = self.settings.reconnect_min;
+        let mut reported = false;
+        loop {
+            // 1. Connect, answering commands with `device.unplugged` while the port is away.
+            let name = self.settings.port.display().to_string();
+            let opened = match open_serial(&self.settings.port, self.settings.baud) {
+                Ok(io) => Turntable::connect(io, self.settings.driver.clone(), &name).await,
+                Err(e) => Err(e),
+            };
+            let tt = match opened {
+                Ok(tt) => tt,
+                Err(e) => {
+                    // One fault per outage; the retries are logged quietly.
+                    if !reported || e.code != ErrorCode::DeviceUnplugged {
+                        self.fault(&e);
+                        reported = true;
+                    } else {
+                        tracing::debug!(device = "turntable", error = %e, "still unreachable");
+                    }
+                    if self.idle(wait).await {
+                        return;
+                    }
+                    wait = (wait * 2).min(self.settings.reconnect_max);
+                    continue;
+                }
+            };
+            (wait, reported) = (self.settings.reconnect_min, false);
+            self.garbage_base = self.state.borrow().garbage_lines;
+            tracing::info!(device = "turntable", port = %name, firmware = tt.firmware(), "connected");
+            self.state.send_modify(|s| {
+                s.connected = true;
+                s.firmware = tt.firmware().to_string();
+                s.homed = tt.homed();
+                s.angle = tt.angle();
+                s.connections += 1;
+            });
+            // 2. Serve commands until the line fails.
+            let ended = self.serve(tt).await;
+            self.state.send_modify(|s| {
+                s.connected = false;
+                s.homed = false;
+                s.moving = false;
+            });
+            if let Ended::Closed = ended {
+                return;
+            }
+        }
+    }
+
+    /// While disconnected: refuse commands for `wait`; `true` when every handle is gone.
+    async fn idle(&mut self, wait: Duration) -> bool {
+        let until = tokio::time::Instant::now() + wait;
+        loop {
+            tokio::select! {
+                c = self.commands.recv() => match c {
+                    None => return true,
+                    Some(c) => refuse(c, &self.settings.port),
+                },
+                _ = tokio::time::sleep_until(until) => return false,
+            }
+        }
+    }
+
+    async fn serve<S>(&mut self, mut tt: Turntable<S>) -> Ended
+    where
+        S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin,
+    {
+        loop {
+            let command = tokio::select! {
+                c = self.commands.recv() => c,
+                _ = tokio::time::sleep(self.settings.idle_poll) => {
+                    let r = tt.status().await.map(|_| ());
+                    if let Some(ended) = self.after(&mut tt, r.as_ref().err()).await {
+                        return ended;
+                    }
+                    continue;
+                }
+            };
+            let Some(command) = command else { return Ended::Closed };
+            let failure = match command {
+                Command::Home(reply) => {
+                    let r = tt.unlock_or_home().await;
+                    let e = r.as_ref().err().cloned();
+                    let _ = reply.send(r);
+                    e
+                }
+                Command::MoveTo(deg, reply) => {
+                    self.state.send_modify(|s| s.moving = true);
+                    let r = tt.move_to(deg).await;
+                    self.state.send_modify(|s| s.moving = false);
+                    let e = r.as_ref().err().cloned();
+                    let _ = reply.send(r);
+                    e
+                }
+                Command::Stop(reply) => {
+                    let r = tt.stop().await;
+                    let e = r.as_ref().err().cloned();
+                    let _ = reply.send(r);
+                    e
+                }
+            };
+            if let Some(ended) = self.after(&mut tt, failure.as_ref()).await {
+                return ended;
+            }
+        }
+    }
+
+    /// After a command or a poll: publish the state; on a failure, the fault and the recovery. `Some` ends
+    /// the connected phase.
+    async fn after<S>(&mut self, tt: &mut Turntable<S>, failure: Option<&Error>) -> Option<Ended>
+    where
+        S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin,
+    {
+        let mut lost = false;
+        if let Some(e) = failure {
+            self.fault(e);
+            match e.code {
+                ErrorCode::DeviceUnplugged => lost = true,
+                // The board may still be moving, or may have lost a line: hold and reset it; the next
+                // move re-homes. A board that does not answer that is lost.
+                ErrorCode::DeviceTimeout | ErrorCode::DevicePosition => {
+                    if let Err(e2) = tt.stop().await {
+                        self.fault(&e2);
+                        lost = true;
+                    }
+                }
+                _ => {}
+            }
+        }
+        self.state.send_modify(|s| {
+            s.homed = tt.homed();
+            s.angle = tt.angle();
+            s.garbage_lines = self.garbage_base + tt.garbage_lines();
+        });
+        lost.then_some(Ended::Lost)
+    }
+
+    fn fault(&self, e: &Error) {
+        tracing::warn!(device = "turntable", code = %e.code, error = %e.message, "device fault");
+        let fault = DeviceFault { device: "turntable", code: e.code, message: e.message.clone() };
+        self.state.send_modify(|s| {
+            s.faults += 1;
+            s.last_fault = Some(fault.clone());
+        });
+        let _ = self.faults.send(fault);
+    }
+}
+
+fn refuse(c: Command, port: &std::path::Path) {
+    let e = || Error::new(ErrorCode::DeviceUnplugged, format!("the turntable ({}) is not connected", port.display()));
+    match c {
+        Command::Home(r) | Command::Stop(r) => {
+            let _ = r.send(Err(e()));
+        }
+        Command::MoveTo(_, r) => {
+            let _ = r.send(Err(e()));
+        }
+    }
+}

@@ -1,0 +1,357 @@
+//! The turntable driver: Grbl 1.1 over a serial line (tokio-serial for hardware and ptys; any
+//! `AsyncRead + AsyncWrite` for tests).
+//!
+//! [`Turntable::connect`] soft-resets the board, waits for the banner and checks the version
+//! (`device.wrong-firmware`), then unlocks or homes as configured. [`Turntable::move_to`] sends one absolute
+//! move (`G90 G1 X… F…`), waits for its `ok`, then polls `?` until the board reports `Idle` and checks the
+//! reported position against the target (`device.position`). Every wait has a deadline: a reply's is
+//! [`TurntableSettings::reply_timeout`], a move's is derived from its distance, speed and acceleration, a
+//! homing cycle's is [`TurntableSettings::home_timeout`] (`device.timeout`). End of file or EIO on the line is
+//! `device.unplugged`; the caller drops the driver and reopens the port ([`open_serial`]) with backoff, and a
+//! new driver re-homes before its first move. `error:n` is `device.refused`, `ALARM:n` `device.alarm`. Lines
+//! that parse as nothing are counted ([`Turntable::garbage_lines`]) and logged, never acted on.
+
+use std::path::Path;
+use std::time::Duration;
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::time::Instant;
+
+use super::grbl::{
+    MAX_REPLY_BYTES, MachineState, Reply, SOFT_RESET, STATUS_QUERY, StatusReport, alarm_text, error_text,
+    move_line, move_seconds, version_supported,
+};
+use crate::error::{Error, ErrorCode, Result};
+
+/// What to do when the board is locked after a reset (`[MSG:'$H'|'$X' to unlock]`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Homing {
+    /// Run the homing cycle (`$H`): the table's zero is its home switch.
+    Home,
+    /// Unlock (`$X`) and take the position the board reports.
+    Unlock,
+}
+
+/// The driver's settings (`[devices.turntable]` in the daemon's config).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TurntableSettings {
+    /// Top speed of a move, degrees per second (sent as `F`, per minute).
+    pub speed: f64,
+    /// The board's acceleration (Grbl's `$120`), degrees per second²: only for the moves' deadlines.
+    pub accel: f64,
+    /// Homing or unlocking after a reset.
+    pub homing: Homing,
+    /// Deadline of one reply (`ok`, a status report).
+    pub reply_timeout: Duration,
+    /// Deadline of the banner after a reset (Arduino-class boards reset when the port opens: about 2 s).
+    pub banner_timeout: Duration,
+    /// Deadline of a homing cycle.
+    pub home_timeout: Duration,
+    /// A reached position may differ from the target by this much, degrees.
+    pub position_tolerance: f64,
+    /// Interval of `?` polls while a move runs.
+    pub poll_interval: Duration,
+}
+
+impl Default for TurntableSettings {
+    fn default() -> Self {
+        TurntableSettings {
+            speed: 60.0,
+            accel: 120.0,
+            homing: Homing::Home,
+            reply_timeout: Duration::from_secs(2),
+            banner_timeout: Duration::from_secs(5),
+            home_timeout: Duration::from_secs(60),
+            position_tolerance: 0.01,
+            poll_interval: Duration::from_millis(50),
+        }
+    }
+}
+
+impl TurntableSettings {
+    /// The deadline of a move of `distance` degrees: twice its trapezoid's time, plus one reply timeout.
+    pub fn move_timeout(&self, distance: f64) -> Duration {
+        let t = move_seconds(distance, self.speed, self.accel);
+        Duration::from_secs_f64(2.0 * t) + self.reply_timeout
+    }
+}
+
+/// One finished move.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct MoveReport {
+    /// The target, degrees.
+    pub target: f64,
+    /// Where the board reports the table, degrees.
+    pub reached: f64,
+    /// Seconds from sending the move to `Idle`.
+    pub seconds: f64,
+}
+
+/// Open a serial port (a board, or a pty) for the driver: exclusive (TIOCEXCL), 8N1, no flow control.
+///
+/// # Errors
+/// `device.unplugged` when the port does not exist or cannot be opened.
+pub fn open_serial(path: &Path, baud: u32) -> Result<tokio_serial::SerialStream> {
+    use tokio_serial::SerialPortBuilderExt;
+    let name = path.to_string_lossy();
+    let mut port = tokio_serial::new(name.as_ref(), baud).open_native_async().map_err(|e| {
+        Error::new(ErrorCode::DeviceUnplugged, format!("cannot open the turntable's port {name}: {e}"))
+    })?;
+    port.set_exclusive(true).map_err(|e| {
+        Error::new(ErrorCode::DeviceUnplugged, format!("cannot take the turntable's port {name} exclusively: {e}"))
+    })?;
+    Ok(port)
+}
+
+/// A connected turntable.
+pub struct Turntable<S> {
+    io: S,
+    buf: Vec<u8>,
+    settings: TurntableSettings,
+    firmware: String,
+    homed: bool,
+    angle: f64,
+    garbage: u64,
+    name: String,
+}
+
+impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
+    /// Reset the board behind `io`, check its firmware, and unlock or home it as `settings` say. `name`
+    /// names the device in errors and logs (its port).
+    ///
+    /// # Errors
+    /// `device.wrong-firmware`, `device.timeout` (no banner, no reply), `device.unplugged`, `device.alarm`,
+    /// `device.refused`.
+    pub async fn connect(io: S, settings: TurntableSettings, name: &str) -> Result<Self> {
+        let mut t = Turntable {
+            io,
+            buf: Vec::new(),
+            settings,
+            firmware: String::new(),
+            homed: false,
+            angle: 0.0,
+            garbage: 0,
+            name: name.to_string(),
+        };
+        // 1. Soft reset, then the banner (lines before it — a power-on banner, line noise — are skipped).
+        t.write(&[SOFT_RESET]).await?;
+        let deadline = Instant::now() + t.settings.banner_timeout;
+        let version = loop {
+            match t.read_reply(deadline, "the banner").await? {
+                Reply::Banner(v) => break v,
+                other => tracing::debug!(device = %t.name, ?other, "before the banner"),
+            }
+        };
+        if !version_supported(&version) {
+            return Err(t.err(
+                ErrorCode::DeviceWrongFirmware,
+                format!("the board answers as Grbl {version}; the driver speaks Grbl 1.1"),
+            ));
+        }
+        t.firmware = format!("Grbl {version}");
+        // 2. Locked (homing enabled, or an alarm before the reset)? Home or unlock.
+        let status = t.status().await?;
+        t.angle = status.x;
+        if status.state == MachineState::Alarm {
+            t.unlock_or_home().await?;
+        } else {
+            t.homed = t.settings.homing == Homing::Unlock;
+        }
+        Ok(t)
+    }
+
+    /// The firmware's name and version (`Grbl 1.1h`).
+    pub fn firmware(&self) -> &str {
+        &self.firmware
+    }
+
+    /// Whether the table's zero is established (homed, or unlocked when so configured).
+    pub fn homed(&self) -> bool {
+        self.homed
+    }
+
+    /// The table's angle as last reported, degrees.
+    pub fn angle(&self) -> f64 {
+        self.angle
+    }
+
+    /// Lines from the board that parsed as nothing.
+    pub fn garbage_lines(&self) -> u64 {
+        self.garbage
+    }
+
+    /// Run the homing cycle (`$H`), or unlock (`$X`), as configured.
+    ///
+    /// # Errors
+    /// As [`Turntable::connect`].
+    pub async fn unlock_or_home(&mut self) -> Result<()> {
+        match self.settings.homing {
+            Homing::Home => {
+                self.command("$H\n", self.settings.home_timeout, "the homing cycle").await?;
+                self.angle = 0.0;
+            }
+            Homing::Unlock => {
+                self.command("$X\n", self.settings.reply_timeout, "the unlock").await?;
+                self.angle = self.status().await?.x;
+            }
+        }
+        self.homed = true;
+        Ok(())
+    }
+
+    /// Turn the table to `degrees` (absolute), homing first if the zero is not established.
+    ///
+    /// # Errors
+    /// `input.bad-argument` for a non-finite target; `device.timeout` when the move does not finish within
+    /// its deadline (a stalled table); `device.position` when the board stops off the target;
+    /// `device.alarm`, `device.refused`, `device.unplugged`.
+    pub async fn move_to(&mut self, degrees: f64) -> Result<MoveReport> {
+        if !degrees.is_finite() || degrees.abs() > 1e6 {
+            return Err(Error::new(ErrorCode::InputBadArgument, format!("a turntable target of {degrees}°")));
+        }
+        if !self.homed {
+            self.unlock_or_home().await?;
+        }
+        let start = Instant::now();
+        let deadline = start + self.settings.move_timeout(degrees - self.angle);
+        self.command(&move_line(degrees, self.settings.speed * 60.0), self.settings.reply_timeout, "the move").await?;
+        loop {
+            tokio::time::sleep(self.settings.poll_interval).await;
+            let s = self.status().await?;
+            self.angle = s.x;
+            match s.state {
+                MachineState::Idle => break,
+                MachineState::Alarm => return Err(self.err(ErrorCode::DeviceAlarm, "the board locked during the move")),
+                _ => {}
+            }
+            if Instant::now() > deadline {
+                return Err(self.err(
+                    ErrorCode::DeviceTimeout,
+                    format!(
+                        "the move to {degrees:.3}° did not finish within {:.1} s (stopped at {:.3}°, state {:?})",
+                        self.settings.move_timeout(degrees - self.angle).as_secs_f64(),
+                        s.x,
+                        s.state
+                    ),
+                ));
+            }
+        }
+        if (self.angle - degrees).abs() > self.settings.position_tolerance {
+            return Err(self.err(
+                ErrorCode::DevicePosition,
+                format!("the table stopped at {:.4}°, not at {degrees:.4}°", self.angle),
+            ));
+        }
+        Ok(MoveReport { target: degrees, reached: self.angle, seconds: start.elapsed().as_secs_f64() })
+    }
+
+    /// Hold the table where it is (`!`), then reset the board so that the held move is dropped; the board's
+    /// position is kept (a reset in a hold is not an alarm).
+    ///
+    /// # Errors
+    /// `device.unplugged`.
+    pub async fn stop(&mut self) -> Result<()> {
+        self.write(b"!").await?;
+        tokio::time::sleep(self.settings.poll_interval).await;
+        self.write(&[SOFT_RESET]).await?;
+        let deadline = Instant::now() + self.settings.banner_timeout;
+        while !matches!(self.read_reply(deadline, "the banner after a stop").await?, Reply::Banner(_)) {}
+        let s = self.status().await?;
+        self.angle = s.x;
+        if s.state == MachineState::Alarm {
+            self.homed = false;
+        }
+        Ok(())
+    }
+
+    /// A status report (`?`).
+    ///
+    /// # Errors
+    /// `device.timeout`, `device.unplugged`, `device.alarm` (an `ALARM:n` line arrived instead).
+    pub async fn status(&mut self) -> Result<StatusReport> {
+        self.write(&[STATUS_QUERY]).await?;
+        let deadline = Instant::now() + self.settings.reply_timeout;
+        loop {
+            match self.read_reply(deadline, "a status report").await? {
+                Reply::Status(s) => return Ok(s),
+                Reply::Alarm(n) => return Err(self.alarm(n)),
+                // An `ok` or feedback of an earlier line, or a banner: not the answer.
+                _ => {}
+            }
+        }
+    }
+
+    /// Send `line` and wait for its `ok` until `timeout`.
+    async fn command(&mut self, line: &str, timeout: Duration, what: &str) -> Result<()> {
+        self.write(line.as_bytes()).await?;
+        let deadline = Instant::now() + timeout;
+        loop {
+            match self.read_reply(deadline, what).await? {
+                Reply::Ok => return Ok(()),
+                Reply::Error(n) => {
+                    return Err(self.err(
+                        ErrorCode::DeviceRefused,
+                        format!("{what} ({}) was refused: error:{n}, {}", line.trim(), error_text(n)),
+                    ));
+                }
+                Reply::Alarm(n) => return Err(self.alarm(n)),
+                _ => {}
+            }
+        }
+    }
+
+    fn alarm(&mut self, n: u32) -> Error {
+        self.homed = false;
+        self.err(ErrorCode::DeviceAlarm, format!("ALARM:{n}, {}", alarm_text(n)))
+    }
+
+    fn err(&self, code: ErrorCode, message: impl Into<String>) -> Error {
+        Error::new(code, format!("turntable {}: {}", self.name, message.into()))
+    }
+
+    async fn write(&mut self, bytes: &[u8]) -> Result<()> {
+        let r = async {
+            self.io.write_all(bytes).await?;
+            self.io.flush().await
+        };
+        match tokio::time::timeout(self.settings.reply_timeout, r).await {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(e)) => Err(self.err(ErrorCode::DeviceUnplugged, format!("writing failed: {e}"))),
+            Err(_) => Err(self.err(ErrorCode::DeviceTimeout, "the port did not take a write")),
+        }
+    }
+
+    /// The next line that parses; garbage is counted and skipped.
+    async fn read_reply(&mut self, deadline: Instant, what: &str) -> Result<Reply> {
+        loop {
+            while let Some(end) = self.buf.iter().position(|&b| b == b'\n') {
+                let raw: Vec<u8> = self.buf.drain(..=end).collect();
+                let line = String::from_utf8_lossy(&raw);
+                let line = line.trim_matches(|c: char| c == '\r' || c == '\n' || c == '\0');
+                if line.is_empty() {
+                    continue;
+                }
+                match Reply::parse(line) {
+                    Some(r) => return Ok(r),
+                    None => {
+                        self.garbage += 1;
+                        tracing::warn!(device = %self.name, line = %line.escape_debug(), "garbage from the turntable");
+                    }
+                }
+            }
+            if self.buf.len() > MAX_REPLY_BYTES {
+                self.garbage += 1;
+                tracing::warn!(device = %self.name, bytes = self.buf.len(), "an overlong line from the turntable");
+                self.buf.clear();
+            }
+            let mut chunk = [0u8; 256];
+            match tokio::time::timeout_at(deadline, self.io.read(&mut chunk)).await {
+                Err(_) => return Err(self.err(ErrorCode::DeviceTimeout, format!("no answer while waiting for {what}"))),
+                Ok(Ok(0)) => return Err(self.err(ErrorCode::DeviceUnplugged, "the port reached end of file")),
+                Ok(Err(e)) => return Err(self.err(ErrorCode::DeviceUnplugged, format!("reading failed: {e}"))),
+                Ok(Ok(n)) => self.buf.extend_from_slice(&chunk[..n]),
+            }
+        }
+    }
+}
