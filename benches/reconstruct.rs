@@ -74,7 +74,12 @@ fn timed(cmd: &mut Command, what: &str) -> (String, f64, f64) {
         wrapped.current_dir(dir);
     }
     let o = wrapped.output().unwrap_or_else(|e| panic!("{what}: cannot run /usr/bin/time (apt-get install time): {e}"));
-    assert!(o.status.success(), "{what} failed: {}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "{what} failed: {}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
     let t = std::fs::read_to_string(&times).expect("time's output");
     let mut f = t.split_whitespace().rev().take(2).collect::<Vec<_>>().into_iter().rev();
     let wall: f64 = f.next().and_then(|s| s.parse().ok()).expect("wall");
@@ -196,14 +201,21 @@ fn main() {
         .collect();
     let meshlab_max: usize =
         std::env::var("SCANSTATION_BENCH_PYMESHLAB_MAX").ok().and_then(|s| s.parse().ok()).unwrap_or(200_000);
-    println!("| cloud | tool | setting | algorithm s | process wall s | peak RSS MiB | RMS to source % diag | closed | inside-out area % | vertices |");
+    println!(
+        "| cloud | tool | setting | algorithm s | process wall s | peak RSS MiB | RMS to source % diag | closed | inside-out area % | vertices |"
+    );
     println!("|---|---|---|---:|---:|---:|---:|---|---:|---:|");
     for name in ["armadillo_50k", "igea"] {
-        let source = read_mesh(&data.join(format!("meshes/{name}.ply")), &ReadOptions::default()).expect("source").triangulate().0;
+        let source = read_mesh(&data.join(format!("meshes/{name}.ply")), &ReadOptions::default())
+            .expect("source")
+            .triangulate()
+            .0;
         let bvh = TriangleBvh::new(&source);
         for &n in &sizes {
             let depth = if n >= 1_000_000 { 10 } else { 9 };
-            for (variant, noise, normals) in [("normals", 0.0, true), ("normals, 0.05 % noise", NOISE_PCT, true), ("no normals", 0.0, false)] {
+            for (variant, noise, normals) in
+                [("normals", 0.0, true), ("normals, 0.05 % noise", NOISE_PCT, true), ("no normals", 0.0, false)]
+            {
                 let cloud = sample_cloud(&source, n, noise, normals, 0x5ca9 ^ n as u64);
                 let file = tmp.join(format!("{name}-{n}-{}.ply", variant.len()));
                 write_ply_cloud(&file, &cloud, &VertexAttributes::default(), &[]).expect("write cloud");
@@ -239,13 +251,18 @@ fn main() {
 /// Ours and Open3D on the bunny's fused points; bun_zipper → each, RMS % of its diagonal.
 fn bunny(data: &Path, tmp: &Path) {
     let conf = data.join("bunny/scans/bun.conf");
-    let (fused, _) = scanstation::pipeline::reconstruct::read_input(&conf, &ReadOptions::default(), &Default::default())
-        .expect("fuse the bunny");
+    let (fused, _) =
+        scanstation::pipeline::reconstruct::read_input(&conf, &ReadOptions::default(), &Default::default())
+            .expect("fuse the bunny");
     let Geometry::Cloud(cloud) = fused else { panic!("a scan set fuses into a cloud") };
     let file = tmp.join("bunny-fused.ply");
     write_ply_cloud(&file, &cloud, &VertexAttributes::default(), &[]).expect("write fused");
-    let zipper = read_geometry(&data.join("bunny/reconstruction/bun_zipper.ply"), &ReadOptions::default()).expect("zipper");
-    println!("\n| bunny, {} fused points (bun.conf) | tool | algorithm s | process wall s | peak RSS MiB | bun_zipper → result RMS % diag | closed |", cloud.positions.len());
+    let zipper =
+        read_geometry(&data.join("bunny/reconstruction/bun_zipper.ply"), &ReadOptions::default()).expect("zipper");
+    println!(
+        "\n| bunny, {} fused points (bun.conf) | tool | algorithm s | process wall s | peak RSS MiB | bun_zipper → result RMS % diag | closed |",
+        cloud.positions.len()
+    );
     println!("|---|---|---:|---:|---:|---:|---|");
     let runs = [
         ours(&file, &tmp.join("bunny-ours.ply"), 0),

@@ -1094,7 +1094,11 @@ fn corpus_the_bunny_scan_set_in_the_inbox_becomes_a_solid() {
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
     let scans = data.join("bunny/scans");
-    assert!(scans.join("bun.conf").is_file(), "{}: the shared data is missing (SCANSTATION_SHARED_DATA)", scans.display());
+    assert!(
+        scans.join("bun.conf").is_file(),
+        "{}: the shared data is missing (SCANSTATION_SHARED_DATA)",
+        scans.display()
+    );
     let dir = common::scratch("daemon-bunny");
     let bus = start_bus(&dir, OPEN_POLICY);
     let mut st = Station::new(&dir, &bus, false, "");

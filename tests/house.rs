@@ -7,6 +7,7 @@
 //!   distance measure `quality::{compare, CompareOptions, DistanceReport, DistanceStats}`, never another stage's
 //!   internals, nor the pipeline or the daemon;
 //! * `src/pipeline` never imports the daemon;
+//! * `src/devices` imports neither the stages, the pipeline nor the daemon;
 //! * nothing below the daemon (geometry, stages, pipeline) names tokio, zbus, inotify, futures or journald.
 //!
 //! Limits in `src/stages/remesh`, `src/pipeline`, `src/daemon` and `src/bin`: no function over
@@ -360,6 +361,8 @@ fn layering_violations(file: &Path, code: &str, stages: &[String]) -> Vec<String
             _ if layer("geometry") => ["stages", "pipeline", "daemon", "devices"].contains(&top),
             _ if layer("stages") => ["pipeline", "daemon", "devices"].contains(&top),
             _ if layer("pipeline") => ["daemon", "devices"].contains(&top),
+            // Devices sit beside the pipeline, under the daemon: they use neither, nor the stages.
+            _ if layer("devices") => ["stages", "pipeline", "daemon"].contains(&top),
             _ => false,
         };
         if above {
@@ -418,6 +421,9 @@ fn the_layering_check_catches_what_it_should() {
     assert_eq!(layering_violations(geometry, "use crate::stages::Progress;", &stages).len(), 1);
     let pipeline = Path::new("src/pipeline/mod.rs");
     assert_eq!(layering_violations(pipeline, "use crate::daemon::Config;", &stages).len(), 1);
+    let devices = Path::new("src/devices/link.rs");
+    assert_eq!(layering_violations(devices, "use crate::pipeline::convert_file;", &stages).len(), 1);
+    assert!(layering_violations(devices, "use crate::error::Error; fn f() { tokio::spawn(x); }", &stages).is_empty());
     assert!(layering_violations(pipeline, "use crate::stages::repair::decimate;", &stages).is_empty());
 }
 

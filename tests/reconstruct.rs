@@ -173,7 +173,12 @@ fn a_tight_budget_lowers_the_resolution_and_thins_the_points() {
     let t = r.thinning.as_ref().expect("thinned at 64 MiB");
     let topo = TopologyReport::compute(&PolyMesh::from(m.clone()));
     let rms = rms_pct(Shape::Torus, &m);
-    println!("64 MiB: {t:?}, grid {:?} (free: {:?}), RMS {rms:.4} % (free: {:.4} %)", r.grid_nodes, free.1.grid_nodes, rms_pct(Shape::Torus, &free.0));
+    println!(
+        "64 MiB: {t:?}, grid {:?} (free: {:?}), RMS {rms:.4} % (free: {:.4} %)",
+        r.grid_nodes,
+        free.1.grid_nodes,
+        rms_pct(Shape::Torus, &free.0)
+    );
     assert_eq!(t.points_before, 300_000);
     assert!(t.points_after <= t.max_points && t.points_after >= 20_000, "{t:?}");
     assert!(r.grid_nodes[0] < free.1.grid_nodes[0], "resolution lowered: {:?}", r.grid_nodes);

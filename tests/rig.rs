@@ -47,13 +47,24 @@ fn sim(dir: &Path, banner: &str) -> SimTurntable {
     SimTurntable::spawn(settings, &dir.join("ttyTurntable"), TIME_SCALE).expect("a pty")
 }
 
-async fn until(h: &TurntableHandle, what: &str, limit: Duration, f: impl Fn(&scanstation::devices::link::TurntableState) -> bool) {
+async fn until(
+    h: &TurntableHandle,
+    what: &str,
+    limit: Duration,
+    f: impl Fn(&scanstation::devices::link::TurntableState) -> bool,
+) {
     let t = Instant::now();
     let mut w = h.watch();
     while !f(&w.borrow_and_update()) {
         assert!(t.elapsed() < limit, "{what}: not within {limit:?}: {:?}", h.state());
         let _ = tokio::time::timeout(Duration::from_millis(50), w.changed()).await;
     }
+}
+
+/// Send `c` to the simulator and give its thread time to take it (it polls its commands every 5 ms).
+async fn inject(board: &SimTurntable, c: SimCommand) {
+    board.send(c);
+    tokio::time::sleep(Duration::from_millis(50)).await;
 }
 
 async fn next_fault(rx: &mut tokio::sync::broadcast::Receiver<DeviceFault>, limit: Duration) -> DeviceFault {
@@ -94,7 +105,7 @@ fn dropped_replies_errors_and_alarms_are_mapped_and_recovered() {
         until(&tt, "connected", Duration::from_secs(5), |s| s.connected && s.homed).await;
         // A dropped `ok`: device.timeout after the reply's deadline (not before), then the board is stopped
         // and re-homed before the next move.
-        board.send(SimCommand::Fault(Fault::DropReply));
+        inject(&board, SimCommand::Fault(Fault::DropReply)).await;
         let t = Instant::now();
         let e = tt.move_to(30.0).await.unwrap_err();
         let waited = t.elapsed();
@@ -104,7 +115,7 @@ fn dropped_replies_errors_and_alarms_are_mapped_and_recovered() {
         let r = tt.move_to(30.0).await.expect("the next move after a timeout");
         assert!((r.reached - 30.0).abs() <= 0.01);
         // error:15 is device.refused, naming the code.
-        board.send(SimCommand::Fault(Fault::Error(15)));
+        inject(&board, SimCommand::Fault(Fault::Error(15))).await;
         let e = tt.move_to(60.0).await.unwrap_err();
         assert!(e.code == ErrorCode::DeviceRefused && e.message.contains("error:15"), "{e}");
         assert_eq!(next_fault(&mut faults, Duration::from_secs(1)).await.code, ErrorCode::DeviceRefused);
@@ -116,7 +127,7 @@ fn dropped_replies_errors_and_alarms_are_mapped_and_recovered() {
         let r = tt.move_to(60.0).await.expect("a move after the alarm re-homes first");
         assert!((r.reached - 60.0).abs() <= 0.01 && tt.state().homed);
         // A stalled table: device.timeout within the move's derived deadline.
-        board.send(SimCommand::Fault(Fault::Stall));
+        inject(&board, SimCommand::Fault(Fault::Stall)).await;
         let e = tt.move_to(300.0).await.unwrap_err();
         assert_eq!(e.code, ErrorCode::DeviceTimeout, "{e}");
         assert!(tt.state().connected, "a stall is not an unplug");

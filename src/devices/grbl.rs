@@ -260,7 +260,18 @@ mod tests {
     /// Line noise (the bytes of a replug, a baud mismatch) is garbage, never a reply.
     #[test]
     fn garbage_is_not_a_reply() {
-        for g in ["", "error:", "error:x", "ALARM:", "<Idle>", "<Flying|MPos:0,0,0>", "<Idle|MPos:nan,0,0>", "<Idle|MPos:1,0,0", "\u{fffd}ok", "[MSG"] {
+        for g in [
+            "",
+            "error:",
+            "error:x",
+            "ALARM:",
+            "<Idle>",
+            "<Flying|MPos:0,0,0>",
+            "<Idle|MPos:nan,0,0>",
+            "<Idle|MPos:1,0,0",
+            "\u{fffd}ok",
+            "[MSG",
+        ] {
             assert_eq!(Reply::parse(g), None, "{g:?}");
         }
         assert_eq!(Reply::parse(&"x".repeat(300)), None);

@@ -193,8 +193,7 @@ impl GrblSim {
     /// Move the table along its motion to `now`.
     fn advance(&mut self, now: f64) {
         let (s, a) = (self.settings.max_speed, self.settings.accel);
-        loop {
-            let Some(m) = self.motion else { break };
+        while let Some(m) = self.motion {
             if self.stalled {
                 // Frozen where it stalled; the state stays Run.
                 return;

@@ -263,8 +263,10 @@ impl Actor {
             };
             let Some(command) = command else { return Ended::Closed };
             let failure = match command {
+                // The state is published before the reply, so a caller sees the angle it was answered.
                 Command::Home(reply) => {
                     let r = tt.unlock_or_home().await;
+                    self.publish(&tt);
                     let e = r.as_ref().err().cloned();
                     let _ = reply.send(r);
                     e
@@ -273,12 +275,14 @@ impl Actor {
                     self.state.send_modify(|s| s.moving = true);
                     let r = tt.move_to(deg).await;
                     self.state.send_modify(|s| s.moving = false);
+                    self.publish(&tt);
                     let e = r.as_ref().err().cloned();
                     let _ = reply.send(r);
                     e
                 }
                 Command::Stop(reply) => {
                     let r = tt.stop().await;
+                    self.publish(&tt);
                     let e = r.as_ref().err().cloned();
                     let _ = reply.send(r);
                     e
@@ -312,12 +316,17 @@ impl Actor {
                 _ => {}
             }
         }
+        self.publish(tt);
+        lost.then_some(Ended::Lost)
+    }
+
+    /// The driver's homed flag, angle and garbage count into the published state.
+    fn publish<S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin>(&self, tt: &Turntable<S>) {
         self.state.send_modify(|s| {
             s.homed = tt.homed();
             s.angle = tt.angle();
             s.garbage_lines = self.garbage_base + tt.garbage_lines();
         });
-        lost.then_some(Ended::Lost)
     }
 
     fn fault(&self, e: &Error) {

@@ -18,8 +18,8 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::time::Instant;
 
 use super::grbl::{
-    MAX_REPLY_BYTES, MachineState, Reply, SOFT_RESET, STATUS_QUERY, StatusReport, alarm_text, error_text,
-    move_line, move_seconds, version_supported,
+    MAX_REPLY_BYTES, MachineState, Reply, SOFT_RESET, STATUS_QUERY, StatusReport, alarm_text, error_text, move_line,
+    move_seconds, version_supported,
 };
 use crate::error::{Error, ErrorCode, Result};
 
@@ -95,9 +95,9 @@ pub struct MoveReport {
 pub fn open_serial(path: &Path, baud: u32) -> Result<tokio_serial::SerialStream> {
     use tokio_serial::SerialPortBuilderExt;
     let name = path.to_string_lossy();
-    let mut port = tokio_serial::new(name.as_ref(), baud).open_native_async().map_err(|e| {
-        Error::new(ErrorCode::DeviceUnplugged, format!("cannot open the turntable's port {name}: {e}"))
-    })?;
+    let mut port = tokio_serial::new(name.as_ref(), baud)
+        .open_native_async()
+        .map_err(|e| Error::new(ErrorCode::DeviceUnplugged, format!("cannot open the turntable's port {name}: {e}")))?;
     port.set_exclusive(true).map_err(|e| {
         Error::new(ErrorCode::DeviceUnplugged, format!("cannot take the turntable's port {name} exclusively: {e}"))
     })?;

@@ -556,8 +556,7 @@ pub fn convert_file(
     check_cancelled(progress)?;
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
-    let cloud_scatter_pct =
-        reconstruct_step.as_ref().map(|r| r.distance.reference_to_test.rms.pct_of_diagonal);
+    let cloud_scatter_pct = reconstruct_step.as_ref().map(|r| r.distance.reference_to_test.rms.pct_of_diagonal);
     let open_input = open_input_measure(&solid_mesh, &chain.input_geom, kept_input_to_solid_rms, &repair_report, diag);
     let error_map_file = super::provenance::error_map_path(output);
     let error_map_scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh), &chain.input_geom)?;
@@ -754,7 +753,12 @@ impl Chain<'_> {
                 solid_rms_pct: 100.0 * t.rms / diag,
             });
             if crossings > 0 || folds > 0 {
-                tracing::warn!(pairs = crossings, folds, seed, "the solid crosses itself or folds; trying another seed");
+                tracing::warn!(
+                    pairs = crossings,
+                    folds,
+                    seed,
+                    "the solid crosses itself or folds; trying another seed"
+                );
             }
             let flaws = |t: &SolidTry| (t.brep.self_intersections, t.brep.folded_faces);
             if best.as_ref().is_none_or(|b| (crossings, folds) < flaws(b)) {

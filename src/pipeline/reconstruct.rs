@@ -76,7 +76,11 @@ pub fn reconstruct_measured(
     let room = opts.memory_budget.saturating_sub(cloud.heap_bytes()) / 4 / MEASURE_BYTES_PER_POINT;
     let most = (room.min(MEASURE_POINTS as u64) as usize).max(1);
     let stride = cloud.positions.len().div_ceil(most).max(1);
-    let reference = PointCloud { positions: cloud.positions.iter().step_by(stride).copied().collect(), normals: None, colors: None };
+    let reference = PointCloud {
+        positions: cloud.positions.iter().step_by(stride).copied().collect(),
+        normals: None,
+        colors: None,
+    };
     let distance = compare(
         &Geometry::Mesh(PolyMesh::from(mesh.clone())),
         &Geometry::Cloud(reference),

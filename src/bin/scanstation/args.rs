@@ -142,7 +142,9 @@ impl ReconstructArgs {
             project: !self.no_project,
             memory_budget,
             fusion: scanstation::stages::reconstruct::fusion::FuseOptions { refine: !self.no_refine },
-            split: self.split.map_or(scanstation::stages::reconstruct::ReconstructOptions::default().split, usize::from),
+            split: self
+                .split
+                .map_or(scanstation::stages::reconstruct::ReconstructOptions::default().split, usize::from),
             ..Default::default()
         }
     }

@@ -45,7 +45,8 @@ fn time_scale(s: &str) -> Result<f64, String> {
 fn parse_command(line: &str) -> Result<SimCommand, String> {
     let mut words = line.split_whitespace();
     let word = words.next().unwrap_or("");
-    let code = |w: Option<&str>| w.and_then(|n| n.parse::<u32>().ok()).ok_or_else(|| format!("{word}: a number is needed"));
+    let code =
+        |w: Option<&str>| w.and_then(|n| n.parse::<u32>().ok()).ok_or_else(|| format!("{word}: a number is needed"));
     Ok(match word {
         "unplug" => SimCommand::Unplug,
         "replug" => SimCommand::Replug,
@@ -54,7 +55,9 @@ fn parse_command(line: &str) -> Result<SimCommand, String> {
         "alarm" => SimCommand::Fault(Fault::Alarm(code(words.next())?)),
         "stall" => SimCommand::Fault(Fault::Stall),
         "quit" => SimCommand::Stop,
-        _ => return Err(format!("unknown command {word:?} (unplug, replug, drop-reply, error N, alarm N, stall, quit)")),
+        _ => {
+            return Err(format!("unknown command {word:?} (unplug, replug, drop-reply, error N, alarm N, stall, quit)"));
+        }
     })
 }
 

@@ -324,19 +324,15 @@ pub fn reconstruct(
     // 6. Vertices onto the samples' planes; how much of the surface is far from every point.
     let reach = FAR_SPACINGS * mean_spacing.max(grid.h * 0.5);
     let noise_ratio = project::noise_ratio(&index, points, &normals);
-    let mut projected = if opts.project {
-        project::onto_samples(noise_ratio, 0, &mut mesh, &index, points, &normals, grid.h, reach)
-    } else {
-        0
-    };
+    let target = project::Target { index: &index, points, normals: &normals, noise: noise_ratio, reach };
+    let mut projected = if opts.project { project::onto_samples(0, &mut mesh, &target, grid.h) } else { 0 };
     lap("project", &mut t);
     // 7. Finer triangles where the grid's are coarse: split, the midpoints onto the samples' planes.
     for _ in 0..opts.split {
         let (split, first) = refine::midpoint_split(&mesh);
         mesh = split;
         if opts.project {
-            projected +=
-                project::onto_samples(noise_ratio, first, &mut mesh, &index, points, &normals, grid.h * 0.5, reach);
+            projected += project::onto_samples(first, &mut mesh, &target, grid.h * 0.5);
         }
     }
     lap("split", &mut t);

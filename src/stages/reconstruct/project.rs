@@ -22,18 +22,25 @@ pub const SAMPLES: usize = 12;
 /// Largest total move of a vertex, in grid cells (the interpolation error is below one cell).
 pub const MAX_MOVE_CELLS: f64 = 1.0;
 
-/// Project the vertices of `mesh` from `first` on onto the oriented samples, as tight or as wide as the
-/// points' [`noise_ratio`] `noise` asks; returns how many vertices moved. `index` indexes `points`.
-pub fn onto_samples(
-    noise: f64,
-    first: usize,
-    mesh: &mut TriMesh,
-    index: &PointIndex,
-    points: &[[f32; 3]],
-    normals: &[V3],
-    h: f64,
-    reach: f64,
-) -> usize {
+/// The oriented samples a mesh is projected onto.
+#[derive(Clone, Copy)]
+pub struct Target<'a> {
+    /// The index over `points`.
+    pub index: &'a PointIndex<'a>,
+    /// Sample positions.
+    pub points: &'a [[f32; 3]],
+    /// Their unit normals.
+    pub normals: &'a [V3],
+    /// Their [`noise_ratio`]: how tight or wide a projection reaches.
+    pub noise: f64,
+    /// A vertex farther than this from every sample stays where it is (a bridged region).
+    pub reach: f64,
+}
+
+/// Project the vertices of `mesh` from `first` on onto `target`, each moving at most `h` in all; returns
+/// how many vertices moved.
+pub fn onto_samples(first: usize, mesh: &mut TriMesh, target: &Target, h: f64) -> usize {
+    let Target { index, points, normals, noise, reach } = *target;
     let first = first.min(mesh.positions.len());
     let width = Width::for_noise(noise);
     let moved: Vec<Option<[f32; 3]>> = mesh.positions[first..]

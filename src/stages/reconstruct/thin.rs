@@ -46,8 +46,12 @@ pub fn thin(cloud: &PointCloud, cell: f64, max_points: usize) -> Option<(PointCl
     let mut side = cell;
     for _ in 0..MAX_ATTEMPTS {
         if let Some(merged) = merge(cloud, bbox.min, side, max_points) {
-            let report =
-                Thinning { points_before: cloud.positions.len(), points_after: merged.positions.len(), cell: side, max_points };
+            let report = Thinning {
+                points_before: cloud.positions.len(),
+                points_after: merged.positions.len(),
+                cell: side,
+                max_points,
+            };
             return Some((merged, report));
         }
         side *= 2.0;
