@@ -56,7 +56,9 @@ fn parse_command(line: &str) -> Result<SimCommand, String> {
         "stall" => SimCommand::Fault(Fault::Stall),
         "quit" => SimCommand::Stop,
         _ => {
-            return Err(format!("unknown command {word:?} (unplug, replug, drop-reply, error N, alarm N, stall, quit)"));
+            return Err(format!(
+                "unknown command {word:?} (unplug, replug, drop-reply, error N, alarm N, stall, quit)"
+            ));
         }
     })
 }
