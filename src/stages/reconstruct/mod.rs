@@ -145,7 +145,7 @@ pub struct ReconstructOptions {
     pub screening: f64,
     /// Ignore the cloud's normals and estimate them.
     pub estimate_normals: bool,
-    /// Move the extracted vertices onto the samples' local planes ([`project`]).
+    /// Move the extracted vertices onto the samples' local surfaces ([`project`]).
     pub project: bool,
     /// Times every triangle is split in four after the projection, the midpoints projected too ([`refine`]).
     pub split: usize,
@@ -259,6 +259,7 @@ pub fn reconstruct(
     }
     normals::check_not_flat(points)?;
     let bbox = Aabb::of_points(points);
+    let input_bytes = cloud.heap_bytes();
     let plan = plan_memory(cloud, &bbox, opts)?;
     let res = plan.resolution;
     let thinned = match plan.max_points {
@@ -328,7 +329,24 @@ pub fn reconstruct(
     let mut projected = if opts.project { project::onto_samples(0, &mut mesh, &target, grid.h) } else { 0 };
     lap("project", &mut t);
     // 7. Finer triangles where the grid's are coarse: split, the midpoints onto the samples' planes.
+    drop((raw, chi));
     for _ in 0..opts.split {
+        // The split mesh (4× the triangles, the midpoints, their table) beside the points, within the budget.
+        let need = refine::split_bytes(&mesh);
+        let held = input_bytes + points.len() as u64 * BYTES_PER_POINT + PROCESS_BYTES;
+        let room = opts.memory_budget.saturating_sub(held);
+        if need > room {
+            return Err(Error::new(
+                ErrorCode::ResourceMemoryBudget,
+                format!(
+                    "splitting {} triangles needs about {} MiB; the budget leaves {} MiB beside the points",
+                    mesh.triangles.len(),
+                    need >> 20,
+                    room >> 20
+                ),
+            )
+            .with_hint("raise the memory budget or split less (--split)"));
+        }
         let (split, first) = refine::midpoint_split(&mesh);
         mesh = split;
         if opts.project {

@@ -10,6 +10,13 @@ use std::collections::HashMap;
 
 use crate::geometry::mesh::TriMesh;
 
+/// Bytes [`midpoint_split`] allocates for `mesh`: the new triangles (4 × 12 B each), the positions with the
+/// midpoints (12 B each, about 1.5 per triangle) and the midpoint table (about 40 B per edge with its slack).
+pub fn split_bytes(mesh: &TriMesh) -> u64 {
+    let (v, f) = (mesh.positions.len() as u64, mesh.triangles.len() as u64);
+    4 * f * 12 + (v + 3 * f / 2) * 12 + 3 * f / 2 * 40
+}
+
 /// Each triangle split in four at its edges' midpoints; returns the mesh and the index of its first new
 /// vertex (the midpoints follow the old vertices).
 pub fn midpoint_split(mesh: &TriMesh) -> (TriMesh, usize) {
