@@ -173,7 +173,8 @@ fn an_unplug_mid_move_is_a_fault_within_a_second_and_a_replug_re_homes() {
         tokio::time::sleep(Duration::from_secs(1)).await;
         let cpu = (cpu_seconds() - c0) / w.elapsed().as_secs_f64();
         println!("CPU while unplugged: {:.1} % of a core", 100.0 * cpu);
-        assert!(cpu < 0.1, "{:.1} % of a core while unplugged", 100.0 * cpu);
+        // The whole test process (the other rig tests run beside this one): a busy loop would be a full core.
+        assert!(cpu < 0.25, "{:.1} % of a core while unplugged", 100.0 * cpu);
         // Replugged: reconnected and re-homed before the next move.
         board.send(SimCommand::Replug);
         until(&tt, "reconnected and homed", Duration::from_secs(3), |s| s.connected && s.homed).await;
