@@ -214,7 +214,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
             self.unlock_or_home().await?;
         }
         let start = Instant::now();
-        let deadline = start + self.settings.move_timeout(degrees - self.angle);
+        let allowed = self.settings.move_timeout(degrees - self.angle);
+        let deadline = start + allowed;
         self.command(&move_line(degrees, self.settings.speed * 60.0), self.settings.reply_timeout, "the move").await?;
         loop {
             tokio::time::sleep(self.settings.poll_interval).await;
@@ -230,7 +231,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
                     ErrorCode::DeviceTimeout,
                     format!(
                         "the move to {degrees:.3}° did not finish within {:.1} s (stopped at {:.3}°, state {:?})",
-                        self.settings.move_timeout(degrees - self.angle).as_secs_f64(),
+                        allowed.as_secs_f64(),
                         s.x,
                         s.state
                     ),

@@ -93,39 +93,62 @@ pub fn onto_samples(first: usize, mesh: &mut TriMesh, target: &Target, h: f64) -
 /// on a sphere sampled by 20k points, 3·10⁻⁴ of its radius); the quadric has no such bias. `None` when the
 /// neighbours do not determine a quadric (fewer than 8, or an ill-conditioned system): the plane is used.
 fn quadric_projection(p: V3, c: V3, n: V3, near: &[(u32, f64)], points: &[[f32; 3]], sigma2: f64) -> Option<V3> {
-    use nalgebra::{Matrix6, Vector6};
-    if near.len() < 8 {
-        return None;
+    Quadric::fit(c, n, near, points, sigma2)?.project(p)
+}
+
+/// A quadric height field over a plane, in the plane's tangent frame (lengths in units of `s`).
+struct Quadric {
+    c: V3,
+    n: V3,
+    t1: V3,
+    t2: V3,
+    s: f64,
+    k: nalgebra::Vector6<f64>,
+}
+
+impl Quadric {
+    /// The weighted least-squares fit to `near` over the plane (`c`, `n`); `None` when ill-conditioned.
+    fn fit(c: V3, n: V3, near: &[(u32, f64)], points: &[[f32; 3]], sigma2: f64) -> Option<Quadric> {
+        use nalgebra::{Matrix6, Vector6};
+        if near.len() < 8 {
+            return None;
+        }
+        // A tangent frame, lengths in units of σ so the system is well scaled.
+        let t1 = {
+            let a = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+            let t = sub(a, scale(n, dot(a, n)));
+            scale(t, 1.0 / norm(t))
+        };
+        let t2 = crate::geometry::vec3::cross(n, t1);
+        let s = sigma2.sqrt().max(f64::MIN_POSITIVE);
+        let (mut m, mut r) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
+        for &(i, d2) in near {
+            let q = sub(wide(points[i as usize]), c);
+            let (u, v, h) = (dot(q, t1) / s, dot(q, t2) / s, dot(q, n));
+            let w = (-d2 / (2.0 * sigma2)).exp();
+            let row = Vector6::new(1.0, u, v, u * u, u * v, v * v);
+            m += w * row * row.transpose();
+            r += w * h * row;
+        }
+        // Reject near-singular fits (neighbours on a line, or a narrow strip).
+        let eig = m.symmetric_eigenvalues();
+        let (lo, hi) = eig.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &e| (lo.min(e), hi.max(e)));
+        if !(lo > 1e-6 * hi) {
+            return None;
+        }
+        let k = m.cholesky()?.solve(&r);
+        Some(Quadric { c, n, t1, t2, s, k })
     }
-    // A tangent frame, lengths in units of σ so the system is well scaled.
-    let t1 = {
-        let a = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
-        let t = sub(a, scale(n, dot(a, n)));
-        scale(t, 1.0 / norm(t))
-    };
-    let t2 = crate::geometry::vec3::cross(n, t1);
-    let s = sigma2.sqrt().max(f64::MIN_POSITIVE);
-    let (mut m, mut r) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
-    for &(i, d2) in near {
-        let q = sub(wide(points[i as usize]), c);
-        let (u, v, h) = (dot(q, t1) / s, dot(q, t2) / s, dot(q, n));
-        let w = (-d2 / (2.0 * sigma2)).exp();
-        let row = Vector6::new(1.0, u, v, u * u, u * v, v * v);
-        m += w * row * row.transpose();
-        r += w * h * row;
+
+    /// `p` moved onto the height field (along the plane's normal); `None` if not finite.
+    fn project(&self, p: V3) -> Option<V3> {
+        let Quadric { c, n, t1, t2, s, k } = self;
+        let q = sub(p, *c);
+        let (u, v) = (dot(q, *t1) / s, dot(q, *t2) / s);
+        let h = k[0] + k[1] * u + k[2] * v + k[3] * u * u + k[4] * u * v + k[5] * v * v;
+        let out = add(add(*c, add(scale(*t1, u * s), scale(*t2, v * s))), scale(*n, h));
+        out.iter().all(|x| x.is_finite()).then_some(out)
     }
-    // Reject near-singular fits (neighbours on a line, or a narrow strip).
-    let eig = m.symmetric_eigenvalues();
-    let (lo, hi) = eig.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &e| (lo.min(e), hi.max(e)));
-    if !(lo > 1e-6 * hi) {
-        return None;
-    }
-    let k = m.cholesky()?.solve(&r);
-    let q = sub(p, c);
-    let (u, v) = (dot(q, t1) / s, dot(q, t2) / s);
-    let h = k[0] + k[1] * u + k[2] * v + k[3] * u * u + k[4] * u * v + k[5] * v * v;
-    let out = add(add(c, add(scale(t1, u * s), scale(t2, v * s))), scale(n, h));
-    out.iter().all(|x| x.is_finite()).then_some(out)
 }
 
 /// How wide a projection reaches: samples, the neighbour whose squared distance sets σ², and its divisor.
@@ -186,10 +209,11 @@ pub fn noise_ratio(index: &PointIndex, points: &[[f32; 3]], normals: &[V3]) -> f
             let n = normals[i];
             let c = buf.iter().fold([0.0; 3], |a, &(j, _)| add(a, wide(points[j as usize])));
             let c = scale(c, 1.0 / buf.len() as f64);
+            let quadric = Quadric::fit(c, n, buf, points, sigma2)?;
             let (mut r2, mut wsum) = (0.0, 0.0);
             for &(j, d2) in buf.iter() {
                 let q = wide(points[j as usize]);
-                let on = quadric_projection(q, c, n, buf, points, sigma2)?;
+                let on = quadric.project(q)?;
                 let w = (-d2 / (2.0 * sigma2)).exp();
                 r2 += w * norm2(sub(q, on));
                 wsum += w;
