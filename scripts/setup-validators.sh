@@ -3,8 +3,8 @@
 # ../shared/validators that our suites call (point-cloud-utils, trimesh, numpy, scipy; pyinstantmeshes, the peer remesher;
 # cadquery-ocp (OpenCASCADE) and gmsh for the STEP checks; meshio for the FEA's VTU files). Idempotent.
 # Usage: bash scripts/setup-validators.sh [--peers]  (SCANSTATION_VALIDATORS overrides ../shared/validators)
-# --peers also installs Open3D (the reconstruction peer of scripts/reconstruct-peers.sh) and the Debian
-# package it needs (libusb-1.0-0).
+# --peers also installs Open3D and PyMeshLab (the reconstruction peers of `cargo bench --bench reconstruct` and
+# scripts/reconstruct-peers.sh) and the Debian package Open3D needs (libusb-1.0-0).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 kit="${SCANSTATION_VALIDATORS:-$root/../shared/validators}"
@@ -25,7 +25,8 @@ if [ "${1:-}" = "--peers" ]; then
   if ! ldconfig -p | grep -q libusb-1.0.so.0; then
     apt-get install -y -q libusb-1.0-0 >/dev/null
   fi
-  pin=$(grep -E '^open3d==' "$kit/requirements.txt" | sed 's/[[:space:]]*#.*//')
-  "$venv/bin/pip" install -q --disable-pip-version-check "$pin"
-  "$venv/bin/python" -c "import open3d; print('open3d', open3d.__version__)"
+  pins=$(grep -E '^(open3d|pymeshlab)==' "$kit/requirements.txt" | sed 's/[[:space:]]*#.*//')
+  # shellcheck disable=SC2086
+  "$venv/bin/pip" install -q --disable-pip-version-check $pins
+  "$venv/bin/python" -c "import open3d, pymeshlab; print('open3d', open3d.__version__, 'and pymeshlab')"
 fi
