@@ -14,15 +14,7 @@ use scanstation::stages::quality::{CompareOptions, compare};
 use scanstation::{Geometry, PointCloud, assert_near};
 
 fn data_dir() -> PathBuf {
-    let dir = std::env::var_os("SCANSTATION_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    assert!(
-        dir.join("README.md").is_file(),
-        "shared scan data not found at {} (set SCANSTATION_SHARED_DATA to the folder holding data/README.md)",
-        dir.display()
-    );
-    dir
+    common::shared_data()
 }
 
 /// The leading integer of a table cell: "35,947 (1,113 unreferenced)" → 35947, "−108 (genus 55)" → -108,

@@ -1090,10 +1090,7 @@ fn a_scan_set_directory_in_the_inbox_becomes_one_solid() {
 #[test]
 fn corpus_the_bunny_scan_set_in_the_inbox_becomes_a_solid() {
     need("busctl", "systemd");
-    let data = std::env::var_os("SCANSTATION_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let scans = data.join("bunny/scans");
+    let scans = common::shared_data().join("bunny/scans");
     assert!(
         scans.join("bun.conf").is_file(),
         "{}: the shared data is missing (SCANSTATION_SHARED_DATA)",

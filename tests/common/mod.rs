@@ -7,6 +7,20 @@ use std::path::{Path, PathBuf};
 use scanstation::geometry::io::{ReadOptions, read_geometry};
 use scanstation::{Error, Geometry};
 
+/// The shared scan data folder (`SCANSTATION_SHARED_DATA`, default `../shared/data`); a missing one fails the
+/// test saying how to point at it.
+pub fn shared_data() -> PathBuf {
+    let dir = std::env::var_os("SCANSTATION_SHARED_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    assert!(
+        dir.join("README.md").is_file(),
+        "shared scan data not found at {} (set SCANSTATION_SHARED_DATA to the folder holding data/README.md)",
+        dir.display()
+    );
+    dir
+}
+
 /// A scratch directory for one test, under cargo's target tmp dir, emptied on creation.
 pub fn scratch(test: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(test);
