@@ -19,6 +19,7 @@
 //! Run: `cargo bench --bench reconstruct` (all cases, about 30 min on 2 cores). `SCANSTATION_BENCH_POINTS`
 //! (comma-separated, default `200000,2000000`) picks the sizes; PyMeshLab runs on the clouds with normals up
 //! to `SCANSTATION_BENCH_PYMESHLAB_MAX` points (default 200000: at 200k it already takes minutes).
+//! `SCANSTATION_BENCH_KEEP_CLOUDS=DIR` writes the clouds into DIR and runs nothing (to re-run one case by hand).
 
 mod common;
 
@@ -220,6 +221,19 @@ fn main() {
                 let file = tmp.join(format!("{name}-{n}-{}.ply", variant.len()));
                 write_ply_cloud(&file, &cloud, &VertexAttributes::default(), &[]).expect("write cloud");
                 drop(cloud);
+                if let Some(keep) = std::env::var_os("SCANSTATION_BENCH_KEEP_CLOUDS") {
+                    let kept = Path::new(&keep).join(format!(
+                        "{name}-{}k-{}.ply",
+                        n / 1000,
+                        variant.replace([' ', ',', '.', '%'], "")
+                    ));
+                    std::fs::create_dir_all(&keep).expect("SCANSTATION_BENCH_KEEP_CLOUDS: a writable directory");
+                    std::fs::rename(&file, &kept)
+                        .or_else(|_| std::fs::copy(&file, &kept).map(|_| ()))
+                        .expect("keep the cloud");
+                    eprintln!("kept {}", kept.display());
+                    continue;
+                }
                 let label = format!("{name} {}k, {variant}", n / 1000);
                 let mut runs = vec![ours(&file, &tmp.join("ours.ply"), 0), ours(&file, &tmp.join("ours-split.ply"), 1)];
                 runs.push(peer("open3d", depth, &file, &tmp.join("open3d.ply"), !normals));
@@ -244,7 +258,9 @@ fn main() {
             }
         }
     }
-    bunny(&data, &tmp);
+    if std::env::var_os("SCANSTATION_BENCH_KEEP_CLOUDS").is_none() {
+        bunny(&data, &tmp);
+    }
     std::fs::remove_dir_all(&tmp).ok();
 }
 

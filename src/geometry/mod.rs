@@ -2,6 +2,7 @@
 //! synthetic shapes and file formats. Pure computation: no async runtime, no D-Bus, no global state.
 
 pub mod bvh;
+pub mod cellhash;
 pub mod decimate;
 pub mod intersect;
 pub mod io;

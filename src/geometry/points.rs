@@ -2,8 +2,7 @@
 //! a hash map from cell to its run. Deterministic (ties broken by index); queries are independent, so they
 //! run in parallel.
 
-use std::collections::HashMap;
-
+use crate::geometry::cellhash::CellMap;
 use crate::geometry::vec3::{Aabb, V3, norm2, sub, wide};
 
 /// The index. Cost: O(n log n) to build, memory 4 bytes per point plus 16 per occupied cell.
@@ -16,7 +15,7 @@ pub struct PointIndex<'a> {
     /// Point indices sorted by cell key.
     order: Vec<u32>,
     /// Cell key → `order[start..end]`.
-    cells: HashMap<u64, (u32, u32)>,
+    cells: CellMap<(u32, u32)>,
 }
 
 /// Pack integer cell coordinates (21 bits each) into one key.
@@ -40,7 +39,8 @@ impl<'a> PointIndex<'a> {
         let mut keyed: Vec<(u64, u32)> =
             (0..points.len()).map(|i| (key(Self::coords(origin, cell, wide(points[i]))), i as u32)).collect();
         keyed.sort_unstable();
-        let mut cells = HashMap::with_capacity(keyed.len() / per_cell.max(1.0) as usize + 1);
+        let mut cells =
+            CellMap::with_capacity_and_hasher(keyed.len() / per_cell.max(1.0) as usize + 1, Default::default());
         let mut start = 0;
         for i in 1..=keyed.len() {
             if i == keyed.len() || keyed[i].0 != keyed[start].0 {
@@ -85,12 +85,20 @@ impl<'a> PointIndex<'a> {
     /// The `k` points nearest to `p` (itself included when `p` is a point of the set), nearest first, as
     /// (index, squared distance); fewer when the set is smaller. Ties go to the lower index.
     pub fn knn(&self, p: V3, k: usize, out: &mut Vec<(u32, f64)>) {
+        self.knn_near(p, k, f64::INFINITY, out);
+    }
+
+    /// [`Self::knn`] if some point lies within `radius` of `p` (returns true); otherwise false, with the
+    /// search stopped at the rings that can hold such a point (a query far from every point costs no more
+    /// than a [`Self::nearest_within`]).
+    pub fn knn_near(&self, p: V3, k: usize, radius: f64, out: &mut Vec<(u32, f64)>) -> bool {
         out.clear();
         if k == 0 || self.points.is_empty() {
-            return;
+            return false;
         }
         let c = Self::coords(self.origin, self.cell, p);
         let (mut ring, last) = self.rings(c);
+        let decide = (radius / self.cell).ceil().min((1u64 << 42) as f64) as i64 + 1;
         loop {
             self.visit_ring(c, ring, |i| {
                 let d = norm2(sub(wide(self.points[i as usize]), p));
@@ -100,13 +108,33 @@ impl<'a> PointIndex<'a> {
                     out.truncate(k);
                 }
             });
-            // Points beyond this ring are at least `ring · cell` away.
-            let reach = ring as f64 * self.cell;
+            // Points beyond this ring lie outside its cube of cells: at least `reach` away.
+            let reach = self.beyond(c, ring, p);
+            let near = |out: &Vec<(u32, f64)>| out.first().is_some_and(|f| f.1 <= radius * radius);
             if out.len() == k && out[k - 1].1 <= reach * reach || ring >= last {
-                return;
+                return near(out);
+            }
+            // Every point within `radius` lies in the rings up to `decide`.
+            if ring >= decide && !near(out) {
+                out.clear();
+                return false;
             }
             ring += 1;
         }
+    }
+
+    /// Distance from `p` (in cell `c`) to the outside of the cube of cells within Chebyshev distance `ring`
+    /// of `c`: no point beyond that ring is nearer. At least `ring · cell`.
+    #[inline]
+    fn beyond(&self, c: [i64; 3], ring: i64, p: V3) -> f64 {
+        (0..3)
+            .map(|a| {
+                let lo = self.origin[a] + (c[a] - ring) as f64 * self.cell;
+                let hi = self.origin[a] + (c[a] + ring + 1) as f64 * self.cell;
+                (p[a] - lo).min(hi - p[a])
+            })
+            .fold(f64::INFINITY, f64::min)
+            .max(ring as f64 * self.cell)
     }
 
     /// Call `f` for every point in the cells at Chebyshev distance exactly `ring` from cell `c`. Only cells
@@ -146,7 +174,7 @@ impl<'a> PointIndex<'a> {
                 }
             });
             if let Some((_, d)) = best
-                && d <= (ring as f64 * self.cell).powi(2)
+                && d <= self.beyond(c, ring, p).powi(2)
             {
                 break;
             }

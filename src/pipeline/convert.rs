@@ -134,7 +134,9 @@ impl Default for ConvertOptions {
             remove_small_handles: true,
             memory_budget: 8 << 30,
             gates: GateOptions::default(),
-            reconstruct: ReconstructOptions::default(),
+            // No split: the remesh resamples the surface at its own density, so a finer reconstruction
+            // would only make repair and remesh slower.
+            reconstruct: ReconstructOptions { split: Some(0), ..ReconstructOptions::default() },
         }
     }
 }

@@ -111,7 +111,7 @@ pub struct ReconstructArgs {
     /// Where to write the closed mesh (.ply binary, or .obj).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Grid nodes along the longest side (default: 0.6·√points, 64 to 256; range 8 to 1024).
+    /// Grid nodes along the longest side (default: 0.6·√points, 64 to 384; range 8 to 1024).
     #[arg(long, value_parser = ranges::grid_resolution)]
     pub resolution: Option<usize>,
     /// Screening weight: how strongly the surface is pulled through the points (0 = plain Poisson; 0 to 100).
@@ -127,7 +127,7 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub no_refine: bool,
     /// Split every triangle in four this many times after the projection, the midpoints projected too
-    /// (0 to 2).
+    /// (0 to 2; default: once where the points are denser than the grid and the budget allows).
     #[arg(long, value_parser = clap::value_parser!(u8).range(0..=2))]
     pub split: Option<u8>,
 }
@@ -142,9 +142,7 @@ impl ReconstructArgs {
             project: !self.no_project,
             memory_budget,
             fusion: scanstation::stages::reconstruct::fusion::FuseOptions { refine: !self.no_refine },
-            split: self
-                .split
-                .map_or(scanstation::stages::reconstruct::ReconstructOptions::default().split, usize::from),
+            split: self.split.map(usize::from),
             ..Default::default()
         }
     }

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 
 use rayon::prelude::*;
 
-use super::poisson::Grid;
+use super::poisson::{Grid, Node};
 use crate::geometry::mesh::TriMesh;
 use crate::geometry::vec3::{V3, add, cross, dot, scale, sub};
 
@@ -26,17 +26,17 @@ const TETS: [[usize; 4]; 6] = [[0, 1, 3, 7], [0, 1, 5, 7], [0, 2, 3, 7], [0, 2, 
 
 /// Where χ crosses `iso` on the edge between nodes `a` and `b` (kept strictly inside the edge, so no two
 /// crossings coincide).
-fn crossing(grid: &Grid, chi: &[f64], iso: f64, a: u32, b: u32) -> V3 {
-    let (va, vb) = (chi[a as usize] - iso, chi[b as usize] - iso);
+fn crossing(grid: &Grid, chi: &[Node], iso: f64, a: u32, b: u32) -> V3 {
+    let (va, vb) = (f64::from(chi[a as usize]) - iso, f64::from(chi[b as usize]) - iso);
     let t = (va / (va - vb)).clamp(1e-3, 1.0 - 1e-3);
     let (pa, pb) = (grid.position(grid.coords(a as usize)), grid.position(grid.coords(b as usize)));
     add(pa, scale(sub(pb, pa), t))
 }
 
 /// Triangles of one z-layer of cubes, as edge keys, oriented outward.
-fn layer(grid: &Grid, chi: &[f64], iso: f64, k: usize) -> Vec<[EdgeKey; 3]> {
+fn layer(grid: &Grid, chi: &[Node], iso: f64, k: usize) -> Vec<[EdgeKey; 3]> {
     let mut out = Vec::new();
-    let outside = |v: usize| chi[v] > iso;
+    let outside = |v: usize| f64::from(chi[v]) > iso;
     for j in 0..grid.n[1] - 1 {
         for i in 0..grid.n[0] - 1 {
             let corner = |c: usize| {
@@ -81,7 +81,7 @@ fn layer(grid: &Grid, chi: &[f64], iso: f64, k: usize) -> Vec<[EdgeKey; 3]> {
 }
 
 /// The closed iso-surface of χ at `iso`, before component filtering.
-pub fn marching_tetrahedra(grid: &Grid, chi: &[f64], iso: f64) -> TriMesh {
+pub fn marching_tetrahedra(grid: &Grid, chi: &[Node], iso: f64) -> TriMesh {
     let layers: Vec<Vec<[EdgeKey; 3]>> = (0..grid.n[2] - 1).into_par_iter().map(|k| layer(grid, chi, iso, k)).collect();
     let mut ids: HashMap<EdgeKey, u32> = HashMap::new();
     let mut positions = Vec::new();

@@ -41,11 +41,11 @@ pub const NEIGHBOURS: usize = 16;
 /// surface invented where the scan has no data.
 pub const FAR_SPACINGS: f64 = 3.0;
 
-/// Bytes per grid node during the solve: χ, the right-hand side (then freed), the CG residual, direction and
-/// product, the V-cycle's correction and product, and the diagonal (8 × f64), plus the coarser levels (1/7
-/// more), rounded up; measured on igea at 177 × 225 × 225 nodes: 672 MB peak RSS for 9.0 M nodes and 134k
-/// points (75 B per node with the points).
-pub const BYTES_PER_NODE: u64 = 80;
+/// Bytes per grid node during the solve: χ, the CG residual, direction and product, the V-cycle's correction
+/// and second buffer, and the smoother's step (7 × f32), plus the coarser levels (4 × f32, 1/7 more), rounded
+/// up; measured 2026-12-05 on igea at 193 × 257 × 257 nodes (12.7 M) and 200k points: 453 MiB peak RSS
+/// (33 B per node beside the points and the process).
+pub const BYTES_PER_NODE: u64 = 36;
 
 /// Bytes per point: position, normal, area, screening weight, neighbour lists (16 × 4 B, twice for the
 /// symmetric graph) and the orientation's heap and flags.
@@ -66,6 +66,20 @@ pub const GRID_SHARE: f64 = 0.6;
 /// 6 MiB when a reader refuses at once; a 10M-point torus at `--memory-budget 250M` peaked 12 MiB above the
 /// plan's sum before this allowance, 2026-12-05).
 pub const PROCESS_BYTES: u64 = 16 << 20;
+
+/// Relative residual at which the Poisson solve stops. The vertices are projected onto the points afterwards,
+/// so χ is needed only to a fraction of a cell: measured 2026-12-05 on 200k-point clouds of igea and armadillo
+/// (symmetric RMS to the mesh, % of the diagonal) at 10⁻⁶ / 10⁻⁴ / 10⁻³: 0.00413 / 0.00409 / 0.00413 and
+/// 0.00798 / 0.00798 / –, with 9 / 6 / 4 iterations on igea.
+pub const SOLVE_TOLERANCE: f64 = 1e-4;
+
+/// Mean point spacing, in grid cells, at or below which an automatic split refines the surface once, when
+/// the points are clean (noise ratio below [`project::TIGHT_BELOW`]; a noisy cloud's wide projection averages
+/// over more than a cell, so finer triangles carry no finer detail): the points then hold about four samples
+/// per triangle, enough for the midpoints. Measured 2026-12-05 (200k
+/// points, spacing 0.42 cell on igea): symmetric RMS to the mesh 0.0041 → 0.0031 % (armadillo 0.0080 → 0.0052 %;
+/// Open3D depth 9: 0.0054 %, 0.0073 %), at 1.5 s more.
+pub const AUTO_SPLIT_SPACING: f64 = 0.5;
 
 /// Lowest resolution the budget may push an automatic resolution down to.
 pub const MIN_RESOLUTION: usize = 64;
@@ -147,8 +161,10 @@ pub struct ReconstructOptions {
     pub estimate_normals: bool,
     /// Move the extracted vertices onto the samples' local surfaces ([`project`]).
     pub project: bool,
-    /// Times every triangle is split in four after the projection, the midpoints projected too ([`refine`]).
-    pub split: usize,
+    /// Times every triangle is split in four after the projection, the midpoints projected too ([`refine`]);
+    /// `None`: once where the points are clean and denser than the grid (mean spacing at most
+    /// [`AUTO_SPLIT_SPACING`] cells) and the split fits the budget, else not.
+    pub split: Option<usize>,
     /// Most bytes the stage may allocate.
     pub memory_budget: u64,
     /// How the views of a scan set are fused ([`fusion`]).
@@ -159,11 +175,11 @@ impl Default for ReconstructOptions {
     fn default() -> Self {
         ReconstructOptions {
             resolution: 0,
-            max_resolution: 256,
+            max_resolution: 384,
             screening: 4.0,
             estimate_normals: false,
             project: true,
-            split: 0,
+            split: None,
             memory_budget: 8 << 30,
             fusion: fusion::FuseOptions::default(),
         }
@@ -204,7 +220,10 @@ pub struct ReconstructReport {
     pub vertices: usize,
     /// Triangles of the result.
     pub triangles: usize,
-    /// Share of the result's area farther than [`FAR_SPACINGS`] mean spacings from every point.
+    /// Times the triangles were split in four ([`refine`]).
+    pub splits: usize,
+    /// Share of the result's area farther than [`FAR_SPACINGS`] mean spacings from every point (measured
+    /// before a split: the split's triangles cover their parents' surface).
     pub far_area_share: f64,
     /// Seconds per step.
     pub seconds: BTreeMap<String, f64>,
@@ -299,8 +318,12 @@ pub fn reconstruct(
     // 4. Screened Poisson, multigrid-preconditioned CG.
     progress.report(0.3, "solve");
     let samples = poisson::Samples { points, normals: &normals, areas: &areas };
-    let settings =
-        poisson::SolveSettings { resolution: res, screening: opts.screening, tolerance: 1e-6, max_iterations: 200 };
+    let settings = poisson::SolveSettings {
+        resolution: res,
+        screening: opts.screening,
+        tolerance: SOLVE_TOLERANCE,
+        max_iterations: 200,
+    };
     let (grid, chi, levels) = poisson::solve(&bbox, &samples, &settings);
     let iso = poisson::iso_value(&grid, &chi, &samples);
     let outward_share = poisson::outward_share(&grid, &chi, &samples);
@@ -326,16 +349,27 @@ pub fn reconstruct(
     let reach = FAR_SPACINGS * mean_spacing.max(grid.h * 0.5);
     let noise_ratio = project::noise_ratio(&index, points, &normals);
     let target = project::Target { index: &index, points, normals: &normals, noise: noise_ratio, reach };
-    let mut projected = if opts.project { project::onto_samples(0, &mut mesh, &target, grid.h) } else { 0 };
+    let mut projected =
+        if opts.project { project::onto_samples(0, &mut mesh, &target, grid.h, project::ROUNDS) } else { 0 };
     lap("project", &mut t);
-    // 7. Finer triangles where the grid's are coarse: split, the midpoints onto the samples' planes.
+    // 7. The share of the surface far from every point; then finer triangles where the grid's are coarse:
+    //    split, the midpoints onto the samples' surface.
     drop((raw, chi));
-    for _ in 0..opts.split {
+    let far_area_share = far_share(&mesh, &index, reach);
+    lap("far", &mut t);
+    let auto = opts.split.is_none();
+    let dense = mean_spacing <= AUTO_SPLIT_SPACING * grid.h && noise_ratio < project::TIGHT_BELOW;
+    let wanted = opts.split.unwrap_or(usize::from(dense));
+    let mut splits = 0;
+    for _ in 0..wanted {
         // The split mesh (4× the triangles, the midpoints, their table) beside the points, within the budget.
         let need = refine::split_bytes(&mesh);
         let held = input_bytes + points.len() as u64 * BYTES_PER_POINT + PROCESS_BYTES;
         let room = opts.memory_budget.saturating_sub(held);
         if need > room {
+            if auto {
+                break;
+            }
             return Err(Error::new(
                 ErrorCode::ResourceMemoryBudget,
                 format!(
@@ -349,13 +383,12 @@ pub fn reconstruct(
         }
         let (split, first) = refine::midpoint_split(&mesh);
         mesh = split;
+        splits += 1;
         if opts.project {
-            projected += project::onto_samples(first, &mut mesh, &target, grid.h * 0.5);
+            projected += project::onto_samples(first, &mut mesh, &target, grid.h * 0.5, project::MIDPOINT_ROUNDS);
         }
     }
     lap("split", &mut t);
-    let far_area_share = far_share(&mesh, &index, reach);
-    lap("far", &mut t);
     progress.report(1.0, "done");
     let report = ReconstructReport {
         points: input_points,
@@ -373,6 +406,7 @@ pub fn reconstruct(
         noise_ratio,
         vertices: mesh.positions.len(),
         triangles: mesh.triangles.len(),
+        splits,
         far_area_share,
         seconds,
     };

@@ -6,8 +6,7 @@
 //!
 //! Deterministic: the midpoints are numbered in the order of the triangles. Cost O(F) and 4× the faces.
 
-use std::collections::HashMap;
-
+use crate::geometry::cellhash::CellMap;
 use crate::geometry::mesh::TriMesh;
 
 /// Bytes [`midpoint_split`] allocates for `mesh`: the new triangles (4 × 12 B each), the positions with the
@@ -23,9 +22,9 @@ pub fn midpoint_split(mesh: &TriMesh) -> (TriMesh, usize) {
     let first = mesh.positions.len();
     let mut positions = mesh.positions.clone();
     positions.reserve(mesh.triangles.len() * 3 / 2);
-    let mut mid: HashMap<(u32, u32), u32> = HashMap::with_capacity(mesh.triangles.len() * 3 / 2);
+    let mut mid: CellMap<u32> = CellMap::with_capacity_and_hasher(mesh.triangles.len() * 3 / 2, Default::default());
     let mut midpoint = |a: u32, b: u32, positions: &mut Vec<[f32; 3]>| -> u32 {
-        *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+        *mid.entry(u64::from(a.min(b)) << 32 | u64::from(a.max(b))).or_insert_with(|| {
             let (p, q) = (positions[a as usize], positions[b as usize]);
             positions.push([0, 1, 2].map(|k| 0.5 * (p[k] + q[k])));
             (positions.len() - 1) as u32

@@ -11,8 +11,7 @@
 //! Sequential over the input order, so the result is the same on any number of threads. Cost: O(n) hash
 //! inserts per attempt, at most [`MAX_ATTEMPTS`] attempts; memory O(merged points).
 
-use std::collections::HashMap;
-
+use crate::geometry::cellhash::CellMap;
 use crate::geometry::mesh::PointCloud;
 
 /// Cell sizes tried, each twice the last, before giving up.
@@ -61,7 +60,7 @@ pub fn thin(cloud: &PointCloud, cell: f64, max_points: usize) -> Option<(PointCl
 
 /// One attempt at side `side`: `None` as soon as more than `max_points` cells are occupied.
 fn merge(cloud: &PointCloud, origin: [f64; 3], side: f64, max_points: usize) -> Option<PointCloud> {
-    let mut cells: HashMap<u64, Acc> = HashMap::new();
+    let mut cells: CellMap<Acc> = CellMap::default();
     for (i, p) in cloud.positions.iter().enumerate() {
         let normal = cloud.normals.as_ref().map(|n| n[i]);
         let key = cell_key(*p, origin, side, normal);
