@@ -127,6 +127,13 @@ pub enum ErrorCode {
     DeviceRefused,
     /// The turntable stopped away from its target.
     DevicePosition,
+    /// The CAN controller is bus-off (or error-passive with every send refused): nothing can be sent until it
+    /// restarts.
+    DeviceBusOff,
+    /// A CAN node stopped sending its heartbeat (N periods missed) or never started.
+    DeviceLost,
+    /// A CAN node reported a fault in an emergency (EMCY) message.
+    DeviceEmergency,
     /// Quality gate: the solid's surface crosses itself (pairs of its tessellation's triangles intersect).
     QualitySelfIntersecting,
     /// Quality gate: faces of the solid fold over (their normal turns by more than 90° inside the face).
@@ -188,6 +195,9 @@ impl ErrorCode {
             ErrorCode::DeviceAlarm => "device.alarm",
             ErrorCode::DeviceRefused => "device.refused",
             ErrorCode::DevicePosition => "device.position",
+            ErrorCode::DeviceBusOff => "device.bus-off",
+            ErrorCode::DeviceLost => "device.lost",
+            ErrorCode::DeviceEmergency => "device.emergency",
             ErrorCode::QualitySelfIntersecting => "quality.self-intersecting",
             ErrorCode::QualityFolded => "quality.folded",
             ErrorCode::QualityVolume => "quality.volume",
@@ -215,7 +225,10 @@ impl ErrorCode {
             | ErrorCode::DeviceTimeout
             | ErrorCode::DeviceAlarm
             | ErrorCode::DeviceRefused
-            | ErrorCode::DevicePosition => ErrorClass::Device,
+            | ErrorCode::DevicePosition
+            | ErrorCode::DeviceBusOff
+            | ErrorCode::DeviceLost
+            | ErrorCode::DeviceEmergency => ErrorClass::Device,
             _ => ErrorClass::BadInput,
         }
     }

@@ -138,12 +138,10 @@ impl Station {
             let _ = reply.send(Err(StationError::Internal(format!("{what}: {e}"))));
             return;
         }
-        if in_inbox {
-            if let Err(e) = std::fs::rename(path, &dest).and_then(|()| sync_dir(&work)) {
-                let _ = std::fs::remove_dir(&work);
-                let _ = reply.send(Err(StationError::Internal(format!("{what}: {e}"))));
-                return;
-            }
+        if in_inbox && let Err(e) = std::fs::rename(path, &dest).and_then(|()| sync_dir(&work)) {
+            let _ = std::fs::remove_dir(&work);
+            let _ = reply.send(Err(StationError::Internal(format!("{what}: {e}"))));
+            return;
         }
         self.hashing.push_back(Hashing {
             id: id.clone(),

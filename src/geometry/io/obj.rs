@@ -55,7 +55,7 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
             _ => continue,
         }
         records += 1;
-        if records % BUDGET_CHECK_EVERY == 0 {
+        if records.is_multiple_of(BUDGET_CHECK_EVERY) {
             check(positions.len(), mesh.corner_count()).map_err(|e| e.at(loc))?;
         }
     }

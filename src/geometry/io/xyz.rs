@@ -57,17 +57,17 @@ pub(crate) fn read(input: &mut Input) -> Result<Geometry> {
             7 => colors.push([vals[4], vals[5], vals[6]].map(|c| c.clamp(0.0, 255.0) as u8)),
             _ => {}
         }
-        if positions.len() % BUDGET_CHECK_EVERY == 0 {
+        if positions.len().is_multiple_of(BUDGET_CHECK_EVERY) {
             budget(positions.len()).map_err(|e| e.at(loc))?;
         }
     }
-    if let Some((n, loc)) = declared {
-        if n != positions.len() as u64 {
-            let code = if n > positions.len() as u64 { ErrorCode::InputTruncated } else { ErrorCode::InputBadHeader };
-            return Err(
-                Error::new(code, format!("the header declares {n} points, the file has {}", positions.len())).at(loc)
-            );
-        }
+    if let Some((n, loc)) = declared
+        && n != positions.len() as u64
+    {
+        let code = if n > positions.len() as u64 { ErrorCode::InputTruncated } else { ErrorCode::InputBadHeader };
+        return Err(
+            Error::new(code, format!("the header declares {n} points, the file has {}", positions.len())).at(loc)
+        );
     }
     let normals = (columns == 6).then_some(normals);
     let colors = (columns == 7).then_some(colors);

@@ -328,10 +328,10 @@ impl FeaSpec {
         if !(m.density.is_finite() && m.density >= 0.0 && m.density < 1.0) {
             return Err(bad(format!("material.density = {} must lie in [0, 1) t/mm³", m.density)));
         }
-        if let Some(g) = &self.gravity {
-            if !(finite(g) && norm(*g) <= MAX_GRAVITY) {
-                return Err(bad(format!("gravity must be finite, at most {MAX_GRAVITY:e} mm/s²")));
-            }
+        if let Some(g) = &self.gravity
+            && !(finite(g) && norm(*g) <= MAX_GRAVITY)
+        {
+            return Err(bad(format!("gravity must be finite, at most {MAX_GRAVITY:e} mm/s²")));
         }
         for (what, n, max) in [
             ("[[loads]]", self.loads.len(), MAX_LOADS),
@@ -374,10 +374,10 @@ impl FeaSpec {
                 .with_hint("fix part of the surface with a `sphere` or `plane` region"));
         }
         let r = &self.resolution;
-        if let Some(h) = r.cell_size {
-            if !(h.is_finite() && h > 0.0) {
-                return Err(bad(format!("resolution.cell_size = {h} must be positive")));
-            }
+        if let Some(h) = r.cell_size
+            && !(h.is_finite() && h > 0.0)
+        {
+            return Err(bad(format!("resolution.cell_size = {h} must be positive")));
         }
         if !(2..=4096).contains(&r.cells_along_longest) {
             return Err(bad(format!(

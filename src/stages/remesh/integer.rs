@@ -202,7 +202,7 @@ impl Dual {
             }
             sides.push(sd);
             sum.push(s);
-            turning.push(turn_total % 4 != 0);
+            turning.push(!turn_total.is_multiple_of(4));
         }
         if faces_of_edge.iter().any(|f| f[0] == u32::MAX || f[1] == u32::MAX) {
             return None;

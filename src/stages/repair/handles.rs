@@ -247,11 +247,11 @@ impl<'a> Work<'a> {
                 let (mut g, mut c) = (f, self.after(f, b));
                 let mut guard = 0;
                 loop {
-                    if let Some(&j) = index.get(&(b, c)) {
-                        if boundary[j].2 == g {
-                            i = j;
-                            break;
-                        }
+                    if let Some(&j) = index.get(&(b, c))
+                        && boundary[j].2 == g
+                    {
+                        i = j;
+                        break;
                     }
                     let Some(h) = self.across(g, b, c) else { return Vec::new() };
                     g = h;

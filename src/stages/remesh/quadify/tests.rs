@@ -82,7 +82,7 @@ fn far_apart_triangles_pair_with_an_unbounded_search() {
     let mut faces: Vec<Vec<u32>> = grid
         .into_iter()
         .enumerate()
-        .filter(|&(f, _)| !(f as u32 % m == 0 && f as u32 / m < k))
+        .filter(|&(f, _)| !((f as u32).is_multiple_of(m) && f as u32 / m < k))
         .map(|(_, q)| q)
         .collect();
     faces.push(vec![b(0), b(1), t(0)]);
