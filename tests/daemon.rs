@@ -743,13 +743,14 @@ fn packaging_matches_the_code() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = common::scratch("daemon-packaging");
     let bus = start_bus(&dir, OPEN_POLICY);
-    let mut st = Station::new(&dir, &bus, false, "");
+    // Devices configured (their simulators need not run: the objects are exported either way).
+    let mut st = Station::new(&dir, &bus, false, &rig_config(&dir));
     st.start();
     let input = dir.join("x.ply");
     std::fs::write(&input, sphere_bytes(&dir, 1.0)).unwrap();
     let job = String::from_utf8_lossy(&st.cli(&["submit", input.to_str().unwrap()]).stdout).trim().to_string();
     let mut live = String::new();
-    for path in [ROOT, job.as_str()] {
+    for path in [ROOT, job.as_str(), TURNTABLE, TRIGGER] {
         let out = Command::new("busctl")
             .args(["--address", &st.bus, "introspect", "--xml-interface", NAME, path])
             .output()
@@ -758,7 +759,15 @@ fn packaging_matches_the_code() {
         live.push_str(&String::from_utf8_lossy(&out.stdout));
     }
     let live = our_interfaces(&live);
-    assert_eq!(live.keys().collect::<Vec<_>>(), ["org.scanstation.Station1.Job", "org.scanstation.Station1.Manager"]);
+    assert_eq!(
+        live.keys().collect::<Vec<_>>(),
+        [
+            "org.scanstation.Station1.Job",
+            "org.scanstation.Station1.Manager",
+            "org.scanstation.Station1.Trigger",
+            "org.scanstation.Station1.Turntable"
+        ]
+    );
     let committed_path = root.join("systemd/org.scanstation.Station1.xml");
     if std::env::var_os("SCANSTATION_REGENERATE").is_some() {
         let mut s = String::from(
@@ -813,6 +822,14 @@ fn packaging_matches_the_code() {
     // /usr/bin/scanstationd is not installed here), and its paths agree with the shipped config.
     let unit = std::fs::read_to_string(root.join("systemd/scanstation.service")).unwrap();
     assert!(unit.contains("Type=notify") && unit.contains("WatchdogSec="));
+    // The rig: CAN sockets, USB serial ports, and the group that owns them.
+    let families = unit.lines().find_map(|l| l.strip_prefix("RestrictAddressFamilies=")).unwrap_or("");
+    assert!(families.split_whitespace().any(|f| f == "AF_CAN"), "the unit must allow AF_CAN: {families}");
+    for dev in ["DeviceAllow=char-ttyUSB rw", "DeviceAllow=char-ttyACM rw", "SupplementaryGroups=dialout"] {
+        assert!(unit.lines().any(|l| l == dev), "the unit must keep {dev}");
+    }
+    let udev = std::fs::read_to_string(root.join("systemd/70-scanstation-turntable.rules")).unwrap();
+    assert!(udev.contains("SYMLINK+=\"turntable\"") && udev.contains("GROUP=\"dialout\""));
     let udir = dir.join("unit");
     std::fs::create_dir_all(&udir).unwrap();
     std::fs::write(udir.join("scanstation.service"), unit.replace("/usr/bin/scanstationd", DAEMON)).unwrap();
@@ -926,11 +943,30 @@ fn config_errors_name_the_key_and_stop_start_up() {
     let err = String::from_utf8_lossy(&Command::new(DAEMON).arg("--config").arg(&unknown).output().unwrap().stderr)
         .to_string();
     assert!(err.contains("settel"), "{err}");
+    // The rig's sections: each bad value names its key.
+    for (body, key) in [
+        ("[devices.turntable]\nbaud = 115200\n", "devices.turntable.port"),
+        ("[devices.turntable]\nport = \"ttyUSB0\"\n", "devices.turntable.port"),
+        ("[devices.turntable]\nport = \"/dev/turntable\"\nhoming = \"maybe\"\n", "devices.turntable.homing"),
+        ("[devices.turntable]\nport = \"/dev/turntable\"\nspeed = -1\n", "devices.turntable.speed"),
+        ("[devices.trigger]\ninterface = \"can0\"\nnode = 200\n", "devices.trigger.node"),
+        ("[devices.trigger]\ninterface = \"unix:relative.sock\"\n", "devices.trigger.interface"),
+        ("[devices.trigger]\ninterface = \"can0\"\nheartbeat = \"1ms\"\n", "devices.trigger.heartbeat"),
+        ("[devices.trigger]\ninterface = \"can0\"\nbitrate = 500000\n", "bitrate"),
+    ] {
+        let f = common::file(&dir, "rig.toml", format!("[paths]\nspool = \"/tmp/x\"\nstate = \"/tmp/y\"\n{body}"));
+        let out = Command::new(DAEMON).arg("--config").arg(&f).arg("--check-config").output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(78), "{body}: {err}");
+        assert!(err.contains(key), "{body}: expected {key} in {err}");
+    }
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/scanstation.toml");
     let out = Command::new(DAEMON).arg("--config").arg(&shipped).arg("--check-config").output().unwrap();
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("\"memory_budget\": 6442450944") && text.contains("digest "), "{text}");
+    // No device by default: a watch-folder-only station.
+    assert!(text.contains("\"turntable\": null") && text.contains("\"trigger\": null"), "{text}");
     // A spool that cannot be created is a clear start-up error.
     let cfg = common::file(
         &dir,
@@ -1122,4 +1158,238 @@ fn corpus_the_bunny_scan_set_in_the_inbox_becomes_a_solid() {
     assert_eq!(convert["reconstruct"]["fusion"]["views"].as_array().map(Vec::len), Some(10), "bun.conf: fusion");
     assert!(bundle.join("bunny-scans.step").is_file(), "bun.conf: {:?}", visible(&bundle));
     eprintln!("bun.conf through the daemon: gates {}", convert["gates"]);
+}
+
+/// A simulator of the rig as its own process (`scanstation sim …`), killed when dropped.
+struct Sim(Child);
+
+impl Drop for Sim {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// `scanstation sim ARGS…`, stdin held open (the simulators quit at its end), its log in `dir/NAME.log`.
+fn sim(dir: &Path, name: &str, args: &[&str]) -> Sim {
+    let log = std::fs::File::create(dir.join(format!("{name}.log"))).unwrap();
+    let child = Command::new(CLI)
+        .arg("sim")
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .expect("start the simulator");
+    Sim(child)
+}
+
+fn sim_turntable(dir: &Path) -> Sim {
+    let link = dir.join("ttyTurntable");
+    let s = sim(dir, "turntable", &["turntable", "--link", link.to_str().unwrap(), "--time-scale", "10"]);
+    let t = Instant::now();
+    while !link.exists() {
+        assert!(t.elapsed() < Duration::from_secs(5), "the simulated turntable did not appear");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    s
+}
+
+fn sim_trigger(dir: &Path) -> Sim {
+    let sock = dir.join("can.sock");
+    let _ = std::fs::remove_file(&sock);
+    let bus = format!("unix:{}", sock.display());
+    let s = sim(dir, "trigger", &["trigger", "--bus", &bus, "--heartbeat-ms", "50", "--exposure-ms", "20"]);
+    let t = Instant::now();
+    while !sock.exists() {
+        assert!(t.elapsed() < Duration::from_secs(5), "the simulated scanner node did not appear");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    s
+}
+
+/// The `[devices.*]` sections for the simulators in `dir` (fast deadlines: the turntable runs ten times faster
+/// than real time, the scanner beats every 50 ms).
+fn rig_config(dir: &Path) -> String {
+    format!(
+        r#"[devices.turntable]
+port = "{}"
+steps_per_revolution = 3200
+speed = 600
+accel = 1200
+reply_timeout = "500ms"
+banner_timeout = "2s"
+home_timeout = "5s"
+reconnect_max = "400ms"
+[devices.trigger]
+interface = "unix:{}"
+heartbeat = "50ms"
+ack_timeout = "500ms"
+view_timeout = "2s"
+"#,
+        dir.join("ttyTurntable").display(),
+        dir.join("can.sock").display()
+    )
+}
+
+impl Station {
+    /// Wait until `busctl get-property` of `prop` prints `want`.
+    fn wait_property(&self, iface: &str, path: &str, prop: &str, want: &str, limit: Duration) -> Duration {
+        let t = Instant::now();
+        loop {
+            let got = self.property(iface, path, prop);
+            if got.as_deref() == Some(want) {
+                return t.elapsed();
+            }
+            assert!(t.elapsed() < limit, "{iface}.{prop}: {got:?}, not {want:?} within {limit:?}\n{}", self.log());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    fn busctl(&self, args: &[&str]) -> std::process::Output {
+        Command::new("busctl").args(["--address", &self.bus]).args(args).output().unwrap()
+    }
+}
+
+const TURNTABLE: &str = "/org/scanstation/Station1/devices/turntable";
+const TRIGGER: &str = "/org/scanstation/Station1/devices/trigger";
+
+#[test]
+fn the_rig_on_dbus_moves_fires_degrades_and_recovers_with_its_simulators() {
+    need("busctl", "systemd");
+    need("gdbus", "libglib2.0-bin");
+    need("setpriv", "util-linux");
+    let dir = common::scratch("daemon-rig");
+    std::fs::set_permissions(&dir, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    let bus = start_bus(&dir, &system_policy());
+    let table = sim_turntable(&dir);
+    let trigger = sim_trigger(&dir);
+    let mut st = Station::new(&dir, &bus, true, &rig_config(&dir));
+    st.start();
+    let t = st.wait_property("Turntable", TURNTABLE, "Connected", "b true", Duration::from_secs(10));
+    st.wait_property("Trigger", TRIGGER, "NodeAlive", "b true", Duration::from_secs(5));
+    st.wait_property("Manager", ROOT, "State", "s \"idle\"", Duration::from_secs(5));
+    println!("rig connected {t:?} after the name was taken");
+    assert_eq!(st.property("Turntable", TURNTABLE, "StepsPerRevolution").as_deref(), Some("u 3200"));
+    assert_eq!(st.property("Turntable", TURNTABLE, "Firmware").as_deref(), Some("s \"Grbl 1.1h\""));
+
+    // MoveTo moves, and Angle follows.
+    let monitor_log = dir.join("monitor.log");
+    let mut monitor = Command::new("gdbus")
+        .args(["monitor", "--address", &st.bus, "--dest", NAME])
+        .stdout(std::fs::File::create(&monitor_log).unwrap())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    for deg in ["90", "45", "360"] {
+        let out = st.busctl(&["call", NAME, TURNTABLE, &format!("{NAME}.Turntable"), "MoveTo", "da{sv}", deg, "0"]);
+        let reply = String::from_utf8_lossy(&out.stdout).trim().to_string();
+        assert!(out.status.success(), "MoveTo {deg}: {}", String::from_utf8_lossy(&out.stderr));
+        let reached: f64 = reply.trim_start_matches("d ").parse().unwrap();
+        let target: f64 = deg.parse().unwrap();
+        assert!((reached - target).abs() < 0.01, "MoveTo {deg} reached {reached}");
+        let angle = st.property("Turntable", TURNTABLE, "Angle").unwrap();
+        let angle: f64 = angle.trim_start_matches("d ").parse().unwrap();
+        assert!((angle - target).abs() < 0.01, "Angle {angle} after MoveTo {deg}");
+    }
+    let sent = st.busctl(&["call", NAME, TRIGGER, &format!("{NAME}.Trigger"), "Fire", "ua{sv}", "0", "0"]);
+    assert!(sent.status.success(), "Fire: {}", String::from_utf8_lossy(&sent.stderr));
+    assert!(String::from_utf8_lossy(&sent.stdout).starts_with("t "));
+    assert_eq!(st.property("Trigger", TRIGGER, "FramesSent").as_deref(), Some("t 1"));
+
+    // The same through the CLI (`scanstation rig`), on the system bus.
+    let rig_cli =
+        |args: &[&str]| Command::new(CLI).args(args).env("DBUS_SYSTEM_BUS_ADDRESS", &st.bus).output().unwrap();
+    let out = rig_cli(&["--json", "rig", "move", "120"]);
+    assert!(out.status.success(), "rig move: {}", String::from_utf8_lossy(&out.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!((j["reached"].as_f64().unwrap() - 120.0).abs() < 0.01, "{j}");
+    let out = rig_cli(&["--json", "rig", "fire", "--channel", "2"]);
+    assert!(out.status.success(), "rig fire: {}", String::from_utf8_lossy(&out.stderr));
+    let out = rig_cli(&["--json", "rig", "status"]);
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(j["turntable"]["Connected"], true, "{j}");
+    assert!((j["turntable"]["Angle"].as_f64().unwrap() - 120.0).abs() < 0.01, "{j}");
+    assert_eq!(
+        (j["trigger"]["BusState"].as_str(), j["trigger"]["FramesSent"].as_u64()),
+        (Some("error-active"), Some(2)),
+        "{j}"
+    );
+
+    // An unprivileged caller may read but not move or fire.
+    for call in [
+        vec!["call", NAME, TURNTABLE, "org.scanstation.Station1.Turntable", "MoveTo", "da{sv}", "10", "0"],
+        vec!["call", NAME, TRIGGER, "org.scanstation.Station1.Trigger", "Fire", "ua{sv}", "0", "0"],
+        vec!["call", NAME, TURNTABLE, "org.scanstation.Station1.Turntable", "Home"],
+    ] {
+        let out = Command::new("setpriv")
+            .args(["--reuid=65534", "--regid=65534", "--clear-groups", "busctl", "--address", &st.bus])
+            .args(&call)
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "nobody may call {}", call[4]);
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("ccess denied"),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let read = Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", "busctl", "--address", &st.bus])
+        .args(["get-property", NAME, TURNTABLE, "org.scanstation.Station1.Turntable", "Angle"])
+        .output()
+        .unwrap();
+    assert!(read.status.success(), "nobody may read the angle");
+
+    // Killing the turntable's simulator: a Fault, Connected=false, the station degraded; a new one: back.
+    let t = Instant::now();
+    drop(table);
+    let lost = st.wait_property("Turntable", TURNTABLE, "Connected", "b false", Duration::from_secs(3));
+    st.wait_property("Manager", ROOT, "State", "s \"degraded\"", Duration::from_secs(2));
+    assert_eq!(
+        st.property("Manager", ROOT, "Degraded").as_deref(),
+        Some("as 1 \"turntable-disconnected\""),
+        "{}",
+        st.log()
+    );
+    println!("turntable simulator killed: Connected=false after {lost:?}, degraded after {:?}", t.elapsed());
+    let refused = st.busctl(&["call", NAME, TURNTABLE, &format!("{NAME}.Turntable"), "MoveTo", "da{sv}", "10", "0"]);
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("device.unplugged"), "{refused:?}");
+    let out = rig_cli(&["--json", "rig", "move", "10"]);
+    assert_eq!(out.status.code(), Some(5), "a device error exits 5: {out:?}");
+    assert!(String::from_utf8_lossy(&out.stdout).contains("\"device.unplugged\""), "{out:?}");
+    let table = sim_turntable(&dir);
+    let back = st.wait_property("Turntable", TURNTABLE, "Connected", "b true", Duration::from_secs(5));
+    st.wait_property("Manager", ROOT, "State", "s \"idle\"", Duration::from_secs(2));
+    println!("turntable simulator restarted: connected again after {back:?}");
+    let out = st.busctl(&["call", NAME, TURNTABLE, &format!("{NAME}.Turntable"), "MoveTo", "da{sv}", "30", "0"]);
+    assert!(out.status.success(), "MoveTo after the reconnect: {}", String::from_utf8_lossy(&out.stderr));
+
+    // The same for the scanner node.
+    let t = Instant::now();
+    drop(trigger);
+    st.wait_property("Trigger", TRIGGER, "NodeAlive", "b false", Duration::from_secs(2));
+    st.wait_property("Manager", ROOT, "State", "s \"degraded\"", Duration::from_secs(2));
+    println!("scanner simulator killed: degraded after {:?}", t.elapsed());
+    let _trigger = sim_trigger(&dir);
+    st.wait_property("Trigger", TRIGGER, "NodeAlive", "b true", Duration::from_secs(5));
+    st.wait_property("Manager", ROOT, "State", "s \"idle\"", Duration::from_secs(2));
+    let fired = st.busctl(&["call", NAME, TRIGGER, &format!("{NAME}.Trigger"), "Fire", "ua{sv}", "1", "0"]);
+    assert!(fired.status.success(), "Fire after the restart: {}", String::from_utf8_lossy(&fired.stderr));
+
+    // The Fault signals, as a monitor saw them.
+    std::thread::sleep(Duration::from_millis(300));
+    let _ = monitor.kill();
+    let _ = monitor.wait();
+    let seen = std::fs::read_to_string(&monitor_log).unwrap();
+    let faults: Vec<&str> = seen.lines().filter(|l| l.contains(".Fault (")).collect();
+    println!("Fault signals: {faults:#?}");
+    assert!(faults.iter().any(|l| l.contains("Turntable.Fault") && l.contains("device.unplugged")), "{seen}");
+    assert!(
+        faults
+            .iter()
+            .any(|l| l.contains("Trigger.Fault") && (l.contains("device.unplugged") || l.contains("device.lost"))),
+        "{seen}"
+    );
+    drop(table);
 }

@@ -1,4 +1,4 @@
-//! Client proxies for the station's D-Bus API (used by `scanstation status|jobs|submit|cancel|watch`).
+//! Client proxies for the station's D-Bus API (used by `scanstation status|jobs|submit|cancel|watch|rig`).
 // zbus's proxy macro generates proxy types and signal streams without docs; the methods are the API's, as
 // README's D-Bus section documents them.
 #![allow(missing_docs)]
@@ -57,8 +57,32 @@ pub mod ops {
     use crate::daemon::dbus::{BUS_NAME, JOB_IFACE, MANAGER_PATH};
     use crate::error::{Error, ErrorCode, Result};
 
+    /// A device's code from an `org.scanstation.Station1.Error.Device` message (`[device.timeout] …`).
+    fn device_code(msg: &str) -> Option<ErrorCode> {
+        let code = msg.strip_prefix('[')?.split(']').next()?;
+        [
+            ErrorCode::DeviceUnplugged,
+            ErrorCode::DeviceWrongFirmware,
+            ErrorCode::DeviceTimeout,
+            ErrorCode::DeviceAlarm,
+            ErrorCode::DeviceRefused,
+            ErrorCode::DevicePosition,
+            ErrorCode::DeviceBusOff,
+            ErrorCode::DeviceLost,
+            ErrorCode::DeviceEmergency,
+        ]
+        .into_iter()
+        .find(|c| c.as_str() == code)
+    }
+
     fn bus_err(e: zbus::Error) -> Error {
         match &e {
+            zbus::Error::MethodError(name, msg, _) if name.as_str() == "org.scanstation.Station1.Error.Device" => {
+                let msg = msg.as_deref().unwrap_or("");
+                let code = device_code(msg).unwrap_or(ErrorCode::DaemonRefused);
+                let text = msg.split_once("] ").map_or(msg, |(_, t)| t);
+                Error::new(code, text.to_string())
+            }
             zbus::Error::MethodError(name, msg, _) => {
                 let unavailable = name.as_str() == "org.freedesktop.DBus.Error.ServiceUnknown"
                     || name.as_str() == "org.freedesktop.DBus.Error.NameHasNoOwner";
@@ -197,6 +221,79 @@ pub mod ops {
         }
         let p = mgr.submit_file(&abs.to_string_lossy(), opts).await.map_err(bus_err)?;
         Ok(p.to_string())
+    }
+
+    /// The rig's devices: each configured one's properties (`null` when not configured).
+    ///
+    /// # Errors
+    /// `daemon.*`.
+    pub async fn rig_status(conn: &Connection) -> Result<serde_json::Value> {
+        use crate::daemon::rig::{TRIGGER_PATH, TURNTABLE_PATH};
+        let mut out = serde_json::Map::new();
+        for (name, path, iface) in [
+            ("turntable", TURNTABLE_PATH, "org.scanstation.Station1.Turntable"),
+            ("trigger", TRIGGER_PATH, "org.scanstation.Station1.Trigger"),
+        ] {
+            let v = match all_properties(conn, path.to_string(), iface).await {
+                Ok(v) => v,
+                // Not configured: the object (or its interface) is not exported.
+                Err(e) if e.message.contains("UnknownObject") || e.message.contains("UnknownInterface") => {
+                    serde_json::Value::Null
+                }
+                Err(e) => return Err(e),
+            };
+            out.insert(name.into(), v);
+        }
+        Ok(serde_json::Value::Object(out))
+    }
+
+    async fn rig_call<R>(
+        conn: &Connection,
+        path: &str,
+        iface: &str,
+        method: &str,
+        body: &(impl serde::Serialize + zbus::zvariant::DynamicType),
+    ) -> Result<R>
+    where
+        R: for<'d> zbus::zvariant::DynamicDeserialize<'d>,
+    {
+        let reply = conn.call_method(Some(BUS_NAME), path, Some(iface), method, body).await.map_err(bus_err)?;
+        reply.body().deserialize::<R>().map_err(bus_err)
+    }
+
+    /// Home the turntable.
+    ///
+    /// # Errors
+    /// `daemon.*`, `device.*`.
+    pub async fn rig_home(conn: &Connection) -> Result<()> {
+        rig_call::<()>(conn, crate::daemon::rig::TURNTABLE_PATH, "org.scanstation.Station1.Turntable", "Home", &())
+            .await
+    }
+
+    /// Turn the table to `degrees`; the angle reached.
+    ///
+    /// # Errors
+    /// `daemon.*`, `device.*`.
+    pub async fn rig_move(conn: &Connection, degrees: f64) -> Result<f64> {
+        let opts: HashMap<&str, Value<'_>> = HashMap::new();
+        rig_call(
+            conn,
+            crate::daemon::rig::TURNTABLE_PATH,
+            "org.scanstation.Station1.Turntable",
+            "MoveTo",
+            &(degrees, opts),
+        )
+        .await
+    }
+
+    /// Fire the scanner's `channel` and wait for the view; when the trigger was sent, µs since the epoch.
+    ///
+    /// # Errors
+    /// `daemon.*`, `device.*`.
+    pub async fn rig_fire(conn: &Connection, channel: u32) -> Result<u64> {
+        let opts: HashMap<&str, Value<'_>> = HashMap::new();
+        rig_call(conn, crate::daemon::rig::TRIGGER_PATH, "org.scanstation.Station1.Trigger", "Fire", &(channel, opts))
+            .await
     }
 
     /// A job's object path from an id or a path.

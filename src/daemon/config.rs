@@ -34,6 +34,41 @@ struct Raw {
     pipeline: RawPipeline,
     #[serde(default)]
     dbus: RawDbus,
+    #[serde(default)]
+    devices: RawDevices,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawDevices {
+    turntable: Option<RawTurntable>,
+    trigger: Option<RawTrigger>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawTurntable {
+    port: Option<PathBuf>,
+    baud: Option<u32>,
+    steps_per_revolution: Option<u32>,
+    speed: Option<f64>,
+    accel: Option<f64>,
+    homing: Option<String>,
+    reply_timeout: Option<String>,
+    banner_timeout: Option<String>,
+    home_timeout: Option<String>,
+    reconnect_max: Option<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawTrigger {
+    interface: Option<String>,
+    node: Option<u8>,
+    heartbeat: Option<String>,
+    lost_after: Option<u32>,
+    ack_timeout: Option<String>,
+    view_timeout: Option<String>,
 }
 
 #[derive(Deserialize, Default)]
@@ -176,6 +211,59 @@ pub struct Config {
     pub progress_max_rate_hz: f64,
     /// The group whose members may submit, cancel and pause.
     pub ops_group: String,
+    /// The turntable (`[devices.turntable]`; none by default).
+    pub turntable: Option<TurntableConfig>,
+    /// The scanner's trigger (`[devices.trigger]`; none by default).
+    pub trigger: Option<TriggerConfig>,
+}
+
+/// `[devices.turntable]`: a Grbl 1.1 board on a serial port.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct TurntableConfig {
+    /// The port (a stable name: `/dev/serial/by-id/…` or a udev symlink).
+    pub port: PathBuf,
+    /// Baud rate.
+    pub baud: u32,
+    /// Motor steps per table revolution, as configured on the board (shown on D-Bus; 0: not given).
+    pub steps_per_revolution: u32,
+    /// Top speed, degrees per second.
+    pub speed: f64,
+    /// The board's acceleration, degrees per second² (for the moves' deadlines).
+    pub accel: f64,
+    /// After a reset: run the homing cycle (`true`, `$H`) or unlock (`false`, `$X`).
+    pub home: bool,
+    #[serde(with = "secs")]
+    /// Deadline of one reply.
+    pub reply_timeout: Duration,
+    #[serde(with = "secs")]
+    /// Deadline of the banner after a reset.
+    pub banner_timeout: Duration,
+    #[serde(with = "secs")]
+    /// Deadline of a homing cycle.
+    pub home_timeout: Duration,
+    #[serde(with = "secs")]
+    /// Longest wait between reconnecting tries.
+    pub reconnect_max: Duration,
+}
+
+/// `[devices.trigger]`: the scanner's node on CAN.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct TriggerConfig {
+    /// The CAN interface, or `unix:PATH` (a simulator's socket).
+    pub interface: String,
+    /// The scanner's node id.
+    pub node: u8,
+    #[serde(with = "secs")]
+    /// Its heartbeat period.
+    pub heartbeat: Duration,
+    /// Heartbeat periods without one before it is lost.
+    pub lost_after: u32,
+    #[serde(with = "secs")]
+    /// Longest wait for a trigger's acknowledgement.
+    pub ack_timeout: Duration,
+    #[serde(with = "secs")]
+    /// Longest wait for a view after the acknowledgement.
+    pub view_timeout: Duration,
 }
 
 mod secs {
@@ -349,6 +437,8 @@ impl Config {
         if reconcile_interval < Duration::from_millis(100) {
             return Err(err("watch.reconcile_interval", "must be at least 100ms".into()));
         }
+        let turntable = raw.devices.turntable.map(|t| turntable_config(t, &dur, &err)).transpose()?;
+        let trigger = raw.devices.trigger.map(|t| trigger_config(t, &dur, &err)).transpose()?;
         let keep_finished_jobs = raw.limits.keep_finished_jobs.unwrap_or(100);
         if keep_finished_jobs > 100_000 {
             return Err(err("limits.keep_finished_jobs", "at most 100000".into()));
@@ -379,6 +469,8 @@ impl Config {
             gates,
             progress_max_rate_hz,
             ops_group: raw.dbus.ops_group.unwrap_or_else(|| "scanstation".into()),
+            turntable,
+            trigger,
         })
     }
 
@@ -392,6 +484,77 @@ impl Config {
         let s = serde_json::to_string(self).unwrap_or_default();
         Sha256::digest(s.as_bytes()).iter().map(|x| format!("{x:02x}")).collect()
     }
+}
+
+type DurOf<'a> = dyn Fn(&str, &Option<String>, &str) -> Result<Duration, ConfigError> + 'a;
+type ErrOf<'a> = dyn Fn(&str, String) -> ConfigError + 'a;
+
+fn turntable_config(t: RawTurntable, dur: &DurOf, err: &ErrOf) -> Result<TurntableConfig, ConfigError> {
+    let k = |key: &str| format!("devices.turntable.{key}");
+    let port = t.port.ok_or_else(|| err(&k("port"), "required (e.g. /dev/serial/by-id/usb-…)".into()))?;
+    if !port.is_absolute() {
+        return Err(err(&k("port"), format!("{} is not an absolute path", port.display())));
+    }
+    let baud = t.baud.unwrap_or(115_200);
+    if !(1_200..=4_000_000).contains(&baud) {
+        return Err(err(&k("baud"), format!("{baud} is outside 1200..=4000000")));
+    }
+    let speed = t.speed.unwrap_or(60.0);
+    let accel = t.accel.unwrap_or(120.0);
+    for (key, v) in [("speed", speed), ("accel", accel)] {
+        if !(v.is_finite() && v > 0.0 && v <= 1e5) {
+            return Err(err(&k(key), format!("{v} is not a positive rate up to 100000")));
+        }
+    }
+    let home = match t.homing.as_deref().unwrap_or("home") {
+        "home" => true,
+        "unlock" => false,
+        o => return Err(err(&k("homing"), format!("{o:?}: use \"home\" ($H) or \"unlock\" ($X)"))),
+    };
+    Ok(TurntableConfig {
+        port,
+        baud,
+        steps_per_revolution: t.steps_per_revolution.unwrap_or(0),
+        speed,
+        accel,
+        home,
+        reply_timeout: dur(&k("reply_timeout"), &t.reply_timeout, "2s")?,
+        banner_timeout: dur(&k("banner_timeout"), &t.banner_timeout, "5s")?,
+        home_timeout: dur(&k("home_timeout"), &t.home_timeout, "60s")?,
+        reconnect_max: dur(&k("reconnect_max"), &t.reconnect_max, "5s")?,
+    })
+}
+
+fn trigger_config(t: RawTrigger, dur: &DurOf, err: &ErrOf) -> Result<TriggerConfig, ConfigError> {
+    let k = |key: &str| format!("devices.trigger.{key}");
+    let interface = t.interface.ok_or_else(|| err(&k("interface"), "required (e.g. \"can0\")".into()))?;
+    let ok_name = match interface.strip_prefix("unix:") {
+        Some(p) => Path::new(p).is_absolute(),
+        None => !interface.is_empty() && interface.len() < 16 && !interface.contains(['/', ' ']),
+    };
+    if !ok_name {
+        return Err(err(&k("interface"), format!("{interface:?}: a CAN interface name or unix:/absolute/path")));
+    }
+    let node = t.node.unwrap_or(0x10);
+    if !(1..=127).contains(&node) {
+        return Err(err(&k("node"), format!("{node} is outside 1..=127")));
+    }
+    let heartbeat = dur(&k("heartbeat"), &t.heartbeat, "100ms")?;
+    if heartbeat < Duration::from_millis(10) {
+        return Err(err(&k("heartbeat"), "at least 10ms".into()));
+    }
+    let lost_after = t.lost_after.unwrap_or(3);
+    if !(1..=100).contains(&lost_after) {
+        return Err(err(&k("lost_after"), format!("{lost_after} is outside 1..=100")));
+    }
+    Ok(TriggerConfig {
+        interface,
+        node,
+        heartbeat,
+        lost_after,
+        ack_timeout: dur(&k("ack_timeout"), &t.ack_timeout, "250ms")?,
+        view_timeout: dur(&k("view_timeout"), &t.view_timeout, "10s")?,
+    })
 }
 
 /// Per-job options: from a sidecar `NAME.job.toml` or the `a{sv}` of `SubmitFile`.

@@ -53,6 +53,8 @@ pub enum StationError {
     AccessDenied(String),
     /// The station could not do it (disk, journal, shutting down).
     Internal(String),
+    /// A device of the rig failed; the message starts with its stable code in brackets (`[device.timeout] …`).
+    Device(String),
 }
 
 /// A request to the station actor.
@@ -90,6 +92,13 @@ pub enum Command {
         limit: u32,
         /// The finished jobs, newest first.
         reply: oneshot::Sender<Vec<HashMap<String, OwnedValue>>>,
+    },
+    /// A configured device's health changed: why it makes the station degraded (empty: it is fine).
+    DeviceHealth {
+        /// `turntable` or `trigger`.
+        device: &'static str,
+        /// Reasons (`turntable-disconnected`, `scanner-lost`, `can-bus-off`, `can-down`).
+        reasons: Vec<String>,
     },
     /// Liveness probe of the actor loop (the watchdog).
     Ping {
@@ -154,7 +163,12 @@ fn groups_of(uid: u32) -> Vec<u32> {
 }
 
 /// Check the caller of a mutating method.
-async fn authorize(conn: &Connection, hdr: &Header<'_>, access: &Access, what: &str) -> Result<(), StationError> {
+pub(crate) async fn authorize(
+    conn: &Connection,
+    hdr: &Header<'_>,
+    access: &Access,
+    what: &str,
+) -> Result<(), StationError> {
     let Some(sender) = hdr.sender() else {
         // A peer-to-peer connection has no bus to ask; only the daemon's own process can open one.
         return Ok(());
@@ -191,6 +205,8 @@ async fn ask<T>(
 pub struct ManagerView {
     /// `idle`, `busy`, `paused` or `degraded`.
     pub state: String,
+    /// Why it is degraded (`watch-lost`, `turntable-disconnected`, `scanner-lost`, `can-bus-off`, `can-down`).
+    pub degraded: Vec<String>,
     /// Jobs running.
     pub active: Vec<OwnedObjectPath>,
     /// Jobs waiting.
@@ -328,6 +344,13 @@ pub mod manager_iface {
         #[zbus(property)]
         fn state(&self) -> String {
             lock(&self.view).state.clone()
+        }
+
+        /// Why the state is degraded (empty otherwise): `watch-lost`, `turntable-disconnected`, `scanner-lost`,
+        /// `can-bus-off`, `can-down`.
+        #[zbus(property)]
+        fn degraded(&self) -> Vec<String> {
+            lock(&self.view).degraded.clone()
         }
 
         #[zbus(property)]

@@ -8,6 +8,7 @@
 //! - [`station`]: the actor that owns jobs, queue and recovery;
 //! - [`worker`]: a job's work on the CPU pool, publication and quarantine;
 //! - [`dbus`]: the `org.scanstation.Station1` interfaces (thin, actor-backed);
+//! - [`rig`]: the configured devices (turntable, trigger) on D-Bus and in the Manager's state;
 //! - [`client`]: proxies for the `scanstation` CLI;
 //! - [`notify`]: sd_notify and the watchdog.
 
@@ -16,6 +17,7 @@ pub mod config;
 pub mod dbus;
 pub mod journal;
 pub mod notify;
+pub mod rig;
 pub mod spool;
 pub mod station;
 pub mod watch;
@@ -76,7 +78,7 @@ pub enum StartError {
 /// Run the daemon until SIGTERM or SIGINT.
 ///
 /// Order (so that clients never see a half-ready station): spool and journal are opened and recovered,
-/// the ObjectManager, Manager and job objects are exported, the inbox watch is added and the inbox
+/// the ObjectManager, Manager, job and device objects are exported, the inbox watch is added and the inbox
 /// scanned, then the bus name is requested, interrupted jobs are announced, and systemd is told READY.
 ///
 /// # Errors
@@ -116,6 +118,7 @@ pub async fn run(cfg: Config) -> Result<(), StartError> {
         )
         .await
         .map_err(export_err)?;
+    let access_for_rig = access.clone();
     let mut station = station::Station::recover(station::Parts {
         cfg: cfg.clone(),
         spool: spool.clone(),
@@ -128,6 +131,9 @@ pub async fn run(cfg: Config) -> Result<(), StartError> {
     })
     .map_err(|e| StartError::State { path: cfg.state.display().to_string(), reason: e.to_string() })?;
     station.export_all().await.map_err(export_err)?;
+    rig::start(&conn, cfg.turntable.as_ref(), cfg.trigger.as_ref(), &access_for_rig, cmd_tx.clone())
+        .await
+        .map_err(export_err)?;
     watch::start(&spool.inbox, watch_tx)
         .map_err(|e| StartError::Watch { path: spool.inbox.display().to_string(), reason: e.to_string() })?;
     conn.request_name(BUS_NAME).await.map_err(|e| StartError::Name(e.to_string()))?;

@@ -209,7 +209,7 @@ impl Actor {
                     continue;
                 }
             };
-            (wait, reported) = (self.settings.reconnect_min, false);
+            wait = self.settings.reconnect_min;
             self.garbage_base = self.state.borrow().garbage_lines;
             tracing::info!(device = "turntable", port = %name, firmware = tt.firmware(), "connected");
             self.state.send_modify(|s| {
@@ -229,6 +229,8 @@ impl Actor {
             if let Ended::Closed = ended {
                 return;
             }
+            // The loss was the outage's fault; failed reopening tries are not faults of their own.
+            reported = true;
         }
     }
 

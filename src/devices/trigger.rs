@@ -263,7 +263,7 @@ impl Actor {
                     continue;
                 }
             };
-            (wait, reported) = (self.settings.reconnect_min, false);
+            wait = self.settings.reconnect_min;
             tracing::info!(device = "trigger", interface = %self.settings.interface, node = self.settings.node, "connected");
             self.state.send_modify(|s| {
                 s.bus_state = BusState::ErrorActive;
@@ -277,6 +277,8 @@ impl Actor {
             if let Ended::Closed = ended {
                 return;
             }
+            // The loss was the outage's fault; failed reopening tries are not faults of their own.
+            reported = true;
         }
     }
 

@@ -245,6 +245,39 @@ pub struct SubmitArgs {
 }
 
 #[cfg(feature = "daemon")]
+/// Arguments of `scanstation rig`.
+#[derive(Args)]
+pub struct RigArgs {
+    #[command(subcommand)]
+    pub action: RigAction,
+    /// Use the session bus instead of the system bus.
+    #[arg(long, global = true)]
+    pub session: bool,
+}
+
+#[cfg(feature = "daemon")]
+/// What `scanstation rig` does.
+#[derive(clap::Subcommand)]
+pub enum RigAction {
+    /// The configured devices' properties (turntable, trigger; null when not configured).
+    Status,
+    /// Home the turntable (or unlock it, as configured).
+    Home,
+    /// Turn the table to an absolute angle, degrees.
+    Move {
+        /// Degrees (absolute, −1e6 to 1e6).
+        #[arg(allow_negative_numbers = true)]
+        degrees: f64,
+    },
+    /// Fire the scanner and wait for its view.
+    Fire {
+        /// The channel (pattern set, camera), 0 to 255.
+        #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=255))]
+        channel: u32,
+    },
+}
+
+#[cfg(feature = "daemon")]
 /// Arguments of `scanstation cancel`.
 #[derive(Args)]
 pub struct CancelArgs {

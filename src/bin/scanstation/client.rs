@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use scanstation::Error;
 
 use crate::Command;
-use crate::args::{CancelArgs, JobsArgs, StatusArgs, SubmitArgs, WatchArgs};
+use crate::args::{CancelArgs, JobsArgs, RigAction, RigArgs, StatusArgs, SubmitArgs, WatchArgs};
 use crate::print::{print_json, report_error};
 
 /// Runs a client command against the station's bus; exit status 1 when a followed job failed.
@@ -80,6 +80,11 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                 let done = ops::watch(&conn, id.as_deref(), json).await?;
                 Ok(id.is_none() || done["Result"] == "succeeded")
             }
+            Command::Rig(RigArgs { action, session }) => {
+                let conn = ops::connect(*session).await?;
+                rig(&conn, action, json).await?;
+                Ok(true)
+            }
             _ => Ok(true),
         }
     });
@@ -88,4 +93,59 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
         Ok(false) => ExitCode::from(1),
         Err(e) => report_error(&e, json),
     }
+}
+
+/// `scanstation rig …`: one call, its result as text or JSON.
+async fn rig(conn: &zbus::Connection, action: &RigAction, json: bool) -> Result<(), Error> {
+    use scanstation::daemon::client::ops;
+    use std::io::IsTerminal;
+    let started = std::time::Instant::now();
+    let out = match action {
+        RigAction::Status => {
+            let s = ops::rig_status(conn).await?;
+            if !json {
+                for (device, props) in s.as_object().into_iter().flatten() {
+                    match props.as_object() {
+                        None => println!("{device}: not configured"),
+                        Some(p) => {
+                            println!("{device}:");
+                            for (k, v) in p {
+                                println!("  {k:<20} {v}");
+                            }
+                        }
+                    }
+                }
+            }
+            s
+        }
+        RigAction::Home => {
+            if !json && std::io::stderr().is_terminal() {
+                eprintln!("homing…");
+            }
+            ops::rig_home(conn).await?;
+            serde_json::json!({ "homed": true, "seconds": started.elapsed().as_secs_f64() })
+        }
+        RigAction::Move { degrees } => {
+            if !json && std::io::stderr().is_terminal() {
+                eprintln!("turning to {degrees}°…");
+            }
+            let reached = ops::rig_move(conn, *degrees).await?;
+            serde_json::json!({ "target": degrees, "reached": reached, "seconds": started.elapsed().as_secs_f64() })
+        }
+        RigAction::Fire { channel } => {
+            if !json && std::io::stderr().is_terminal() {
+                eprintln!("firing channel {channel}…");
+            }
+            let sent = ops::rig_fire(conn, *channel).await?;
+            serde_json::json!({ "channel": channel, "sent_usec": sent, "seconds": started.elapsed().as_secs_f64() })
+        }
+    };
+    if json {
+        print_json(&out);
+    } else if !matches!(action, RigAction::Status) {
+        for (k, v) in out.as_object().into_iter().flatten() {
+            println!("{k:<10} {v}");
+        }
+    }
+    Ok(())
 }

@@ -81,6 +81,9 @@ enum Command {
     Watch(WatchArgs),
     /// Two-sided surface distance of TEST to REFERENCE (meshes or clouds): RMS, mean, median, p95, max.
     Compare(CompareArgs),
+    /// The rig's devices through the daemon: status, home, move DEG, fire (D-Bus client).
+    #[cfg(feature = "daemon")]
+    Rig(RigArgs),
     /// Simulated devices of the rig, for a desk without hardware and for tests.
     #[cfg(feature = "daemon")]
     #[command(subcommand)]
@@ -93,6 +96,9 @@ enum Command {
 enum SimCommand {
     /// A Grbl 1.1 turntable on a pty: banner, homing, timed moves, `?` reports; faults from stdin or a socket.
     Turntable(sim::SimTurntableArgs),
+    /// A structured-light scanner node on CAN (an interface or `unix:PATH`): heartbeat, acknowledgements, views;
+    /// faults from stdin or a socket.
+    Trigger(sim::SimTriggerArgs),
 }
 
 fn main() -> ExitCode {
@@ -141,7 +147,14 @@ fn main() -> ExitCode {
         #[cfg(feature = "daemon")]
         Command::Sim(SimCommand::Turntable(a)) => return sim::run(a),
         #[cfg(feature = "daemon")]
-        Command::Status(_) | Command::Jobs(_) | Command::Submit(_) | Command::Cancel(_) | Command::Watch(_) => {
+        Command::Sim(SimCommand::Trigger(a)) => return sim::run_trigger(a),
+        #[cfg(feature = "daemon")]
+        Command::Status(_)
+        | Command::Jobs(_)
+        | Command::Submit(_)
+        | Command::Cancel(_)
+        | Command::Watch(_)
+        | Command::Rig(_) => {
             return client::run(&cli.command, json);
         }
     };

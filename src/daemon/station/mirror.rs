@@ -67,8 +67,13 @@ impl Station {
         tracing::info!(job_id = %id, result, error_code = code, "job finished");
     }
 
+    /// Why the station is degraded: its own reasons, then its devices'.
+    pub(super) fn degraded_reasons(&self) -> Vec<String> {
+        self.degraded.iter().chain(self.device_faults.values().flatten()).cloned().collect()
+    }
+
     pub(super) fn manager_state(&self) -> &'static str {
-        if !self.degraded.is_empty() {
+        if !self.degraded.is_empty() || !self.device_faults.is_empty() {
             "degraded"
         } else if self.paused {
             "paused"
@@ -79,19 +84,21 @@ impl Station {
         }
     }
 
-    pub(super) fn refresh_manager_view(&self) -> [bool; 5] {
+    pub(super) fn refresh_manager_view(&self) -> [bool; 6] {
         let mut v = lock(&self.manager_view);
         let state = self.manager_state().to_string();
         let active: Vec<_> = self.running.iter().map(job_path).collect();
         let queued: Vec<_> = self.queue.iter().map(job_path).collect();
+        let degraded = self.degraded_reasons();
         let changed = [
             v.state != state,
             v.active != active,
             v.queued != queued,
             v.succeeded != self.succeeded,
             v.failed != self.failed,
+            v.degraded != degraded,
         ];
-        *v = ManagerView { state, active, queued, succeeded: self.succeeded, failed: self.failed };
+        *v = ManagerView { state, degraded, active, queued, succeeded: self.succeeded, failed: self.failed };
         changed
     }
 
@@ -117,6 +124,9 @@ impl Station {
         }
         if changed[4] {
             let _ = g.jobs_failed_changed(em).await;
+        }
+        if changed[5] {
+            let _ = g.degraded_changed(em).await;
         }
     }
 }

@@ -64,6 +64,8 @@ pub struct Station {
     running: Vec<JobId>,
     paused: bool,
     degraded: Vec<String>,
+    /// Configured devices that are lost, and why (they make the state degraded; intake goes on).
+    device_faults: BTreeMap<&'static str, Vec<String>>,
     succeeded: u64,
     failed: u64,
     candidates: HashMap<String, Candidate>,
@@ -135,6 +137,7 @@ impl Station {
             running: Vec::new(),
             paused: false,
             degraded: Vec::new(),
+            device_faults: BTreeMap::new(),
             succeeded: 0,
             failed: 0,
             candidates: HashMap::new(),
@@ -280,6 +283,16 @@ impl Station {
             }
             Command::Ping { reply } => {
                 let _ = reply.send(());
+            }
+            Command::DeviceHealth { device, reasons } => {
+                if reasons.is_empty() {
+                    if self.device_faults.remove(device).is_some() {
+                        tracing::info!(device, "device back: no longer degraded by it");
+                    }
+                } else {
+                    tracing::warn!(device, ?reasons, "device lost: state degraded");
+                    self.device_faults.insert(device, reasons);
+                }
             }
         }
     }

@@ -1,0 +1,386 @@
+//! The rig on D-Bus: `org.scanstation.Station1.Turntable` at [`TURNTABLE_PATH`] and
+//! `org.scanstation.Station1.Trigger` at [`TRIGGER_PATH`], exported only for the devices the config names.
+//!
+//! Thin, as the Manager and the jobs (after InputPlumber): the device actors ([`crate::devices::link`],
+//! [`crate::devices::trigger`]) own the ports and the state; an interface reads the actor's published state
+//! and sends it commands through its handle. A mirror task per device turns state changes into
+//! `PropertiesChanged`, faults into the `Fault` signal, and the device's health into the Manager's `State`
+//! (`degraded` while a configured device is lost; back when it returns). Moving and firing need the
+//! submitting privilege (root, the daemon's user, the ops group); reading is open to all.
+
+use std::collections::HashMap;
+
+use tokio::sync::mpsc;
+use zbus::message::Header;
+use zbus::object_server::SignalEmitter;
+use zbus::zvariant::{OwnedValue, Value};
+use zbus::{Connection, interface};
+
+use super::config::{TriggerConfig, TurntableConfig};
+use super::dbus::{Access, Command, StationError, authorize};
+use crate::devices::can::{BusState, StreamBus};
+use crate::devices::link::{DeviceFault, LinkSettings, TurntableHandle, TurntableState, spawn_turntable};
+use crate::devices::socketcan_bus::SocketCanBus;
+use crate::devices::trigger::{TriggerHandle, TriggerSettings, TriggerState, spawn_trigger};
+use crate::devices::turntable::{Homing, TurntableSettings};
+use crate::error::Error;
+
+/// The turntable's object path.
+pub const TURNTABLE_PATH: &str = "/org/scanstation/Station1/devices/turntable";
+/// The trigger's object path.
+pub const TRIGGER_PATH: &str = "/org/scanstation/Station1/devices/trigger";
+
+/// A device error for a D-Bus caller: `org.scanstation.Station1.Error.Device`, the message led by the code.
+fn device_err(e: Error) -> StationError {
+    StationError::Device(format!("[{}] {}", e.code, e.message))
+}
+
+fn no_options(options: &HashMap<String, OwnedValue>) -> Result<(), StationError> {
+    match options.keys().next() {
+        Some(k) => Err(StationError::InvalidArgument(format!("unknown option {k:?} (none are defined yet)"))),
+        None => Ok(()),
+    }
+}
+
+/// `org.scanstation.Station1.Turntable`.
+pub struct TurntableIface {
+    handle: TurntableHandle,
+    access: Access,
+    steps_per_revolution: u32,
+}
+
+/// `org.scanstation.Station1.Trigger`.
+pub struct TriggerIface {
+    handle: TriggerHandle,
+    access: Access,
+}
+
+/// The devices' D-Bus interfaces (a module of their own so that the undocumented helpers zbus's interface
+/// macro adds are allowed, and nothing else).
+pub mod ifaces {
+    #![allow(missing_docs)]
+    use super::*;
+
+    #[interface(name = "org.scanstation.Station1.Turntable")]
+    impl TurntableIface {
+        /// Home the table (or unlock it, as configured).
+        async fn home(
+            &self,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<(), StationError> {
+            authorize(conn, &hdr, &self.access, "Turntable.Home").await?;
+            self.handle.home().await.map_err(device_err)
+        }
+
+        /// Turn to `degrees` (absolute); returns the angle the board reports when it stops. No options yet.
+        async fn move_to(
+            &self,
+            degrees: f64,
+            options: HashMap<String, OwnedValue>,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<f64, StationError> {
+            authorize(conn, &hdr, &self.access, "Turntable.MoveTo").await?;
+            no_options(&options)?;
+            if !(degrees.is_finite() && degrees.abs() <= 1e6) {
+                return Err(StationError::InvalidArgument(format!("{degrees} is not an angle (|a| ≤ 1e6)")));
+            }
+            self.handle.move_to(degrees).await.map(|r| r.reached).map_err(device_err)
+        }
+
+        /// Stop where the table is.
+        async fn stop(
+            &self,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<(), StationError> {
+            authorize(conn, &hdr, &self.access, "Turntable.Stop").await?;
+            self.handle.stop().await.map_err(device_err)
+        }
+
+        #[zbus(property)]
+        fn connected(&self) -> bool {
+            self.handle.state().connected
+        }
+
+        #[zbus(property(emits_changed_signal = "const"))]
+        fn port(&self) -> String {
+            self.handle.state().port
+        }
+
+        #[zbus(property)]
+        fn firmware(&self) -> String {
+            self.handle.state().firmware
+        }
+
+        #[zbus(property)]
+        fn homed(&self) -> bool {
+            self.handle.state().homed
+        }
+
+        #[zbus(property)]
+        fn moving(&self) -> bool {
+            self.handle.state().moving
+        }
+
+        /// Degrees, as the board last reported.
+        #[zbus(property)]
+        fn angle(&self) -> f64 {
+            self.handle.state().angle
+        }
+
+        /// As configured (0: not given).
+        #[zbus(property(emits_changed_signal = "const"))]
+        fn steps_per_revolution(&self) -> u32 {
+            self.steps_per_revolution
+        }
+
+        /// A device fault: its stable code (`device.*`), a message, details (`device`).
+        #[zbus(signal)]
+        pub async fn fault(
+            emitter: &SignalEmitter<'_>,
+            code: &str,
+            message: &str,
+            details: HashMap<&str, Value<'_>>,
+        ) -> zbus::Result<()>;
+    }
+
+    #[interface(name = "org.scanstation.Station1.Trigger")]
+    impl TriggerIface {
+        /// Fire `channel` and wait for the view; returns when the trigger was sent, µs since the epoch.
+        async fn fire(
+            &self,
+            channel: u32,
+            options: HashMap<String, OwnedValue>,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<u64, StationError> {
+            authorize(conn, &hdr, &self.access, "Trigger.Fire").await?;
+            no_options(&options)?;
+            let channel = u8::try_from(channel)
+                .map_err(|_| StationError::InvalidArgument(format!("channel {channel} is outside 0..=255")))?;
+            self.handle.fire(channel).await.map(|r| r.sent_usec).map_err(device_err)
+        }
+
+        #[zbus(property(emits_changed_signal = "const"))]
+        fn interface(&self) -> String {
+            self.handle.state().interface
+        }
+
+        /// error-active, error-warning, error-passive, bus-off or down.
+        #[zbus(property)]
+        fn bus_state(&self) -> String {
+            self.handle.state().bus_state.as_str().to_string()
+        }
+
+        /// Whether the scanner's heartbeat is current.
+        #[zbus(property)]
+        fn node_alive(&self) -> bool {
+            self.handle.state().node_alive
+        }
+
+        #[zbus(property)]
+        fn frames_sent(&self) -> u64 {
+            self.handle.state().frames_sent
+        }
+
+        /// Error frames received and sends that failed.
+        #[zbus(property)]
+        fn errors(&self) -> u64 {
+            self.handle.state().errors
+        }
+
+        /// A device fault: its stable code (`device.*`), a message, details (`device`).
+        #[zbus(signal)]
+        pub async fn fault(
+            emitter: &SignalEmitter<'_>,
+            code: &str,
+            message: &str,
+            details: HashMap<&str, Value<'_>>,
+        ) -> zbus::Result<()>;
+    }
+}
+
+/// The turntable's driver settings from its config section.
+pub fn link_settings(c: &TurntableConfig) -> LinkSettings {
+    LinkSettings {
+        baud: c.baud,
+        driver: TurntableSettings {
+            speed: c.speed,
+            accel: c.accel,
+            homing: if c.home { Homing::Home } else { Homing::Unlock },
+            reply_timeout: c.reply_timeout,
+            banner_timeout: c.banner_timeout,
+            home_timeout: c.home_timeout,
+            ..Default::default()
+        },
+        reconnect_max: c.reconnect_max,
+        ..LinkSettings::new(&c.port)
+    }
+}
+
+/// The trigger's driver settings from its config section.
+pub fn trigger_settings(c: &TriggerConfig) -> TriggerSettings {
+    TriggerSettings {
+        heartbeat: c.heartbeat,
+        lost_after: c.lost_after,
+        ack_timeout: c.ack_timeout,
+        view_timeout: c.view_timeout,
+        ..TriggerSettings::new(c.interface.clone(), c.node)
+    }
+}
+
+/// Start the trigger's actor on the transport its interface names (`unix:PATH` or a CAN interface).
+pub fn start_trigger(c: &TriggerConfig) -> TriggerHandle {
+    let settings = trigger_settings(c);
+    match c.interface.strip_prefix("unix:") {
+        Some(path) => {
+            let path = std::path::PathBuf::from(path);
+            spawn_trigger(settings, move || {
+                let p = path.clone();
+                async move { StreamBus::connect(&p).await }
+            })
+        }
+        None => {
+            let name = c.interface.clone();
+            spawn_trigger(settings, move || std::future::ready(SocketCanBus::open(&name)))
+        }
+    }
+}
+
+/// Why a turntable makes the station degraded (none while it is connected).
+fn turntable_health(s: &TurntableState) -> Vec<String> {
+    if s.connected { vec![] } else { vec!["turntable-disconnected".into()] }
+}
+
+/// Why a trigger makes the station degraded.
+fn trigger_health(s: &TriggerState) -> Vec<String> {
+    match s.bus_state {
+        BusState::Down => vec!["can-down".into()],
+        BusState::BusOff => vec!["can-bus-off".into()],
+        _ if !s.node_alive => vec!["scanner-lost".into()],
+        _ => vec![],
+    }
+}
+
+fn details(f: &DeviceFault) -> HashMap<&'static str, Value<'static>> {
+    HashMap::from([("device", Value::from(f.device.to_string()))])
+}
+
+/// Export the configured devices and start their mirror tasks. `station` takes their health.
+///
+/// # Errors
+/// Exporting an object.
+pub async fn start(
+    conn: &Connection,
+    turntable: Option<&TurntableConfig>,
+    trigger: Option<&TriggerConfig>,
+    access: &Access,
+    station: mpsc::Sender<Command>,
+) -> zbus::Result<()> {
+    let server = conn.object_server();
+    if let Some(c) = turntable {
+        let handle = spawn_turntable(link_settings(c));
+        let iface = TurntableIface {
+            handle: handle.clone(),
+            access: access.clone(),
+            steps_per_revolution: c.steps_per_revolution,
+        };
+        server.at(TURNTABLE_PATH, iface).await?;
+        let r = server.interface::<_, TurntableIface>(TURNTABLE_PATH).await?;
+        tokio::spawn(mirror_turntable(handle, r, station.clone()));
+    }
+    if let Some(c) = trigger {
+        let handle = start_trigger(c);
+        server.at(TRIGGER_PATH, TriggerIface { handle: handle.clone(), access: access.clone() }).await?;
+        let r = server.interface::<_, TriggerIface>(TRIGGER_PATH).await?;
+        tokio::spawn(mirror_trigger(handle, r, station));
+    }
+    Ok(())
+}
+
+async fn health(station: &mpsc::Sender<Command>, device: &'static str, reasons: Vec<String>) {
+    let _ = station.send(Command::DeviceHealth { device, reasons }).await;
+}
+
+async fn mirror_turntable(
+    handle: TurntableHandle,
+    r: zbus::object_server::InterfaceRef<TurntableIface>,
+    station: mpsc::Sender<Command>,
+) {
+    let mut w = handle.watch();
+    let mut faults = handle.faults();
+    let mut last = w.borrow_and_update().clone();
+    let mut last_health = turntable_health(&last);
+    health(&station, "turntable", last_health.clone()).await;
+    loop {
+        tokio::select! {
+            c = w.changed() => {
+                if c.is_err() {
+                    return;
+                }
+                let s = w.borrow_and_update().clone();
+                let em = r.signal_emitter();
+                let g = r.get().await;
+                if s.connected != last.connected { let _ = g.connected_changed(em).await; }
+                if s.firmware != last.firmware { let _ = g.firmware_changed(em).await; }
+                if s.homed != last.homed { let _ = g.homed_changed(em).await; }
+                if s.moving != last.moving { let _ = g.moving_changed(em).await; }
+                if s.angle != last.angle { let _ = g.angle_changed(em).await; }
+                drop(g);
+                let h = turntable_health(&s);
+                if h != last_health {
+                    health(&station, "turntable", h.clone()).await;
+                    last_health = h;
+                }
+                last = s;
+            }
+            f = faults.recv() => match f {
+                Ok(f) => { let _ = TurntableIface::fault(r.signal_emitter(), f.code.as_str(), &f.message, details(&f)).await; }
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => tracing::warn!(device = "turntable", n, "fault signals dropped"),
+                Err(_) => return,
+            },
+        }
+    }
+}
+
+async fn mirror_trigger(
+    handle: TriggerHandle,
+    r: zbus::object_server::InterfaceRef<TriggerIface>,
+    station: mpsc::Sender<Command>,
+) {
+    let mut w = handle.watch();
+    let mut faults = handle.faults();
+    let mut last = w.borrow_and_update().clone();
+    let mut last_health = trigger_health(&last);
+    health(&station, "trigger", last_health.clone()).await;
+    loop {
+        tokio::select! {
+            c = w.changed() => {
+                if c.is_err() {
+                    return;
+                }
+                let s = w.borrow_and_update().clone();
+                let em = r.signal_emitter();
+                let g = r.get().await;
+                if s.bus_state != last.bus_state { let _ = g.bus_state_changed(em).await; }
+                if s.node_alive != last.node_alive { let _ = g.node_alive_changed(em).await; }
+                if s.frames_sent != last.frames_sent { let _ = g.frames_sent_changed(em).await; }
+                if s.errors != last.errors { let _ = g.errors_changed(em).await; }
+                drop(g);
+                let h = trigger_health(&s);
+                if h != last_health {
+                    health(&station, "trigger", h.clone()).await;
+                    last_health = h;
+                }
+                last = s;
+            }
+            f = faults.recv() => match f {
+                Ok(f) => { let _ = TriggerIface::fault(r.signal_emitter(), f.code.as_str(), &f.message, details(&f)).await; }
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => tracing::warn!(device = "trigger", n, "fault signals dropped"),
+                Err(_) => return,
+            },
+        }
+    }
+}
