@@ -470,3 +470,23 @@ fn reconstruct_and_convert_take_a_point_cloud() {
         json(&["reconstruct", few.to_str().unwrap(), "-o", dir.join("few.ply").to_str().unwrap(), "--json"]);
     assert_eq!((code, v["error_code"].as_str()), (2, Some("reconstruct.too-few-points")), "{v}");
 }
+
+/// Field failure (2026-12-05): `scanstation --json compare A B | head -c 1500` panicked in `println!` with
+/// "failed printing to stdout: Broken pipe". A reader that goes away now ends the output quietly, with 141.
+#[test]
+fn a_reader_that_goes_away_ends_the_output_quietly() {
+    for args in [&["--json", "inspect", SPOT][..], &["inspect", SPOT][..]] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_scanstation"))
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Close the reading end before the report is written.
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+        assert_eq!(out.status.code(), Some(141), "{args:?}: {err}");
+    }
+}

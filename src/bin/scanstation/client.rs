@@ -24,7 +24,7 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                     print_json(&s);
                 } else {
                     for (k, v) in s.as_object().into_iter().flatten() {
-                        println!("{k:<14} {v}");
+                        outln!("{k:<14} {v}");
                     }
                 }
                 Ok(true)
@@ -35,9 +35,9 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                 if json {
                     print_json(&serde_json::json!({ "jobs": jobs }));
                 } else {
-                    println!("{:<26}  {:<10}  {:>6}  {:<9}  {:<22}  input", "id", "state", "done", "stage", "error");
+                    outln!("{:<26}  {:<10}  {:>6}  {:<9}  {:<22}  input", "id", "state", "done", "stage", "error");
                     for j in &jobs {
-                        println!(
+                        outln!(
                             "{:<26}  {:<10}  {:>5.1}%  {:<9}  {:<22}  {}",
                             j["Id"].as_str().unwrap_or(""),
                             j["State"].as_str().unwrap_or(""),
@@ -57,13 +57,13 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                     if json {
                         print_json(&serde_json::json!({ "job": path }));
                     } else {
-                        println!("{path}");
+                        outln!("{path}");
                     }
                     return Ok(true);
                 }
                 let done = ops::watch(&conn, Some(&path), json).await?;
                 if !json {
-                    println!("{} {}", done["Result"], done["ErrorCode"]);
+                    outln!("{} {}", done["Result"], done["ErrorCode"]);
                 }
                 Ok(done["Result"] == "succeeded")
             }
@@ -106,11 +106,11 @@ async fn rig(conn: &zbus::Connection, action: &RigAction, json: bool) -> Result<
             if !json {
                 for (device, props) in s.as_object().into_iter().flatten() {
                     match props.as_object() {
-                        None => println!("{device}: not configured"),
+                        None => outln!("{device}: not configured"),
                         Some(p) => {
-                            println!("{device}:");
+                            outln!("{device}:");
                             for (k, v) in p {
-                                println!("  {k:<20} {v}");
+                                outln!("  {k:<20} {v}");
                             }
                         }
                     }
@@ -144,7 +144,7 @@ async fn rig(conn: &zbus::Connection, action: &RigAction, json: bool) -> Result<
         print_json(&out);
     } else if !matches!(action, RigAction::Status) {
         for (k, v) in out.as_object().into_iter().flatten() {
-            println!("{k:<10} {v}");
+            outln!("{k:<10} {v}");
         }
     }
     Ok(())

@@ -2,6 +2,17 @@
 //! D-Bus client of `scanstationd`. Thin: parsing (one argument struct per command, [`args`]), output
 //! ([`print`]) and exit codes only; the work is in the library's `pipeline` layer.
 
+/// `println!` that ends the process quietly with status 141 (128 + SIGPIPE, as shell tools do) when stdout's
+/// reader has gone (`scanstation … | head`), instead of panicking.
+macro_rules! outln {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout(), $($t)*) {
+            crate::print::stdout_failed(&e);
+        }
+    }};
+}
+
 mod args;
 #[cfg(feature = "daemon")]
 mod client;

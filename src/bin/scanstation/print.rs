@@ -7,6 +7,16 @@ use scanstation::pipeline::{self, CompareReport, InspectReport};
 use scanstation::stages::quality::{DistanceStats, Measure};
 use scanstation::{Error, ErrorClass};
 
+/// Stdout cannot be written: a reader that went away (`| head`) ends the process quietly with 141 (128 +
+/// SIGPIPE); any other failure is reported on stderr with exit status 74 (EX_IOERR).
+pub fn stdout_failed(e: &std::io::Error) -> ! {
+    if e.kind() == std::io::ErrorKind::BrokenPipe {
+        std::process::exit(141);
+    }
+    eprintln!("scanstation: error: cannot write to stdout: {e}");
+    std::process::exit(74);
+}
+
 /// Prints `report` as JSON (with `"ok": true`) or as `text` does.
 pub fn emit<T: serde::Serialize>(json: bool, report: &T, text: fn(&T)) {
     if json { print_json(report) } else { text(report) }
@@ -14,7 +24,7 @@ pub fn emit<T: serde::Serialize>(json: bool, report: &T, text: fn(&T)) {
 
 pub fn print_fea(r: &pipeline::fea::FeaFileReport) {
     let f = &r.result;
-    println!(
+    outln!(
         "{}: {} unknowns on a {:?} grid of h = {} ({} active cells, {} cut)",
         r.input_file.display(),
         f.grid.unknowns,
@@ -23,23 +33,23 @@ pub fn print_fea(r: &pipeline::fea::FeaFileReport) {
         f.grid.active_cells,
         f.grid.cut_cells
     );
-    println!("  volume {:.6} (surface {:.6})", f.volume, f.surface_volume);
-    println!("  max displacement {:.6} at {:?}", f.max_displacement.value, f.max_displacement.at);
-    println!("  max von Mises {:.4} at {:?}", f.max_von_mises.value, f.max_von_mises.at);
-    println!("  reaction {:?} for load {:?} (imbalance {:.2e})", f.reaction, f.total_load, f.imbalance);
+    outln!("  volume {:.6} (surface {:.6})", f.volume, f.surface_volume);
+    outln!("  max displacement {:.6} at {:?}", f.max_displacement.value, f.max_displacement.at);
+    outln!("  max von Mises {:.4} at {:?}", f.max_von_mises.value, f.max_von_mises.at);
+    outln!("  reaction {:?} for load {:?} (imbalance {:.2e})", f.reaction, f.total_load, f.imbalance);
     for p in &f.probes {
-        println!("  probe {}: displacement {:?}, von Mises {:.4}", p.name, p.displacement, p.von_mises);
+        outln!("  probe {}: displacement {:?}, von Mises {:.4}", p.name, p.displacement, p.von_mises);
     }
-    println!("  {:.2} s, written to {}", r.seconds, r.output_dir.display());
+    outln!("  {:.2} s, written to {}", r.seconds, r.output_dir.display());
 }
 
 pub fn print_convert(r: &pipeline::ConvertReport) {
-    println!("{} -> {}", r.input_file.display(), r.output_file.display());
-    println!("  stage      seconds  peak MiB   RMS (% diag)   p95 (% diag)   max (% diag)");
+    outln!("{} -> {}", r.input_file.display(), r.output_file.display());
+    outln!("  stage      seconds  peak MiB   RMS (% diag)   p95 (% diag)   max (% diag)");
     for s in &r.stages {
         let mem = s.peak_rss_mib.map(|m| format!("{m:8.0}")).unwrap_or_else(|| "       -".into());
         match &s.distance {
-            Some(d) => println!(
+            Some(d) => outln!(
                 "  {:<9} {:8.2} {}   {:.3e} ({:.4}%)  {:.3e} ({:.4}%)  {:.3e} ({:.4}%)",
                 s.stage,
                 s.seconds,
@@ -51,11 +61,11 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
                 d.symmetric.max.value,
                 d.symmetric.max.pct_of_diagonal
             ),
-            None => println!("  {:<9} {:8.2} {}", s.stage, s.seconds, mem),
+            None => outln!("  {:<9} {:8.2} {}", s.stage, s.seconds, mem),
         }
     }
     let b = &r.brep;
-    println!(
+    outln!(
         "  solid: {} faces ({} packed) from {} patches, {} edges, {} vertices; volume {:.6e} ({:+.3}% vs input), max normal jump {:.3}° (p99 {:.3}°); folded faces {}, crossing pairs {}",
         b.faces,
         b.packed_faces,
@@ -69,7 +79,7 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
         b.folded_faces,
         b.self_intersections
     );
-    println!(
+    outln!(
         "  control net: {} vertices, {:.2}% irregular; fit RMS {:.3e}; total {:.1} s",
         r.fit.control_points,
         100.0 * r.remesh.output.irregular_fraction,
@@ -82,7 +92,7 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
         pipeline::Status::Failed => "FAILED",
     };
     if let Some(o) = &r.open_input {
-        println!(
+        outln!(
             "  open input: {} holes ({} planar caps); scan -> solid RMS {:.4} %, solid -> scan off the caps {:.4} %; caps RMS {:.4} %, max {:.4} % ({:.1} % of the solid's vertices)",
             o.holes_filled,
             o.planar_caps,
@@ -93,10 +103,10 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
             100.0 * o.cap_vertex_fraction
         );
     }
-    println!("  quality: {status}");
+    outln!("  quality: {status}");
     for g in &r.gates {
         let num = |x: f64| if g.unit == "%" { format!("{x:.4}") } else { format!("{x:.0}") };
-        println!(
+        outln!(
             "    {:<10} {:>10} {:<6} bound {:<8} {}",
             g.name,
             num(g.value),
@@ -110,8 +120,8 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
 /// Human-readable `reconstruct` report.
 pub fn print_reconstruct(r: &pipeline::ReconstructFileReport) {
     let m = &r.reconstruct;
-    println!("{} -> {}", r.input_file.display(), r.output_file.display());
-    println!(
+    outln!("{} -> {}", r.input_file.display(), r.output_file.display());
+    outln!(
         "  {} points ({} normals), mean spacing {:.4}; grid {:?} nodes, cell {:.4}",
         m.points,
         if m.normals_given { "given" } else { "estimated" },
@@ -120,13 +130,16 @@ pub fn print_reconstruct(r: &pipeline::ReconstructFileReport) {
         m.cell_size
     );
     if let Some(t) = &m.thinning {
-        println!(
+        outln!(
             "  thinned to fit the memory budget: {} points merged into {} (cells of {:.4}; room for {})",
-            t.points_before, t.points_after, t.cell, t.max_points
+            t.points_before,
+            t.points_after,
+            t.cell,
+            t.max_points
         );
     }
     if let Some(o) = &m.orientation {
-        println!(
+        outln!(
             "  orientation: {} normals turned along the tree, {} uncertain, {} parts{}",
             o.flipped,
             o.uncertain,
@@ -135,9 +148,9 @@ pub fn print_reconstruct(r: &pipeline::ReconstructFileReport) {
         );
     }
     for l in &m.levels {
-        println!("  solve {:?}: {} iterations, residual {:.1e}", l.nodes, l.iterations, l.relative_residual);
+        outln!("  solve {:?}: {} iterations, residual {:.1e}", l.nodes, l.iterations, l.relative_residual);
     }
-    println!(
+    outln!(
         "  result: {} vertices, {} triangles, {} components ({} bubbles, {} blobs removed); {:.2} % of the area far from the points",
         m.vertices,
         m.triangles,
@@ -147,22 +160,22 @@ pub fn print_reconstruct(r: &pipeline::ReconstructFileReport) {
         100.0 * m.far_area_share
     );
     let d = &r.distance;
-    println!(
+    outln!(
         "  points to surface RMS {:.5} % of the diagonal (max {:.4} %); surface to points RMS {:.5} % (max {:.4} %)",
         d.reference_to_test.rms.pct_of_diagonal,
         d.reference_to_test.max.pct_of_diagonal,
         d.test_to_reference.rms.pct_of_diagonal,
         d.test_to_reference.max.pct_of_diagonal
     );
-    println!("  seconds: {:?}", m.seconds);
+    outln!("  seconds: {:?}", m.seconds);
 }
 
 /// Human-readable `remesh` report.
 pub fn print_remesh(r: &pipeline::RemeshFileReport) {
     let m = &r.remesh;
     let o = &m.output;
-    println!("{} -> {}", r.input_file.display(), r.output_file.display());
-    println!(
+    outln!("{} -> {}", r.input_file.display(), r.output_file.display());
+    outln!(
         "  input: {} vertices, {} faces, χ = {}; working mesh {} ({} vertices), {} levels",
         m.input_vertices,
         m.input_faces,
@@ -172,7 +185,7 @@ pub fn print_remesh(r: &pipeline::RemeshFileReport) {
         m.hierarchy_levels
     );
     for (i, a) in m.attempts.iter().enumerate() {
-        println!(
+        outln!(
             "  attempt {i} ({:?}): scale {:.5}, {} extracted vertices, faces by degree {:?}, {} unpaired -> {} predicted{}",
             a.mode,
             a.scale,
@@ -183,7 +196,7 @@ pub fn print_remesh(r: &pipeline::RemeshFileReport) {
             if i == m.chosen_attempt { " (kept)" } else { "" }
         );
     }
-    println!(
+    outln!(
         "  output: {} vertices ({:+.1}% of target {}), {} faces, {:.1}% quads, closed {}, χ = {}",
         o.vertices,
         100.0 * m.vertex_count_error,
@@ -193,7 +206,7 @@ pub fn print_remesh(r: &pipeline::RemeshFileReport) {
         o.closed,
         o.euler_characteristic
     );
-    println!(
+    outln!(
         "  irregular vertices {} ({:.2}%), valences {:?}, flipped faces {}, non-manifold edges {}",
         o.irregular_vertices,
         100.0 * o.irregular_fraction,
@@ -202,7 +215,7 @@ pub fn print_remesh(r: &pipeline::RemeshFileReport) {
         o.nonmanifold_edges
     );
     let t = &m.dipole_transport;
-    println!(
+    outln!(
         "  dipole transport: {} chains ({} moves, {} settled), Σ|valence − 4| {} -> {}, vertices +{} -{}",
         t.chains,
         t.moves,
@@ -212,17 +225,22 @@ pub fn print_remesh(r: &pipeline::RemeshFileReport) {
         t.vertices_added,
         t.vertices_removed
     );
-    println!(
+    outln!(
         "  corner angle deviation mean {:.1}°, p95 {:.1}°; edge length {:.4} (cv {:.2})",
-        o.angle_deviation_mean_deg, o.angle_deviation_p95_deg, o.edge_length_mean, o.edge_length_cv
+        o.angle_deviation_mean_deg,
+        o.angle_deviation_p95_deg,
+        o.edge_length_mean,
+        o.edge_length_cv
     );
     if let Some(d) = &m.distance {
-        println!(
+        outln!(
             "  distance to input: RMS {} ({:.4}% of diagonal), max {}",
-            d.symmetric.rms.value, d.symmetric.rms.pct_of_diagonal, d.symmetric.max.value
+            d.symmetric.rms.value,
+            d.symmetric.rms.pct_of_diagonal,
+            d.symmetric.max.value
         );
     }
-    println!("  seconds: {:?}", m.seconds);
+    outln!("  seconds: {:?}", m.seconds);
 }
 
 pub fn print_json<T: serde::Serialize>(v: &T) {
@@ -230,13 +248,13 @@ pub fn print_json<T: serde::Serialize>(v: &T) {
     if let serde_json::Value::Object(m) = &mut value {
         m.insert("ok".into(), true.into());
     }
-    println!("{}", serde_json::to_string_pretty(&value).expect("reports serialise"));
+    outln!("{}", serde_json::to_string_pretty(&value).expect("reports serialise"));
 }
 
 /// Exit codes: 2 bad input, 3 resource limit, 4 a failed quality gate, 70 internal error (EX_SOFTWARE).
 pub fn report_error(e: &Error, json: bool) -> ExitCode {
     if json {
-        println!("{}", serde_json::json!({ "ok": false, "error": e, "error_code": e.code.as_str() }));
+        outln!("{}", serde_json::json!({ "ok": false, "error": e, "error_code": e.code.as_str() }));
     }
     eprintln!("scanstation: error: {e}");
     exit_code(e)
@@ -267,53 +285,58 @@ pub fn report_quality_failure(e: &Error, r: &pipeline::ConvertReport) -> ExitCod
 }
 
 pub fn print_inspect(r: &InspectReport) {
-    println!("file:                  {}", r.file.display());
-    println!("kind:                  {}", r.kind);
+    outln!("file:                  {}", r.file.display());
+    outln!("kind:                  {}", r.kind);
     for v in r.views.iter().flatten() {
-        println!(
+        outln!(
             "view {:<16} {:>8} points, t = {:?}, R = {:?}",
-            v.name, v.point_count, v.pose.translation, v.pose.rotation
+            v.name,
+            v.point_count,
+            v.pose.translation,
+            v.pose.rotation
         );
     }
     if let Some(c) = &r.cloud {
-        println!("points:                {}", c.vertices);
-        println!("normals / colors:      {} / {}", c.has_normals, c.has_colors);
-        println!("bbox:                  {:?} .. {:?}", c.bbox.min, c.bbox.max);
-        println!("bbox diagonal:         {:.6}", c.bbox_diagonal);
+        outln!("points:                {}", c.vertices);
+        outln!("normals / colors:      {} / {}", c.has_normals, c.has_colors);
+        outln!("bbox:                  {:?} .. {:?}", c.bbox.min, c.bbox.max);
+        outln!("bbox diagonal:         {:.6}", c.bbox_diagonal);
     }
     if let Some(m) = &r.mesh {
         let degrees: Vec<String> = m.faces_by_degree.iter().map(|(d, n)| format!("{n} × {d}-gon")).collect();
-        println!(
+        outln!(
             "vertices:              {} ({} referenced, {} unreferenced)",
-            m.vertices, m.referenced_vertices, m.unreferenced_vertices
+            m.vertices,
+            m.referenced_vertices,
+            m.unreferenced_vertices
         );
-        println!("faces:                 {} ({})", m.faces, degrees.join(", "));
-        println!("edges:                 {}", m.edges);
-        println!("bbox:                  {:?} .. {:?}", m.bbox.min, m.bbox.max);
-        println!("bbox diagonal:         {:.6}", m.bbox_diagonal);
-        println!("area:                  {:.6}", m.area);
+        outln!("faces:                 {} ({})", m.faces, degrees.join(", "));
+        outln!("edges:                 {}", m.edges);
+        outln!("bbox:                  {:?} .. {:?}", m.bbox.min, m.bbox.max);
+        outln!("bbox diagonal:         {:.6}", m.bbox_diagonal);
+        outln!("area:                  {:.6}", m.area);
         match m.volume {
-            Some(v) => println!("volume:                {v:.6}"),
-            None => println!("volume:                - (not closed)"),
+            Some(v) => outln!("volume:                {v:.6}"),
+            None => outln!("volume:                - (not closed)"),
         }
-        println!("closed:                {}", m.closed);
-        println!("boundary loops:        {} ({} boundary edges)", m.boundary_loops, m.boundary_edges);
-        println!("non-manifold:          {} edges, {} vertices", m.nonmanifold_edges, m.nonmanifold_vertices);
-        println!("components:            {}", m.components);
-        println!("degenerate faces:      {}", m.degenerate_faces);
-        println!("coincident vertices:   {}", m.coincident_vertices);
-        println!(
+        outln!("closed:                {}", m.closed);
+        outln!("boundary loops:        {} ({} boundary edges)", m.boundary_loops, m.boundary_edges);
+        outln!("non-manifold:          {} edges, {} vertices", m.nonmanifold_edges, m.nonmanifold_vertices);
+        outln!("components:            {}", m.components);
+        outln!("degenerate faces:      {}", m.degenerate_faces);
+        outln!("coincident vertices:   {}", m.coincident_vertices);
+        outln!(
             "orientation:           {} ({} conflicting directed edges)",
             if m.consistently_oriented { "consistent" } else { "inconsistent" },
             m.orientation_conflicts
         );
-        println!("euler characteristic:  {}", m.euler_characteristic);
+        outln!("euler characteristic:  {}", m.euler_characteristic);
         match m.genus {
-            Some(g) => println!("genus:                 {g}"),
-            None => println!("genus:                 - (not an orientable manifold)"),
+            Some(g) => outln!("genus:                 {g}"),
+            None => outln!("genus:                 - (not an orientable manifold)"),
         }
     }
-    println!("read / analyse:        {:.3} s / {:.3} s", r.read_seconds, r.analyse_seconds);
+    outln!("read / analyse:        {:.3} s / {:.3} s", r.read_seconds, r.analyse_seconds);
 }
 
 pub fn fmt_measure(m: &Measure) -> String {
@@ -322,14 +345,14 @@ pub fn fmt_measure(m: &Measure) -> String {
 }
 
 pub fn print_compare(r: &CompareReport) {
-    println!(
+    outln!(
         "test:      {} ({}, {} vertices, {} faces)",
         r.test.file.display(),
         r.test.kind,
         r.test.vertices,
         r.test.faces
     );
-    println!(
+    outln!(
         "reference: {} ({}, {} vertices, {} faces)",
         r.reference.file.display(),
         r.reference.kind,
@@ -337,11 +360,13 @@ pub fn print_compare(r: &CompareReport) {
         r.reference.faces
     );
     let d = &r.distance;
-    println!(
+    outln!(
         "reference bbox diagonal {:.6}; {} samples per side, seed {}",
-        d.reference_bbox_diagonal, d.samples_per_side, d.seed
+        d.reference_bbox_diagonal,
+        d.samples_per_side,
+        d.seed
     );
-    println!("{:<18} {:<8} {:>12} {:>10} {:>10}", "direction", "figure", "value", "% diag", "1 part in");
+    outln!("{:<18} {:<8} {:>12} {:>10} {:>10}", "direction", "figure", "value", "% diag", "1 part in");
     let rows: [(&str, &DistanceStats); 3] = [
         ("test→reference", &d.test_to_reference),
         ("reference→test", &d.reference_to_test),
@@ -349,25 +374,28 @@ pub fn print_compare(r: &CompareReport) {
     ];
     for (name, s) in rows {
         for (fig, m) in [("rms", &s.rms), ("mean", &s.mean), ("median", &s.median), ("p95", &s.p95), ("max", &s.max)] {
-            println!("{name:<18} {fig:<8} {}", fmt_measure(m));
+            outln!("{name:<18} {fig:<8} {}", fmt_measure(m));
         }
     }
     if let Some(p) = &r.error_map {
-        println!("error map: {} (colour scale 0 .. {:.6e})", p.display(), r.error_map_scale.unwrap_or(0.0));
+        outln!("error map: {} (colour scale 0 .. {:.6e})", p.display(), r.error_map_scale.unwrap_or(0.0));
     }
-    println!("read / compare: {:.3} s / {:.3} s", r.read_seconds, r.compare_seconds);
+    outln!("read / compare: {:.3} s / {:.3} s", r.read_seconds, r.compare_seconds);
 }
 
 pub fn print_repair(r: &pipeline::RepairFileReport) {
     let rep = &r.repair;
-    println!("input:   {} ({} vertices, {} faces)", r.input_file.display(), rep.input.vertices, rep.input.faces);
+    outln!("input:   {} ({} vertices, {} faces)", r.input_file.display(), rep.input.vertices, rep.input.faces);
     let w = &rep.weld;
-    println!(
+    outln!(
         "weld:    {} vertices merged, {} collapsed and {} duplicate faces dropped, {} unreferenced vertices dropped",
-        w.merged_vertices, w.collapsed_faces, w.duplicate_faces, w.unreferenced_vertices
+        w.merged_vertices,
+        w.collapsed_faces,
+        w.duplicate_faces,
+        w.unreferenced_vertices
     );
     let m = &rep.manifold;
-    println!(
+    outln!(
         "manifold: {} non-manifold edges ({} faces removed), {} faces flipped, {} removed for orientation, {} vertices split",
         m.nonmanifold_edges,
         m.faces_removed_at_nonmanifold_edges,
@@ -375,7 +403,7 @@ pub fn print_repair(r: &pipeline::RepairFileReport) {
         m.faces_removed_orientation,
         m.vertices_split
     );
-    println!(
+    outln!(
         "components: {} found, {} kept ({:.2} % of the area), {} debris faces removed",
         m.components_found,
         m.components_kept,
@@ -383,13 +411,16 @@ pub fn print_repair(r: &pipeline::RepairFileReport) {
         m.faces_removed_debris
     );
     let h = &rep.holes;
-    println!(
+    outln!(
         "holes:   {} filled (largest {} edges), {} triangles and {} vertices added",
-        h.holes_filled, h.largest_hole_edges, h.triangles_added, h.vertices_added
+        h.holes_filled,
+        h.largest_hole_edges,
+        h.triangles_added,
+        h.vertices_added
     );
     let hd = &rep.handles;
     if hd.max_loop > 0.0 {
-        println!(
+        outln!(
             "handles: {} cut (genus −{}; loops under {:.4e}), {} faces removed, {} triangles added; {} seeds, {} \
              balls searched, {} searches given up",
             hd.cuts,
@@ -403,7 +434,7 @@ pub fn print_repair(r: &pipeline::RepairFileReport) {
         );
     }
     let o = &rep.output;
-    println!(
+    outln!(
         "output:  {} ({} vertices, {} faces, closed {}, genus {:?}, volume {:.6e})",
         r.output_file.display(),
         o.vertices,
@@ -413,8 +444,12 @@ pub fn print_repair(r: &pipeline::RepairFileReport) {
         o.volume.unwrap_or(f64::NAN)
     );
     let d = &rep.distance.symmetric;
-    println!(
+    outln!(
         "distance to input: rms {:.4e} ({:.4} %), max {:.4e} ({:.4} %); repair took {:.3} s",
-        d.rms.value, d.rms.pct_of_diagonal, d.max.value, d.max.pct_of_diagonal, rep.seconds
+        d.rms.value,
+        d.rms.pct_of_diagonal,
+        d.max.value,
+        d.max.pct_of_diagonal,
+        rep.seconds
     );
 }

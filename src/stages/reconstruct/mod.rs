@@ -81,6 +81,13 @@ pub const SOLVE_TOLERANCE: f64 = 1e-4;
 /// Open3D depth 9: 0.0054 %, 0.0073 %), at 1.5 s more.
 pub const AUTO_SPLIT_SPACING: f64 = 0.5;
 
+/// Largest automatic resolution for a noisy cloud (noise ratio at least [`project::TIGHT_BELOW`]): its wide
+/// projection averages over more than a cell, and a finer grid follows the scan's own noise. Measured
+/// 2026-12-05 on the bunny's ten fused range scans (noise ratio 0.34), bun_zipper → result RMS at 256 / 300 /
+/// 350 nodes: 0.0248 / 0.0251 / 0.0253 % of the diagonal (Open3D depth 9 on the same points: 0.0250 %); on
+/// 2M armadillo points with 0.05 % noise 384 nodes gave 0.0114 % against 0.0124 % at 256 (Open3D 0.0127 %).
+pub const NOISY_MAX_RESOLUTION: usize = 256;
+
 /// Lowest resolution the budget may push an automatic resolution down to.
 pub const MIN_RESOLUTION: usize = 64;
 
@@ -163,7 +170,7 @@ pub struct ReconstructOptions {
     pub project: bool,
     /// Times every triangle is split in four after the projection, the midpoints projected too ([`refine`]);
     /// `None`: once where the points are clean and denser than the grid (mean spacing at most
-    /// [`AUTO_SPLIT_SPACING`] cells) and the split fits the budget, else not.
+    /// [`AUTO_SPLIT_SPACING`] cells), were not thinned for the budget, and the split fits it; else not.
     pub split: Option<usize>,
     /// Most bytes the stage may allocate.
     pub memory_budget: u64,
@@ -314,6 +321,10 @@ pub fn reconstruct(
             (est, Some(o))
         }
     };
+    // The points' scatter: how wide the projection reaches, whether a split pays, how fine a grid helps.
+    let noise_ratio = project::noise_ratio(&index, points, &normals);
+    let res =
+        if opts.resolution == 0 && noise_ratio >= project::TIGHT_BELOW { res.min(NOISY_MAX_RESOLUTION) } else { res };
     lap("normals", &mut t);
     // 4. Screened Poisson, multigrid-preconditioned CG.
     progress.report(0.3, "solve");
@@ -347,7 +358,6 @@ pub fn reconstruct(
     lap("extract", &mut t);
     // 6. Vertices onto the samples' planes; how much of the surface is far from every point.
     let reach = FAR_SPACINGS * mean_spacing.max(grid.h * 0.5);
-    let noise_ratio = project::noise_ratio(&index, points, &normals);
     let target = project::Target { index: &index, points, normals: &normals, noise: noise_ratio, reach };
     let mut projected =
         if opts.project { project::onto_samples(0, &mut mesh, &target, grid.h, project::ROUNDS) } else { 0 };
@@ -358,7 +368,9 @@ pub fn reconstruct(
     let far_area_share = far_share(&mesh, &index, reach);
     lap("far", &mut t);
     let auto = opts.split.is_none();
-    let dense = mean_spacing <= AUTO_SPLIT_SPACING * grid.h && noise_ratio < project::TIGHT_BELOW;
+    // Not where the budget already thinned the points: memory is what binds there (a 10M-point torus under
+    // 1 GiB peaked at 1039 MiB with the split, 849 MiB without).
+    let dense = mean_spacing <= AUTO_SPLIT_SPACING * grid.h && noise_ratio < project::TIGHT_BELOW && thinning.is_none();
     let wanted = opts.split.unwrap_or(usize::from(dense));
     let mut splits = 0;
     for _ in 0..wanted {
