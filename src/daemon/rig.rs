@@ -289,13 +289,13 @@ pub async fn start(
         };
         server.at(TURNTABLE_PATH, iface).await?;
         let r = server.interface::<_, TurntableIface>(TURNTABLE_PATH).await?;
-        tokio::spawn(mirror_turntable(handle, r, station.clone()));
+        tokio::spawn(mirror(handle.watch(), handle.faults(), r, station.clone()));
     }
     if let Some(c) = trigger {
         let handle = start_trigger(c);
         server.at(TRIGGER_PATH, TriggerIface { handle: handle.clone(), access: access.clone() }).await?;
         let r = server.interface::<_, TriggerIface>(TRIGGER_PATH).await?;
-        tokio::spawn(mirror_trigger(handle, r, station));
+        tokio::spawn(mirror(handle.watch(), handle.faults(), r, station));
     }
     Ok(())
 }
@@ -304,57 +304,86 @@ async fn health(station: &mpsc::Sender<Command>, device: &'static str, reasons: 
     let _ = station.send(Command::DeviceHealth { device, reasons }).await;
 }
 
-async fn mirror_turntable(
-    handle: TurntableHandle,
-    r: zbus::object_server::InterfaceRef<TurntableIface>,
-    station: mpsc::Sender<Command>,
-) {
-    let mut w = handle.watch();
-    let mut faults = handle.faults();
-    let mut last = w.borrow_and_update().clone();
-    let mut last_health = turntable_health(&last);
-    health(&station, "turntable", last_health.clone()).await;
-    loop {
-        tokio::select! {
-            c = w.changed() => {
-                if c.is_err() {
-                    return;
-                }
-                let s = w.borrow_and_update().clone();
-                let em = r.signal_emitter();
-                let g = r.get().await;
-                if s.connected != last.connected { let _ = g.connected_changed(em).await; }
-                if s.firmware != last.firmware { let _ = g.firmware_changed(em).await; }
-                if s.homed != last.homed { let _ = g.homed_changed(em).await; }
-                if s.moving != last.moving { let _ = g.moving_changed(em).await; }
-                if s.angle != last.angle { let _ = g.angle_changed(em).await; }
-                drop(g);
-                let h = turntable_health(&s);
-                if h != last_health {
-                    health(&station, "turntable", h.clone()).await;
-                    last_health = h;
-                }
-                last = s;
-            }
-            f = faults.recv() => match f {
-                Ok(f) => { let _ = TurntableIface::fault(r.signal_emitter(), f.code.as_str(), &f.message, details(&f)).await; }
-                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => tracing::warn!(device = "turntable", n, "fault signals dropped"),
-                Err(_) => return,
-            },
+/// What a device's mirror task needs of its interface: the state it mirrors, why that state degrades the
+/// station, and the signals for a change and a fault.
+trait Mirrored: zbus::object_server::Interface + Sized {
+    type State: Clone + Send + Sync + 'static;
+    const DEVICE: &'static str;
+    fn health(s: &Self::State) -> Vec<String>;
+    /// `PropertiesChanged` for each property that differs between `old` and `new`.
+    fn emit_changes(
+        &self,
+        em: &SignalEmitter<'_>,
+        old: &Self::State,
+        new: &Self::State,
+    ) -> impl std::future::Future<Output = ()> + Send;
+    fn emit_fault(em: &SignalEmitter<'_>, f: &DeviceFault) -> impl std::future::Future<Output = ()> + Send;
+}
+
+impl Mirrored for TurntableIface {
+    type State = TurntableState;
+    const DEVICE: &'static str = "turntable";
+    fn health(s: &TurntableState) -> Vec<String> {
+        turntable_health(s)
+    }
+    async fn emit_changes(&self, em: &SignalEmitter<'_>, old: &TurntableState, new: &TurntableState) {
+        if new.connected != old.connected {
+            let _ = self.connected_changed(em).await;
         }
+        if new.firmware != old.firmware {
+            let _ = self.firmware_changed(em).await;
+        }
+        if new.homed != old.homed {
+            let _ = self.homed_changed(em).await;
+        }
+        if new.moving != old.moving {
+            let _ = self.moving_changed(em).await;
+        }
+        if new.angle != old.angle {
+            let _ = self.angle_changed(em).await;
+        }
+    }
+    async fn emit_fault(em: &SignalEmitter<'_>, f: &DeviceFault) {
+        let _ = TurntableIface::fault(em, f.code.as_str(), &f.message, details(f)).await;
     }
 }
 
-async fn mirror_trigger(
-    handle: TriggerHandle,
-    r: zbus::object_server::InterfaceRef<TriggerIface>,
+impl Mirrored for TriggerIface {
+    type State = TriggerState;
+    const DEVICE: &'static str = "trigger";
+    fn health(s: &TriggerState) -> Vec<String> {
+        trigger_health(s)
+    }
+    async fn emit_changes(&self, em: &SignalEmitter<'_>, old: &TriggerState, new: &TriggerState) {
+        if new.bus_state != old.bus_state {
+            let _ = self.bus_state_changed(em).await;
+        }
+        if new.node_alive != old.node_alive {
+            let _ = self.node_alive_changed(em).await;
+        }
+        if new.frames_sent != old.frames_sent {
+            let _ = self.frames_sent_changed(em).await;
+        }
+        if new.errors != old.errors {
+            let _ = self.errors_changed(em).await;
+        }
+    }
+    async fn emit_fault(em: &SignalEmitter<'_>, f: &DeviceFault) {
+        let _ = TriggerIface::fault(em, f.code.as_str(), &f.message, details(f)).await;
+    }
+}
+
+/// A device's mirror task: state changes become `PropertiesChanged`, faults the `Fault` signal, and health
+/// changes a [`Command::DeviceHealth`] to the station. Ends when the device's actor does.
+async fn mirror<I: Mirrored>(
+    mut w: tokio::sync::watch::Receiver<I::State>,
+    mut faults: tokio::sync::broadcast::Receiver<DeviceFault>,
+    r: zbus::object_server::InterfaceRef<I>,
     station: mpsc::Sender<Command>,
 ) {
-    let mut w = handle.watch();
-    let mut faults = handle.faults();
     let mut last = w.borrow_and_update().clone();
-    let mut last_health = trigger_health(&last);
-    health(&station, "trigger", last_health.clone()).await;
+    let mut last_health = I::health(&last);
+    health(&station, I::DEVICE, last_health.clone()).await;
     loop {
         tokio::select! {
             c = w.changed() => {
@@ -362,23 +391,17 @@ async fn mirror_trigger(
                     return;
                 }
                 let s = w.borrow_and_update().clone();
-                let em = r.signal_emitter();
-                let g = r.get().await;
-                if s.bus_state != last.bus_state { let _ = g.bus_state_changed(em).await; }
-                if s.node_alive != last.node_alive { let _ = g.node_alive_changed(em).await; }
-                if s.frames_sent != last.frames_sent { let _ = g.frames_sent_changed(em).await; }
-                if s.errors != last.errors { let _ = g.errors_changed(em).await; }
-                drop(g);
-                let h = trigger_health(&s);
+                r.get().await.emit_changes(r.signal_emitter(), &last, &s).await;
+                let h = I::health(&s);
                 if h != last_health {
-                    health(&station, "trigger", h.clone()).await;
+                    health(&station, I::DEVICE, h.clone()).await;
                     last_health = h;
                 }
                 last = s;
             }
             f = faults.recv() => match f {
-                Ok(f) => { let _ = TriggerIface::fault(r.signal_emitter(), f.code.as_str(), &f.message, details(&f)).await; }
-                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => tracing::warn!(device = "trigger", n, "fault signals dropped"),
+                Ok(f) => I::emit_fault(r.signal_emitter(), &f).await,
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => tracing::warn!(device = I::DEVICE, n, "fault signals dropped"),
                 Err(_) => return,
             },
         }

@@ -46,6 +46,40 @@ fn time_scale(s: &str) -> Result<f64, String> {
     if (0.01..=1000.0).contains(&v) { Ok(v) } else { Err("between 0.01 and 1000".into()) }
 }
 
+/// Feed `send` the command lines typed on stdin and, with `control`, those sent to that Unix socket (one
+/// connection after another), each on a thread of its own. Without a control socket the end of stdin is
+/// `quit`. `Err` (exit status 3, reported) when the socket cannot be bound.
+fn command_lines(
+    control: Option<&std::path::Path>,
+    send: impl Fn(String) -> bool + Send + Sync + Clone + 'static,
+) -> Result<(), ExitCode> {
+    if let Some(path) = control {
+        let _ = std::fs::remove_file(path);
+        let l = std::os::unix::net::UnixListener::bind(path).map_err(|e| {
+            eprintln!("scanstation: error: cannot listen on {}: {e}", path.display());
+            ExitCode::from(3)
+        })?;
+        let send = send.clone();
+        std::thread::spawn(move || {
+            for conn in l.incoming().flatten() {
+                for line in std::io::BufReader::new(conn).lines().map_while(Result::ok) {
+                    send(line);
+                }
+            }
+        });
+    }
+    let stdin_ends = control.is_none();
+    std::thread::spawn(move || {
+        for line in std::io::stdin().lock().lines().map_while(Result::ok) {
+            send(line);
+        }
+        if stdin_ends {
+            send("quit".into());
+        }
+    });
+    Ok(())
+}
+
 /// A command line: `unplug`, `replug`, `drop-reply`, `error N`, `alarm N`, `stall`, `quit`.
 fn parse_command(line: &str) -> Result<SimCommand, String> {
     let mut words = line.split_whitespace();
@@ -86,34 +120,9 @@ pub fn run(a: &SimTurntableArgs) -> ExitCode {
     };
     eprintln!("simulated Grbl turntable at {} (time ×{})", a.link.display(), a.time_scale);
     let (tx, rx) = std::sync::mpsc::channel::<String>();
-    if let Some(path) = &a.control {
-        let _ = std::fs::remove_file(path);
-        match std::os::unix::net::UnixListener::bind(path) {
-            Ok(l) => {
-                let tx = tx.clone();
-                std::thread::spawn(move || {
-                    for conn in l.incoming().flatten() {
-                        for line in std::io::BufReader::new(conn).lines().map_while(Result::ok) {
-                            let _ = tx.send(line);
-                        }
-                    }
-                });
-            }
-            Err(e) => {
-                eprintln!("scanstation: error: cannot listen on {}: {e}", path.display());
-                return ExitCode::from(3);
-            }
-        }
+    if let Err(code) = command_lines(a.control.as_deref(), move |l| tx.send(l).is_ok()) {
+        return code;
     }
-    let stdin_ends = a.control.is_none();
-    std::thread::spawn(move || {
-        for line in std::io::stdin().lock().lines().map_while(Result::ok) {
-            let _ = tx.send(line);
-        }
-        if stdin_ends {
-            let _ = tx.send("quit".into());
-        }
-    });
     for line in rx {
         if line.trim().is_empty() {
             continue;
@@ -216,34 +225,9 @@ pub fn run_trigger(a: &SimTriggerArgs) -> ExitCode {
         };
         eprintln!("simulated scanner node {:#04x} on {} (heartbeat {} ms)", a.node, a.bus, a.heartbeat_ms);
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<String>();
-        if let Some(path) = &a.control {
-            let _ = std::fs::remove_file(path);
-            match std::os::unix::net::UnixListener::bind(path) {
-                Ok(l) => {
-                    let tx = tx.clone();
-                    std::thread::spawn(move || {
-                        for conn in l.incoming().flatten() {
-                            for line in std::io::BufReader::new(conn).lines().map_while(Result::ok) {
-                                let _ = tx.send(line);
-                            }
-                        }
-                    });
-                }
-                Err(e) => {
-                    eprintln!("scanstation: error: cannot listen on {}: {e}", path.display());
-                    return ExitCode::from(3);
-                }
-            }
+        if let Err(code) = command_lines(a.control.as_deref(), move |l| tx.send(l).is_ok()) {
+            return code;
         }
-        let stdin_ends = a.control.is_none();
-        std::thread::spawn(move || {
-            for line in std::io::stdin().lock().lines().map_while(Result::ok) {
-                let _ = tx.send(line);
-            }
-            if stdin_ends {
-                let _ = tx.send("quit".into());
-            }
-        });
         while let Some(line) = rx.recv().await {
             if line.trim().is_empty() {
                 continue;
