@@ -9,8 +9,8 @@ mod common;
 use std::time::{Duration, Instant};
 
 use scanstation::ErrorCode;
+use scanstation::devices::DeviceFault;
 use scanstation::devices::can::{BusState, MemBus, StreamBus};
-use scanstation::devices::link::DeviceFault;
 use scanstation::devices::trigger::{TriggerHandle, TriggerSettings, TriggerState, spawn_trigger};
 use scanstation::devices::trigger_sim::{ScannerFault, ScannerSettings, SimScanner};
 

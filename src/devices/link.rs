@@ -73,16 +73,7 @@ pub struct TurntableState {
     pub connections: u64,
 }
 
-/// A device fault, as the `Fault` signal carries it.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct DeviceFault {
-    /// The device (`turntable`).
-    pub device: &'static str,
-    /// Stable code (`device.unplugged`, …).
-    pub code: ErrorCode,
-    /// For people.
-    pub message: String,
-}
+pub use super::DeviceFault;
 
 enum Command {
     Home(oneshot::Sender<Result<()>>),

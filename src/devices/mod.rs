@@ -19,3 +19,14 @@ pub mod trigger;
 pub mod trigger_proto;
 pub mod trigger_sim;
 pub mod turntable;
+
+/// A device fault, as the `Fault` signal carries it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct DeviceFault {
+    /// The device (`turntable`, `trigger`).
+    pub device: &'static str,
+    /// Stable code (`device.unplugged`, …).
+    pub code: crate::error::ErrorCode,
+    /// For people.
+    pub message: String,
+}

@@ -27,8 +27,8 @@ use std::time::Duration;
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 use tokio::time::Instant;
 
+use super::DeviceFault;
 use super::can::{BusState, CanBus, Frame, is_enobufs};
-use super::link::DeviceFault;
 use super::trigger_proto::{AckStatus, Decoded, Message, NmtState, decode};
 use crate::error::{Error, ErrorCode, Result};
 
