@@ -200,8 +200,6 @@ struct Hub {
     /// Sends still to refuse with ENOBUFS.
     refuse: u32,
     bus_off: bool,
-    /// Frames delivered so far (all ports).
-    delivered: u64,
 }
 
 impl Hub {
@@ -216,7 +214,6 @@ impl Hub {
                 *p = None;
             }
         }
-        self.delivered += 1;
     }
 }
 
@@ -269,11 +266,6 @@ impl MemBus {
     /// Deliver `f` to every port, as if the controller or another node had put it on the bus.
     pub fn inject(&self, f: Frame) {
         self.lock().deliver(None, f);
-    }
-
-    /// Frames delivered so far.
-    pub fn delivered(&self) -> u64 {
-        self.lock().delivered
     }
 }
 
