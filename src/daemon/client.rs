@@ -16,6 +16,7 @@ use zbus::zvariant::{OwnedObjectPath, OwnedValue, Value};
 )]
 pub trait Manager {
     fn submit_file(&self, path: &str, options: HashMap<&str, Value<'_>>) -> zbus::Result<OwnedObjectPath>;
+    fn start_scan(&self, options: HashMap<&str, Value<'_>>) -> zbus::Result<OwnedObjectPath>;
     fn get_history(&self, since_usec: u64, limit: u32) -> zbus::Result<Vec<HashMap<String, OwnedValue>>>;
     fn pause_intake(&self) -> zbus::Result<()>;
     fn resume_intake(&self) -> zbus::Result<()>;
@@ -221,6 +222,59 @@ pub mod ops {
         }
         let p = mgr.submit_file(&abs.to_string_lossy(), opts).await.map_err(bus_err)?;
         Ok(p.to_string())
+    }
+
+    /// Start a scan session; the job's object path.
+    ///
+    /// # Errors
+    /// `daemon.*`, `device.*` (no rig), `input.bad-argument`.
+    pub async fn scan(conn: &Connection, o: &ScanOptions) -> Result<String> {
+        let mgr = ManagerProxy::new(conn).await.map_err(bus_err)?;
+        let mut opts: HashMap<&str, Value<'_>> = HashMap::new();
+        if let Some(v) = o.views {
+            opts.insert("views", Value::U32(v));
+        }
+        if let Some(s) = o.step_deg {
+            opts.insert("step_deg", Value::F64(s));
+        }
+        if let Some(n) = &o.name {
+            opts.insert("name", Value::from(n.as_str()));
+        }
+        if let Some(f) = &o.fea {
+            let abs = std::fs::canonicalize(f)
+                .map_err(|e| Error::new(ErrorCode::InputNotFound, format!("{}: {e}", f.display())))?;
+            opts.insert("fea", Value::from(abs.to_string_lossy().into_owned()));
+        }
+        if let Some(v) = o.vertices {
+            opts.insert("vertices", Value::U32(v));
+        }
+        if let Some(t) = o.tolerance {
+            opts.insert("tolerance", Value::F64(t));
+        }
+        if let Some(s) = o.seed {
+            opts.insert("seed", Value::U64(s));
+        }
+        let p = mgr.start_scan(opts).await.map_err(bus_err)?;
+        Ok(p.to_string())
+    }
+
+    /// What `scanstation scan` asks for.
+    #[derive(Clone, Debug, Default)]
+    pub struct ScanOptions {
+        /// Views.
+        pub views: Option<u32>,
+        /// Degrees between views.
+        pub step_deg: Option<f64>,
+        /// The scan's name.
+        pub name: Option<String>,
+        /// An FEA spec (made absolute here).
+        pub fea: Option<std::path::PathBuf>,
+        /// Control vertices.
+        pub vertices: Option<u32>,
+        /// RMS tolerance.
+        pub tolerance: Option<f64>,
+        /// Seed of the conversion.
+        pub seed: Option<u64>,
     }
 
     /// The rig's devices: each configured one's properties (`null` when not configured).

@@ -36,6 +36,23 @@ struct Raw {
     dbus: RawDbus,
     #[serde(default)]
     devices: RawDevices,
+    scan: Option<RawScan>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScan {
+    capture_dir: Option<PathBuf>,
+    axis_point: Option<[f64; 3]>,
+    axis_direction: Option<[f64; 3]>,
+    views: Option<u32>,
+    settle: Option<String>,
+    view_file_timeout: Option<String>,
+    view_retries: Option<u32>,
+    on_lost_view: Option<String>,
+    on_unplug: Option<String>,
+    replug_timeout: Option<String>,
+    trigger_channel: Option<u8>,
 }
 
 #[derive(Deserialize, Default)]
@@ -215,6 +232,58 @@ pub struct Config {
     pub turntable: Option<TurntableConfig>,
     /// The scanner's trigger (`[devices.trigger]`; none by default).
     pub trigger: Option<TriggerConfig>,
+    /// Scan sessions (`[scan]`; none by default: `StartScan` is then refused).
+    pub scan: Option<ScanConfig>,
+}
+
+/// What a scan does when a view never arrives ([`ScanConfig::on_lost_view`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OnLostView {
+    /// The scan fails with the device's code (`device.timeout`), its views quarantined.
+    Fail,
+    /// The view is left out (named in the fusion report) and the scan goes on.
+    Skip,
+}
+
+/// What a scan does when the turntable is lost mid-scan ([`ScanConfig::on_unplug`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OnUnplug {
+    /// Wait up to `replug_timeout` for it to come back, home it, and go on from the view that was interrupted.
+    Wait,
+    /// Fail at once with the device's code, the views captured so far quarantined.
+    Fail,
+}
+
+/// `[scan]`: how the station scans an object on its rig (`StartScan`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ScanConfig {
+    /// Where the scanner writes each view (`view-SSSSS.ply`, SSSSS the trigger's sequence number).
+    pub capture_dir: PathBuf,
+    /// A point on the turntable's axis in the scanner's frame: the table top's centre (calibration).
+    pub axis_point: [f64; 3],
+    /// The axis direction in the scanner's frame, pointing up from the table (calibration; normalised).
+    pub axis_direction: [f64; 3],
+    /// Views per scan when `StartScan` names none.
+    pub views: u32,
+    #[serde(with = "secs")]
+    /// Wait after a move before the trigger (the object stops swinging).
+    pub settle: Duration,
+    #[serde(with = "secs")]
+    /// Longest wait for a view's file after the scanner reported it ready.
+    pub view_file_timeout: Duration,
+    /// Triggers tried again for a view that never arrives.
+    pub view_retries: u32,
+    /// After the retries: fail the scan, or skip the view.
+    pub on_lost_view: OnLostView,
+    /// The turntable lost mid-scan: wait for it, or fail.
+    pub on_unplug: OnUnplug,
+    #[serde(with = "secs")]
+    /// How long `on_unplug = "wait"` waits.
+    pub replug_timeout: Duration,
+    /// The trigger channel fired for each view.
+    pub trigger_channel: u8,
 }
 
 /// `[devices.turntable]`: a Grbl 1.1 board on a serial port.
@@ -439,6 +508,7 @@ impl Config {
         }
         let turntable = raw.devices.turntable.map(|t| turntable_config(t, &dur, &err)).transpose()?;
         let trigger = raw.devices.trigger.map(|t| trigger_config(t, &dur, &err)).transpose()?;
+        let scan = raw.scan.map(|t| scan_config(t, &dur, &err)).transpose()?;
         let keep_finished_jobs = raw.limits.keep_finished_jobs.unwrap_or(100);
         if keep_finished_jobs > 100_000 {
             return Err(err("limits.keep_finished_jobs", "at most 100000".into()));
@@ -471,6 +541,7 @@ impl Config {
             ops_group: raw.dbus.ops_group.unwrap_or_else(|| "scanstation".into()),
             turntable,
             trigger,
+            scan,
         })
     }
 
@@ -554,6 +625,56 @@ fn trigger_config(t: RawTrigger, dur: &DurOf, err: &ErrOf) -> Result<TriggerConf
         lost_after,
         ack_timeout: dur(&k("ack_timeout"), &t.ack_timeout, "250ms")?,
         view_timeout: dur(&k("view_timeout"), &t.view_timeout, "10s")?,
+    })
+}
+
+fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, ConfigError> {
+    let k = |key: &str| format!("scan.{key}");
+    let capture_dir =
+        t.capture_dir.ok_or_else(|| err(&k("capture_dir"), "required (where the scanner writes views)".into()))?;
+    if !capture_dir.is_absolute() {
+        return Err(err(&k("capture_dir"), format!("{} is not an absolute path", capture_dir.display())));
+    }
+    let axis_point =
+        t.axis_point.ok_or_else(|| err(&k("axis_point"), "required (the calibrated table centre)".into()))?;
+    let d = t.axis_direction.ok_or_else(|| err(&k("axis_direction"), "required (the calibrated axis)".into()))?;
+    if axis_point.iter().any(|v| !v.is_finite()) {
+        return Err(err(&k("axis_point"), "three finite numbers".into()));
+    }
+    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    if !(len.is_finite() && len > 1e-9) {
+        return Err(err(&k("axis_direction"), "a non-zero vector of finite numbers".into()));
+    }
+    let views = t.views.unwrap_or(12);
+    if !(1..=360).contains(&views) {
+        return Err(err(&k("views"), format!("{views} is outside 1..=360")));
+    }
+    let view_retries = t.view_retries.unwrap_or(2);
+    if view_retries > 20 {
+        return Err(err(&k("view_retries"), format!("{view_retries} is more than 20")));
+    }
+    let on_lost_view = match t.on_lost_view.as_deref().unwrap_or("fail") {
+        "fail" => OnLostView::Fail,
+        "skip" => OnLostView::Skip,
+        o => return Err(err(&k("on_lost_view"), format!("{o:?}: use \"fail\" or \"skip\""))),
+    };
+    let on_unplug = match t.on_unplug.as_deref().unwrap_or("wait") {
+        "wait" => OnUnplug::Wait,
+        "fail" => OnUnplug::Fail,
+        o => return Err(err(&k("on_unplug"), format!("{o:?}: use \"wait\" or \"fail\""))),
+    };
+    Ok(ScanConfig {
+        capture_dir,
+        axis_point,
+        axis_direction: d.map(|v| v / len),
+        views,
+        settle: dur(&k("settle"), &t.settle, "300ms")?,
+        view_file_timeout: dur(&k("view_file_timeout"), &t.view_file_timeout, "5s")?,
+        view_retries,
+        on_lost_view,
+        on_unplug,
+        replug_timeout: dur(&k("replug_timeout"), &t.replug_timeout, "60s")?,
+        trigger_channel: t.trigger_channel.unwrap_or(0),
     })
 }
 

@@ -70,6 +70,19 @@ pub enum Command {
         /// The new job's id, or why not.
         reply: oneshot::Sender<Result<JobId, StationError>>,
     },
+    /// `StartScan`: a scan session on the rig.
+    StartScan {
+        /// The views.
+        request: crate::daemon::scan::ScanRequest,
+        /// The scan's name (its outbox directory's stem).
+        name: String,
+        /// The conversion's options.
+        options: JobOptions,
+        /// Who started it (`dbus:<sender>`).
+        source: String,
+        /// The new job's id, or why not.
+        reply: oneshot::Sender<Result<JobId, StationError>>,
+    },
     /// `Cancel` on a job.
     Cancel {
         /// The job's id.
@@ -227,6 +240,8 @@ pub struct ManagerIface {
     pub memory_budget: u64,
     /// Who may call what.
     pub access: Access,
+    /// Views of a scan that names none (`[scan] views`).
+    pub default_views: u32,
 }
 
 /// Lock a view, also after a panic elsewhere (views hold plain values; a poisoned one is still consistent).
@@ -276,6 +291,66 @@ fn parse_options(options: &HashMap<String, OwnedValue>) -> Result<JobOptions, St
     Ok(o)
 }
 
+/// Parse the `a{sv}` of `StartScan`: `views` (integer), `step_deg` (double), `name` (string), `fea` (string, an
+/// absolute path), and the options of `SubmitFile`. `default_views` when neither views nor step is given.
+fn parse_scan_options(
+    options: &HashMap<String, OwnedValue>,
+    default_views: u32,
+) -> Result<(crate::daemon::scan::ScanRequest, String, JobOptions), StationError> {
+    let mut rest = HashMap::new();
+    let (mut views, mut step, mut name, mut fea) = (None, None, "scan".to_string(), None);
+    for (k, v) in options {
+        let bad =
+            || StationError::InvalidArgument(format!("option {k:?} has the wrong type ({})", v.value_signature()));
+        let text = || match &**v {
+            Value::Str(s) => Ok(s.to_string()),
+            _ => Err(bad()),
+        };
+        match k.as_str() {
+            "views" => {
+                let n = match &**v {
+                    Value::U32(x) => i64::from(*x),
+                    Value::I32(x) => i64::from(*x),
+                    Value::U16(x) => i64::from(*x),
+                    Value::I16(x) => i64::from(*x),
+                    Value::U8(x) => i64::from(*x),
+                    Value::U64(x) => (*x).min(1 << 32) as i64,
+                    Value::I64(x) => *x,
+                    _ => return Err(bad()),
+                };
+                views = Some(
+                    u32::try_from(n).map_err(|_| StationError::InvalidArgument(format!("views: {n} is negative")))?,
+                );
+            }
+            "step_deg" => match &**v {
+                Value::F64(x) => step = Some(*x),
+                _ => return Err(bad()),
+            },
+            "name" => name = text()?,
+            "fea" => {
+                let p = PathBuf::from(text()?);
+                if !p.is_absolute() {
+                    return Err(StationError::InvalidArgument(format!("fea: {} is not an absolute path", p.display())));
+                }
+                fea = Some(p);
+            }
+            _ => {
+                rest.insert(k.clone(), v.try_clone().map_err(|e| StationError::InvalidArgument(e.to_string()))?);
+            }
+        }
+    }
+    let mut request =
+        crate::daemon::scan::ScanRequest::new(views, step, default_views).map_err(StationError::InvalidArgument)?;
+    request.fea = fea;
+    let options = parse_options(&rest).map_err(|e| match e {
+        StationError::InvalidArgument(m) if m.starts_with("unknown option") => {
+            StationError::InvalidArgument(m.replace("(known: ", "(known: views, step_deg, name, fea, "))
+        }
+        o => o,
+    })?;
+    Ok((request, name, options))
+}
+
 /// `ManagerIface`'s D-Bus methods, properties and signals (a module of its own so that the undocumented helpers
 /// zbus's interface macro adds are allowed, and nothing else).
 pub mod manager_iface {
@@ -302,6 +377,24 @@ pub mod manager_iface {
             let options = parse_options(&options)?;
             let source = format!("dbus:{}", hdr.sender().map(|s| s.to_string()).unwrap_or_default());
             let id = ask(&self.tx, |reply| Command::Submit { path, options, source, reply }).await??;
+            Ok(job_path(&id))
+        }
+
+        /// Scan the object on the turntable: home, then at each of `views` stops (or every `step_deg`) move,
+        /// settle and trigger the scanner, keep the view; then fuse the views and convert them as a submitted
+        /// file. Options: `views` (u), `step_deg` (d), `name` (s: the bundle's stem), `fea` (s: an FEA spec
+        /// on the station, in table coordinates), and `vertices` (u), `tolerance` (d), `seed` (t),
+        /// `accept_degraded` (b) as `SubmitFile`. The job object exists when this returns.
+        async fn start_scan(
+            &self,
+            options: HashMap<String, OwnedValue>,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<OwnedObjectPath, StationError> {
+            authorize(conn, &hdr, &self.access, "StartScan").await?;
+            let (request, name, options) = parse_scan_options(&options, self.default_views)?;
+            let source = format!("dbus:{}", hdr.sender().map(|s| s.to_string()).unwrap_or_default());
+            let id = ask(&self.tx, |reply| Command::StartScan { request, name, options, source, reply }).await??;
             Ok(job_path(&id))
         }
 

@@ -143,6 +143,9 @@ pub struct JobRecord {
     pub peak_memory: u64,
     /// Whether `Completed` was emitted (a terminal record without it is announced after a restart).
     pub announced: bool,
+    /// A scan session (`StartScan`): what to capture. Its input is then the scan directory in `work/<id>/`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scan: Option<super::scan::ScanRequest>,
 }
 
 impl JobRecord {

@@ -18,6 +18,8 @@ pub mod dbus;
 pub mod journal;
 pub mod notify;
 pub mod rig;
+pub mod scan;
+pub mod scan_bundle;
 pub mod spool;
 pub mod station;
 pub mod watch;
@@ -114,6 +116,7 @@ pub async fn run(cfg: Config) -> Result<(), StartError> {
                 view: manager_view.clone(),
                 memory_budget: cfg.memory_budget,
                 access: access.clone(),
+                default_views: cfg.scan.as_ref().map_or(12, |s| s.views),
             },
         )
         .await
@@ -131,9 +134,10 @@ pub async fn run(cfg: Config) -> Result<(), StartError> {
     })
     .map_err(|e| StartError::State { path: cfg.state.display().to_string(), reason: e.to_string() })?;
     station.export_all().await.map_err(export_err)?;
-    rig::start(&conn, cfg.turntable.as_ref(), cfg.trigger.as_ref(), &access_for_rig, cmd_tx.clone())
+    let rig = rig::start(&conn, cfg.turntable.as_ref(), cfg.trigger.as_ref(), &access_for_rig, cmd_tx.clone())
         .await
         .map_err(export_err)?;
+    station.set_rig(rig);
     watch::start(&spool.inbox, watch_tx)
         .map_err(|e| StartError::Watch { path: spool.inbox.display().to_string(), reason: e.to_string() })?;
     conn.request_name(BUS_NAME).await.map_err(|e| StartError::Name(e.to_string()))?;

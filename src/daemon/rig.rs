@@ -268,7 +268,8 @@ fn details(f: &DeviceFault) -> HashMap<&'static str, Value<'static>> {
     HashMap::from([("device", Value::from(f.device.to_string()))])
 }
 
-/// Export the configured devices and start their mirror tasks. `station` takes their health.
+/// Export the configured devices and start their mirror tasks. `station` takes their health; the handles
+/// come back for the scans.
 ///
 /// # Errors
 /// Exporting an object.
@@ -278,8 +279,9 @@ pub async fn start(
     trigger: Option<&TriggerConfig>,
     access: &Access,
     station: mpsc::Sender<Command>,
-) -> zbus::Result<()> {
+) -> zbus::Result<crate::daemon::scan::Rig> {
     let server = conn.object_server();
+    let mut rig = crate::daemon::scan::Rig::default();
     if let Some(c) = turntable {
         let handle = spawn_turntable(link_settings(c));
         let iface = TurntableIface {
@@ -290,14 +292,16 @@ pub async fn start(
         server.at(TURNTABLE_PATH, iface).await?;
         let r = server.interface::<_, TurntableIface>(TURNTABLE_PATH).await?;
         tokio::spawn(mirror(handle.watch(), handle.faults(), r, station.clone()));
+        rig.turntable = Some(handle);
     }
     if let Some(c) = trigger {
         let handle = start_trigger(c);
         server.at(TRIGGER_PATH, TriggerIface { handle: handle.clone(), access: access.clone() }).await?;
         let r = server.interface::<_, TriggerIface>(TRIGGER_PATH).await?;
         tokio::spawn(mirror(handle.watch(), handle.faults(), r, station));
+        rig.trigger = Some(handle);
     }
-    Ok(())
+    Ok(rig)
 }
 
 async fn health(station: &mpsc::Sender<Command>, device: &'static str, reasons: Vec<String>) {

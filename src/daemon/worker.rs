@@ -21,12 +21,42 @@ use crate::pipeline::convert::{ConvertOptions, Resolution, convert_file};
 use crate::pipeline::memory::StageMeter;
 use crate::stages::Progress;
 
-/// The stages a job goes through, in order (`StageIndex` indexes this).
+/// The stages a file's job goes through, in order (`StageIndex` indexes this).
 pub const STAGES: [&str; 8] = ["read", "repair", "remesh", "surface", "brep", "step", "quality", "publish"];
 
-/// Overall progress at the end of the conversion chain (its stages, `quality` last, map to 0 – this) and the
-/// start of `publish`.
+/// The stages of a scan session ([`super::scan`]): the capture, then the chain from the fused views on.
+pub const SCAN_STAGES: [&str; 12] = [
+    "home",
+    "capture",
+    "fuse",
+    "reconstruct",
+    "repair",
+    "remesh",
+    "surface",
+    "brep",
+    "step",
+    "quality",
+    "fea",
+    "publish",
+];
+
+/// The stages of `rec`'s job.
+pub fn stages_of(rec: &JobRecord) -> &'static [&'static str] {
+    if rec.scan.is_some() { &SCAN_STAGES } else { &STAGES }
+}
+
+/// Overall progress at the end of the conversion chain (its stages, `quality` last, map to 0 – this, or from
+/// [`CAPTURE_END`] for a scan) and the start of `publish`.
 const PUBLISH_AT: f64 = 0.97;
+
+/// A scan's overall progress at the end of homing.
+pub const HOME_END: f64 = 0.02;
+
+/// A scan's overall progress at the end of the capture (the views, evenly) and the start of fusion.
+pub const CAPTURE_END: f64 = 0.30;
+
+/// A scan's overall progress at the start of the FEA (after the quality check).
+const FEA_AT: f64 = 0.95;
 /// Highest value reported before the job has finished.
 const BEFORE_DONE: f64 = 0.999;
 
@@ -84,11 +114,16 @@ pub struct JobRun {
     pub heartbeat: Arc<AtomicU64>,
     /// Where progress and the outcome go.
     pub events: mpsc::UnboundedSender<WorkerEvent>,
+    /// The stage the run starts in (the one a preset error is reported in): `read` for a file, `fuse` for a
+    /// scan after its capture, the capture's stage when it failed there.
+    pub stage: &'static str,
 }
 
 struct Reporter<'a> {
     run: &'a JobRun,
     state: Mutex<(f64, &'static str)>,
+    /// The overall range the conversion chain's 0–1 maps to.
+    span: (f64, f64),
 }
 
 impl Reporter<'_> {
@@ -110,13 +145,19 @@ impl Reporter<'_> {
 
 impl Progress for Reporter<'_> {
     fn report(&self, fraction: f64, phase: &str) {
-        let stage_name = phase.split('/').next().unwrap_or("");
-        let stage = STAGES
+        let mut stage_name = phase.split('/').next().unwrap_or("");
+        let scan = self.run.record.scan.is_some();
+        if scan && stage_name == "read" {
+            // A scan's views are read and fused in one step.
+            stage_name = "fuse";
+        }
+        let stage = stages_of(&self.run.record)
             .iter()
             .copied()
             .find(|s| *s == stage_name)
-            .unwrap_or(self.state.lock().map(|s| s.1).unwrap_or("read"));
-        self.send(fraction * PUBLISH_AT, stage, phase.to_string());
+            .unwrap_or(self.state.lock().map(|s| s.1).unwrap_or(self.run.stage));
+        let (a, b) = self.span;
+        self.send(a + fraction * (b - a), stage, phase.to_string());
     }
 
     fn cancelled(&self) -> bool {
@@ -127,12 +168,13 @@ impl Progress for Reporter<'_> {
 /// Run the job to its end (success, error, or cancellation) and report [`WorkerEvent::Done`].
 pub fn run(job: JobRun) {
     let meter = StageMeter::start();
-    let reporter = Reporter { run: &job, state: Mutex::new((0.0, "read")) };
+    let span = if job.record.scan.is_some() { (CAPTURE_END, FEA_AT) } else { (0.0, PUBLISH_AT) };
+    let reporter = Reporter { run: &job, state: Mutex::new((span.0, job.stage)), span };
     let result = match &job.preset_error {
         Some(e) => Err(e.clone()),
         None => convert_and_publish(&job, &reporter),
     };
-    let stage = reporter.state.lock().map(|s| s.1).unwrap_or("read").to_string();
+    let stage = reporter.state.lock().map(|s| s.1).unwrap_or(job.stage).to_string();
     let (_, peak_mib) = meter.finish();
     let peak_memory = peak_mib.map(|m| (m * 1024.0 * 1024.0) as u64).unwrap_or(0);
     let outcome = match result {
@@ -206,15 +248,24 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
         return Err(e);
     }
     crate::stages::check_cancelled(rep)?;
+    // A scan's bundle also holds its views, the fusion report and, when asked, the FEA.
+    let mut extra = super::scan_bundle::Extras::default();
+    if let Some(scan) = &rec.scan {
+        let fea_span = (FEA_AT, PUBLISH_AT);
+        let progress = |f: f64, phase: &str| rep.send(fea_span.0 + f * (fea_span.1 - fea_span.0), "fea", phase.into());
+        extra = super::scan_bundle::add(&input, &part, &stem, &report, scan, cfg, &progress)?;
+        crate::stages::check_cancelled(rep)?;
+    }
     rep.send(PUBLISH_AT, "publish", "publish/report and manifest".into());
     write_durable(&report_path, serde_json::to_string_pretty(&report_json).unwrap_or_default().as_bytes())
         .map_err(|e| io_err("cannot write", &report_path, e))?;
-    let files = [
+    let mut files = vec![
         ("step", step.clone()),
         ("solid-mesh", report.solid_mesh_file.clone()),
         ("error-map", report.error_map_file.clone()),
         ("report", report_path),
     ];
+    files.extend(extra.files.iter().cloned());
     let mut manifest_files = serde_json::Map::new();
     for (kind, p) in &files {
         let f = std::fs::File::open(p).map_err(|e| io_err("cannot reopen", p, e))?;
@@ -227,6 +278,9 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
                 "sha256": crate::pipeline::provenance::sha256_file(p)?,
             }),
         );
+    }
+    if let Some(views) = &extra.views_manifest {
+        manifest_files.insert("views".into(), views.clone());
     }
     let manifest = serde_json::json!({
         "schema": 1,
@@ -246,6 +300,9 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
     let mut outputs = BTreeMap::new();
     for (kind, p) in files.iter().map(|(k, p)| (k.to_string(), p)).chain([("manifest".to_string(), &manifest_path)]) {
         outputs.insert(kind, public.join(p.file_name().unwrap_or_default()).display().to_string());
+    }
+    if extra.views_manifest.is_some() {
+        outputs.insert("views".into(), public.join(super::scan_bundle::VIEWS_DIR).display().to_string());
     }
     Ok(outputs)
 }

@@ -13,6 +13,7 @@ pub mod can;
 pub mod grbl;
 pub mod grbl_sim;
 pub mod link;
+pub mod rangecam;
 pub mod sim_pty;
 pub mod socketcan_bus;
 pub mod trigger;

@@ -31,6 +31,8 @@ pub enum SimCommand {
 /// A running simulated turntable.
 pub struct SimTurntable {
     link: PathBuf,
+    /// The table's angle, degrees (`f64` bits), as the firmware last computed it.
+    angle: std::sync::Arc<std::sync::atomic::AtomicU64>,
     commands: mpsc::Sender<SimCommand>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -117,6 +119,8 @@ impl SimTurntable {
         let (tx, rx) = mpsc::channel();
         let link_owned = link.to_path_buf();
         let scale = if time_scale > 0.0 { time_scale } else { 1.0 };
+        let angle = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0f64.to_bits()));
+        let angle_out = angle.clone();
         let thread = std::thread::Builder::new().name("sim-turntable".into()).spawn(move || {
             let start = Instant::now();
             let now = || start.elapsed().as_secs_f64() * scale;
@@ -158,15 +162,28 @@ impl SimTurntable {
                     None => sim.tick(now()),
                 };
                 write_all(&p.master, &out);
+                angle_out.store(sim.position(now()).to_bits(), std::sync::atomic::Ordering::Relaxed);
             }
             let _ = std::fs::remove_file(&link_owned);
         })?;
-        Ok(SimTurntable { link: link.to_path_buf(), commands: tx, thread: Some(thread) })
+        Ok(SimTurntable { link: link.to_path_buf(), angle, commands: tx, thread: Some(thread) })
     }
 
     /// The link the driver opens.
     pub fn link(&self) -> &Path {
         &self.link
+    }
+
+    /// The table's angle now, degrees (where the firmware has it; a simulated scanner sees the object turned
+    /// by this).
+    pub fn angle(&self) -> f64 {
+        f64::from_bits(self.angle.load(std::sync::atomic::Ordering::Relaxed))
+    }
+
+    /// A reader of [`angle`](Self::angle) that other threads can keep.
+    pub fn angle_source(&self) -> impl Fn() -> f64 + Send + Sync + 'static {
+        let a = self.angle.clone();
+        move || f64::from_bits(a.load(std::sync::atomic::Ordering::Relaxed))
     }
 
     /// Send a command (ignored once the simulator has stopped).

@@ -20,8 +20,28 @@ pub struct ScannerSettings {
     pub heartbeat: Duration,
     /// From the acknowledgement to "view ready".
     pub exposure: Duration,
-    /// Points reported per view.
+    /// Points reported per view (when no `views` source makes the views).
     pub points: u32,
+    /// What makes each view (the simulated rig's range camera): called with the trigger's sequence number when
+    /// the exposure ends, it delivers the view (writes it where the station reads it) and returns its point
+    /// count, or `None` when the view could not be made (it is then never reported, as a lost view).
+    pub views: Option<ViewSource>,
+}
+
+/// A view maker for [`ScannerSettings::views`].
+#[derive(Clone)]
+pub struct ViewSource(pub std::sync::Arc<dyn Fn(u16) -> Option<u32> + Send + Sync>);
+
+impl std::fmt::Debug for ViewSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("ViewSource")
+    }
+}
+
+impl PartialEq for ViewSource {
+    fn eq(&self, other: &Self) -> bool {
+        std::sync::Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 impl Default for ScannerSettings {
@@ -32,6 +52,7 @@ impl Default for ScannerSettings {
             heartbeat: Duration::from_millis(100),
             exposure: Duration::from_millis(50),
             points: 100_000,
+            views: None,
         }
     }
 }
@@ -185,8 +206,19 @@ pub async fn run_scanner<B: CanBus>(
                         break;
                     }
                     exposing.pop_front();
-                    send(&mut bus, &Message::ViewReady { node, seq, points: settings.points }.encode(), stats).await;
-                    stats.send_modify(|s| s.views += 1);
+                    let points = match &settings.views {
+                        None => Some(settings.points),
+                        // Making a view takes milliseconds of ray casting: off the async thread (the node's
+                        // heartbeat waits for it, well within a period).
+                        Some(v) => {
+                            let v = v.clone();
+                            tokio::task::spawn_blocking(move || (v.0)(seq)).await.ok().flatten()
+                        }
+                    };
+                    if let Some(points) = points {
+                        send(&mut bus, &Message::ViewReady { node, seq, points }.encode(), stats).await;
+                        stats.send_modify(|s| s.views += 1);
+                    }
                 }
                 if now >= next_beat {
                     let state = if booted { NmtState::Operational } else { NmtState::BootUp };

@@ -352,6 +352,23 @@ impl TriangleBvh {
     /// triangle seen from behind, i.e. leaving the solid; −1: seen from the front). `None` when none is hit.
     /// Cost: O(log F) for a short ray, up to the triangles whose boxes the ray passes.
     pub fn ray_hit(&self, origin: V3, dir: V3, t_min: f64, t_max: f64, sign: f64) -> Option<f64> {
+        self.ray_walk(origin, dir, t_min, t_max, Some(sign)).map(|(t, _)| t)
+    }
+
+    /// The first triangle the ray `origin + t·dir` (`dir` a unit vector) meets with `t_min < t < t_max`, from
+    /// either side: its distance `t` and its unit (corner-order) normal. `None` when none is hit. Cost: as
+    /// [`ray_hit`](Self::ray_hit).
+    pub fn ray_first(&self, origin: V3, dir: V3, t_min: f64, t_max: f64) -> Option<(f64, V3)> {
+        self.ray_walk(origin, dir, t_min, t_max, None).map(|(t, slot)| {
+            let [a, b, c] = self.tris[slot].map(wide);
+            let n = vec3::cross(vec3::sub(b, a), vec3::sub(c, a));
+            let len = vec3::norm(n);
+            (t, if len > 0.0 { vec3::scale(n, 1.0 / len) } else { [0.0, 0.0, 0.0] })
+        })
+    }
+
+    /// The nearest hit and its leaf slot; `sign` filters by facing as [`ray_hit`](Self::ray_hit) says (`None`: both).
+    fn ray_walk(&self, origin: V3, dir: V3, t_min: f64, t_max: f64, sign: Option<f64>) -> Option<(f64, usize)> {
         let nodes = &self.tree.nodes;
         if nodes.is_empty() {
             return None;
@@ -372,7 +389,7 @@ impl TriangleBvh {
             true
         };
         let mut best = t_max;
-        let mut hit = false;
+        let mut hit = None;
         let mut stack: Vec<u32> = vec![0];
         while let Some(ni) = stack.pop() {
             let node = &nodes[ni as usize];
@@ -385,7 +402,7 @@ impl TriangleBvh {
                     let [a, b, c] = self.tris[slot].map(wide);
                     let (e1, e2) = (vec3::sub(b, a), vec3::sub(c, a));
                     let n = vec3::cross(e1, e2);
-                    if sign * vec3::dot(n, dir) <= 0.0 {
+                    if sign.is_some_and(|s| s * vec3::dot(n, dir) <= 0.0) {
                         continue;
                     }
                     // Möller–Trumbore.
@@ -408,7 +425,7 @@ impl TriangleBvh {
                     let t = vec3::dot(e2, qv) * id;
                     if t > t_min && t < best {
                         best = t;
-                        hit = true;
+                        hit = Some(slot);
                     }
                 }
             } else {
@@ -416,7 +433,7 @@ impl TriangleBvh {
                 stack.push(node.start + 1);
             }
         }
-        hit.then_some(best)
+        hit.map(|slot| (best, slot))
     }
 
     /// The squared distance from `p` to leaf slot `slot`, or ∞ when the triangle's box is already farther than

@@ -121,3 +121,72 @@ pub fn reconstruct_file(
         distance,
     })
 }
+
+/// How much of a surface the views of a scan saw ([`view_coverage`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ViewCoverage {
+    /// Share of the surface's area (0–1) within `radius` of a point of some view.
+    pub share: f64,
+    /// The reach that counts as seen: [`COVERAGE_SPACINGS`] × `spacing`.
+    pub radius: f64,
+    /// The views' median point spacing (each view's median distance to its nearest neighbour; their median).
+    pub spacing: f64,
+    /// Points of the views measured.
+    pub points: usize,
+}
+
+/// A surface point counts as seen when a view's point lies within this many point spacings: a hole in one
+/// view's sampling is covered, a surface no view reached (a base on the table, a deep cavity) is not.
+pub const COVERAGE_SPACINGS: f64 = 3.0;
+
+/// Which share of `surface` the `views` (placed by `poses`, one per view) saw: area-weighted over the
+/// surface's triangles, each seen when a view's point lies within [`COVERAGE_SPACINGS`] point spacings of
+/// its centroid (triangles much smaller than the spacing, as a solid's tessellation has, make this the area
+/// share). Cost: O(N) to index the N points, O(F) lookups.
+pub fn view_coverage(
+    surface: &TriMesh,
+    views: &[crate::geometry::io::scanset::View],
+    poses: &[crate::geometry::pose::Pose],
+) -> ViewCoverage {
+    use crate::geometry::points::PointIndex;
+    use crate::geometry::vec3::{add, scale, wide};
+    let mut spacings = Vec::new();
+    let mut all: Vec<[f32; 3]> = Vec::new();
+    let mut out = Vec::new();
+    for (v, pose) in views.iter().zip(poses) {
+        if v.points.len() < 2 {
+            continue;
+        }
+        let index = PointIndex::new(&v.points, 4.0);
+        let step = (v.points.len() / 500).max(1);
+        let mut d: Vec<f64> = v
+            .points
+            .iter()
+            .step_by(step)
+            .filter_map(|&p| {
+                index.knn(wide(p), 2, &mut out);
+                out.get(1).map(|x| x.1.sqrt())
+            })
+            .collect();
+        d.sort_by(f64::total_cmp);
+        if let Some(&m) = d.get(d.len() / 2) {
+            spacings.push(m);
+        }
+        all.extend(crate::geometry::io::scanset::placed(&v.points, pose));
+    }
+    spacings.sort_by(f64::total_cmp);
+    let spacing = spacings.get(spacings.len() / 2).copied().unwrap_or(0.0);
+    let radius = COVERAGE_SPACINGS * spacing;
+    let index = PointIndex::new(&all, 4.0);
+    let (mut seen, mut total) = (0.0, 0.0);
+    for t in 0..surface.triangles.len() {
+        let a = surface.triangle_area(t);
+        let [p, q, r] = surface.corners(t);
+        let c = scale(add(add(p, q), r), 1.0 / 3.0);
+        total += a;
+        if !all.is_empty() && index.nearest_within(c, radius).is_some() {
+            seen += a;
+        }
+    }
+    ViewCoverage { share: if total > 0.0 { seen / total } else { 0.0 }, radius, spacing, points: all.len() }
+}

@@ -245,6 +245,40 @@ pub struct SubmitArgs {
 }
 
 #[cfg(feature = "daemon")]
+/// Arguments of `scanstation scan`.
+#[derive(Args)]
+pub struct ScanArgs {
+    /// Views (stops of the turntable, evenly around unless --step-deg is given; 1 to 360). Default: the
+    /// station's `[scan] views`.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=360))]
+    pub views: Option<u32>,
+    /// Degrees between views.
+    #[arg(long, value_parser = ranges::length)]
+    pub step_deg: Option<f64>,
+    /// The scan's name (its outbox directory's stem): letters, digits, '_', '-', '.'.
+    #[arg(long)]
+    pub name: Option<String>,
+    /// An FEA spec to solve on the solid (coordinates in the table frame: z up the axis, 0 on the table top).
+    #[arg(long)]
+    pub fea: Option<PathBuf>,
+    /// Control vertices of the quad net (16 to 10 million).
+    #[arg(long, value_parser = ranges::vertices_u32)]
+    pub vertices: Option<u32>,
+    /// RMS tolerance (length) instead of a vertex count (1e-12 to 1e12).
+    #[arg(long, value_parser = ranges::length)]
+    pub tolerance: Option<f64>,
+    /// Seed of the conversion's randomised steps.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Follow the scan until it finishes (exit status 1 when it fails).
+    #[arg(long)]
+    pub wait: bool,
+    /// Use the session bus instead of the system bus.
+    #[arg(long)]
+    pub session: bool,
+}
+
+#[cfg(feature = "daemon")]
 /// Arguments of `scanstation rig`.
 #[derive(Args)]
 pub struct RigArgs {

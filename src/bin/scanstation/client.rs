@@ -67,6 +67,32 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                 }
                 Ok(done["Result"] == "succeeded")
             }
+            Command::Scan(a) => {
+                let conn = ops::connect(a.session).await?;
+                let o = ops::ScanOptions {
+                    views: a.views,
+                    step_deg: a.step_deg,
+                    name: a.name.clone(),
+                    fea: a.fea.clone(),
+                    vertices: a.vertices,
+                    tolerance: a.tolerance,
+                    seed: a.seed,
+                };
+                let path = ops::scan(&conn, &o).await?;
+                if !a.wait {
+                    if json {
+                        print_json(&serde_json::json!({ "job": path }));
+                    } else {
+                        outln!("{path}");
+                    }
+                    return Ok(true);
+                }
+                let done = ops::watch(&conn, Some(&path), json).await?;
+                if !json {
+                    outln!("{} {}", done["Result"], done["ErrorCode"]);
+                }
+                Ok(done["Result"] == "succeeded")
+            }
             Command::Cancel(CancelArgs { id, session }) => {
                 let conn = ops::connect(*session).await?;
                 ops::cancel(&conn, id).await?;

@@ -83,6 +83,10 @@ enum Command {
     /// Queue a file on the station (its absolute path is sent; files outside the inbox are copied).
     #[cfg(feature = "daemon")]
     Submit(SubmitArgs),
+    /// Scan the object on the station's turntable and convert it: home, a view at every stop, fusion, the
+    /// chain to a solid (D-Bus client of scanstationd).
+    #[cfg(feature = "daemon")]
+    Scan(ScanArgs),
     /// Cancel a job (by id or object path).
     #[cfg(feature = "daemon")]
     Cancel(CancelArgs),
@@ -110,6 +114,9 @@ enum SimCommand {
     /// A structured-light scanner node on CAN (an interface or `unix:PATH`): heartbeat, acknowledgements, views;
     /// faults from stdin or a socket.
     Trigger(sim::SimTriggerArgs),
+    /// The whole rig in one process: the turntable, the scanner node and its range camera, which ray-casts
+    /// the object on the table at the table's angle into a capture directory at every trigger.
+    Rig(sim::SimRigArgs),
 }
 
 fn main() -> ExitCode {
@@ -160,9 +167,12 @@ fn main() -> ExitCode {
         #[cfg(feature = "daemon")]
         Command::Sim(SimCommand::Trigger(a)) => return sim::run_trigger(a),
         #[cfg(feature = "daemon")]
+        Command::Sim(SimCommand::Rig(a)) => return sim::run_rig(a),
+        #[cfg(feature = "daemon")]
         Command::Status(_)
         | Command::Jobs(_)
         | Command::Submit(_)
+        | Command::Scan(_)
         | Command::Cancel(_)
         | Command::Watch(_)
         | Command::Rig(_) => {

@@ -62,6 +62,7 @@ impl Station {
             outputs: BTreeMap::new(),
             peak_memory: 0,
             announced: false,
+            scan: None,
         }
     }
 

@@ -11,7 +11,7 @@ use zbus::zvariant::{OwnedValue, Value};
 use super::*;
 use crate::daemon::dbus::{JobView, StationError, job_path, lock};
 use crate::daemon::journal::{JobId, JobRecord, JobState, now_usec};
-use crate::daemon::worker::{self, JobRun, Outcome, STAGES, WorkerEvent};
+use crate::daemon::worker::{self, JobRun, Outcome, WorkerEvent, stages_of};
 use crate::error::{Error, ErrorCode};
 
 impl Station {
@@ -22,8 +22,8 @@ impl Station {
             input_sha256: rec.input_sha256.clone(),
             state: rec.state.as_str().into(),
             stage: rec.stage.clone(),
-            stage_index: STAGES.iter().position(|s| *s == rec.stage).unwrap_or(0) as u32,
-            stage_count: STAGES.len() as u32,
+            stage_index: stages_of(&rec).iter().position(|s| *s == rec.stage).unwrap_or(0) as u32,
+            stage_count: stages_of(&rec).len() as u32,
             progress: if rec.state.is_terminal() { 1.0 } else { 0.0 },
             message: rec.message.clone(),
             submitted_time: rec.submitted_usec,
@@ -80,11 +80,16 @@ impl Station {
                 cancel: job.cancel.clone(),
                 heartbeat: self.heartbeat.clone(),
                 events: self.worker_tx.clone(),
+                stage: stages_of(&job.rec)[0],
             };
             self.heartbeat.store(now_usec(), Ordering::Relaxed);
             let span = tracing::info_span!("job", job_id = %id);
             tracing::info!(parent: &span, input = %job.rec.input, run = job.rec.runs, "job started");
-            self.pool.spawn(move || span.in_scope(|| worker::run(run)));
+            if job.rec.scan.is_some() && job.preset_error.is_none() {
+                self.spawn_scan(run);
+            } else {
+                self.pool.spawn(move || span.in_scope(|| worker::run(run)));
+            }
             self.running.push(id);
         }
     }
@@ -98,7 +103,7 @@ impl Station {
                     return;
                 }
                 let stage_changed = job.rec.stage != stage;
-                let index = STAGES.iter().position(|s| *s == stage).unwrap_or(0) as u32;
+                let index = stages_of(&job.rec).iter().position(|s| *s == stage).unwrap_or(0) as u32;
                 {
                     let mut v = lock(&job.view);
                     v.progress = v.progress.max(fraction).min(0.999);
@@ -165,7 +170,7 @@ impl Station {
             let mut v = lock(&job.view);
             v.state = job.rec.state.as_str().into();
             v.stage = job.rec.stage.clone();
-            v.stage_index = STAGES.iter().position(|s| *s == job.rec.stage).unwrap_or(0) as u32;
+            v.stage_index = stages_of(&job.rec).iter().position(|s| *s == job.rec.stage).unwrap_or(0) as u32;
             v.progress = 1.0;
             v.message = job.rec.message.clone();
             v.finish_time = job.rec.finish_usec;

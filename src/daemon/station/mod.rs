@@ -9,6 +9,7 @@ mod intake;
 mod lifecycle;
 mod mirror;
 pub mod recovery;
+mod scans;
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::atomic::{AtomicBool, AtomicU64};
@@ -78,6 +79,10 @@ pub struct Station {
     hashing: VecDeque<intake::Hashing>,
     intake_tx: mpsc::UnboundedSender<intake::Hashed>,
     intake_rx: Option<mpsc::UnboundedReceiver<intake::Hashed>>,
+    /// The rig's devices (set by [`Station::set_rig`] once they are started).
+    rig: crate::daemon::scan::Rig,
+    /// Held by the scan that is capturing.
+    rig_lock: Arc<tokio::sync::Mutex<()>>,
 }
 
 /// Channels the actor listens on.
@@ -147,6 +152,8 @@ impl Station {
             hashing: VecDeque::new(),
             intake_tx,
             intake_rx: Some(intake_rx),
+            rig: Default::default(),
+            rig_lock: Arc::new(tokio::sync::Mutex::new(())),
         })
     }
 
@@ -167,6 +174,11 @@ impl Station {
         }
         st.refresh_manager_view();
         Ok(st)
+    }
+
+    /// The rig's devices, for scans.
+    pub fn set_rig(&mut self, rig: crate::daemon::scan::Rig) {
+        self.rig = rig;
     }
 
     /// Carries out one step of the recovery plan.
@@ -267,6 +279,9 @@ impl Station {
     async fn command(&mut self, cmd: Command) {
         match cmd {
             Command::Submit { path, options, source, reply } => self.submit(&path, options, source, reply),
+            Command::StartScan { request, name, options, source, reply } => {
+                let _ = reply.send(self.start_scan(request, name, options, source).await);
+            }
             Command::Cancel { id, reply } => {
                 let _ = reply.send(self.cancel(&id).await);
             }

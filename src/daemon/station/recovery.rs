@@ -20,7 +20,7 @@ use std::path::PathBuf;
 
 use super::super::journal::{JobId, JobRecord, JobState};
 use super::super::spool::{self, Spool};
-use super::super::worker::{self, STAGES};
+use super::super::worker::{self, stages_of};
 use crate::error::ErrorCode;
 
 /// What the spool holds for one job with a record.
@@ -185,7 +185,7 @@ pub fn plan(
             actions.push(Action::Quarantine(rec));
         } else {
             rec.state = JobState::Queued;
-            rec.stage = STAGES[0].into();
+            rec.stage = stages_of(&rec)[0].into();
             actions.push(Action::Restore { rec, save: true, queue: true });
         }
     }
@@ -241,6 +241,7 @@ mod tests {
             outputs: BTreeMap::new(),
             peak_memory: 0,
             announced: false,
+            scan: None,
         }
     }
 
@@ -320,7 +321,10 @@ mod tests {
     fn a_running_job_is_requeued_with_resume_and_quarantined_without() {
         let a = one(rec("A", JobState::Running), present(), true);
         let (r, save, queue) = restored(&a);
-        assert_eq!((r.state, r.stage.as_str(), save, queue), (JobState::Queued, STAGES[0], true, true));
+        assert_eq!(
+            (r.state, r.stage.as_str(), save, queue),
+            (JobState::Queued, crate::daemon::worker::STAGES[0], true, true)
+        );
         let a = one(rec("A", JobState::Running), present(), false);
         assert!(matches!(&a[..], [Action::Quarantine(r)] if r.id.0 == "A"), "{a:#?}");
         // A queued job is queued again either way.

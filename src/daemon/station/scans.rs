@@ -1,0 +1,142 @@
+//! Scan sessions on the actor: `StartScan` makes a job whose input is a scan directory that its capture
+//! fills ([`crate::daemon::scan`]); starting it runs the capture on the runtime (the rig is async), one scan at
+//! a time on the rig, then the conversion on the CPU pool as any job's.
+
+use std::sync::atomic::Ordering;
+
+use super::*;
+use crate::daemon::config::JobOptions;
+use crate::daemon::dbus::StationError;
+use crate::daemon::journal::{JobId, JobRecord, JobState, SCHEMA, now_usec, sync_dir};
+use crate::daemon::scan::{self, CaptureJob, ScanRequest};
+use crate::daemon::worker::{CAPTURE_END, HOME_END, JobRun, SCAN_STAGES};
+
+/// A scan's name: 1 to 64 of `[A-Za-z0-9_.-]`, not starting with a dot.
+pub fn valid_scan_name(name: &str) -> bool {
+    (1..=64).contains(&name.len())
+        && !name.starts_with('.')
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || "_.-".contains(c))
+}
+
+impl Station {
+    /// `StartScan`: a queued scan job whose scan directory exists, its record saved and its object exported.
+    pub(super) async fn start_scan(
+        &mut self,
+        request: ScanRequest,
+        name: String,
+        options: JobOptions,
+        source: String,
+    ) -> Result<JobId, StationError> {
+        if self.cfg.scan.is_none() {
+            return Err(StationError::Device(
+                "[device.unplugged] this station has no [scan] section (capture_dir and the calibrated axis)".into(),
+            ));
+        }
+        if self.rig.turntable.is_none() || self.rig.trigger.is_none() {
+            return Err(StationError::Device(
+                "[device.unplugged] a scan needs both [devices.turntable] and [devices.trigger]".into(),
+            ));
+        }
+        if !valid_scan_name(&name) {
+            return Err(StationError::InvalidArgument(format!(
+                "name {name:?}: 1 to 64 letters, digits, '_', '-' or '.', not starting with '.'"
+            )));
+        }
+        if let Some(spec) = &request.fea
+            && !spec.is_file()
+        {
+            return Err(StationError::NotFound(format!("fea: {} is not a readable file", spec.display())));
+        }
+        let id = JobId::new();
+        let input = format!("{name}.scan");
+        let dir = self.spool.work_dir(&id).join(&input);
+        std::fs::create_dir_all(&dir)
+            .and_then(|()| sync_dir(self.spool.work_dir(&id).as_path()))
+            .map_err(|e| StationError::Internal(format!("cannot create {}: {e}", dir.display())))?;
+        let rec = JobRecord {
+            schema: SCHEMA,
+            id: id.clone(),
+            input,
+            source,
+            input_sha256: String::new(),
+            input_size: 0,
+            options,
+            state: JobState::Queued,
+            stage: SCAN_STAGES[0].into(),
+            submitted_usec: now_usec(),
+            start_usec: 0,
+            finish_usec: 0,
+            runs: 0,
+            error_code: String::new(),
+            message: String::new(),
+            outputs: Default::default(),
+            peak_memory: 0,
+            announced: false,
+            scan: Some(request),
+        };
+        tracing::info!(job_id = %id, views = rec.scan.as_ref().map(|s| s.views), "scan queued");
+        self.enqueue(rec, None).await.map_err(|e| StationError::Internal(e.to_string()))?;
+        Ok(id)
+    }
+
+    /// Start a scan job: capture on the runtime (holding the rig), then convert on the pool.
+    pub(super) fn spawn_scan(&self, mut run: JobRun) {
+        let Some(cfg) = self.cfg.scan.clone() else {
+            run.preset_error = Some(crate::error::Error::new(
+                crate::error::ErrorCode::DeviceUnplugged,
+                "the station's [scan] section is gone (config reloaded without it)",
+            ));
+            let span = tracing::info_span!("job", job_id = %run.record.id);
+            self.pool.spawn(move || span.in_scope(|| worker::run(run)));
+            return;
+        };
+        let rig = self.rig.clone();
+        let lock = self.rig_lock.clone();
+        let pool = self.pool.clone();
+        let dir = worker::input_path(&self.spool, &run.record);
+        tokio::spawn(async move {
+            let id = run.record.id.clone();
+            let events = run.events.clone();
+            let heartbeat = run.heartbeat.clone();
+            let stage = std::sync::Mutex::new("home");
+            let progress = |share: f64, s: &'static str, message: String| {
+                heartbeat.store(now_usec(), Ordering::Relaxed);
+                *stage.lock().unwrap_or_else(|p| p.into_inner()) = s;
+                let share = if share.is_finite() { share.clamp(0.0, 1.0) } else { 0.0 };
+                let fraction = if s == "home" { 0.0 } else { HOME_END + share * (CAPTURE_END - HOME_END) };
+                let _ = events.send(WorkerEvent::Progress { id: id.clone(), fraction, stage: s, message });
+            };
+            let request = run.record.scan.clone().unwrap_or_else(|| ScanRequest { views: 0, step_deg: 0.0, fea: None });
+            let result = {
+                // One scan at a time on the rig.
+                if lock.try_lock().is_err() {
+                    progress(0.0, "home", "home/waiting for the rig (another scan is capturing)".into());
+                }
+                let _rig = lock.lock().await;
+                let job = CaptureJob {
+                    dir: &dir,
+                    request: &request,
+                    cfg: &cfg,
+                    rig: &rig,
+                    cancel: &run.cancel,
+                    progress: &progress,
+                };
+                scan::capture(&job).await
+            };
+            let stage_now = *stage.lock().unwrap_or_else(|p| p.into_inner());
+            match result {
+                Ok(log) => {
+                    tracing::info!(views = log.views.len(), skipped = log.skipped.len(), "capture done");
+                    run.stage = "fuse";
+                }
+                Err(e) => {
+                    tracing::warn!(error = %e, "capture ended");
+                    run.preset_error = Some(e);
+                    run.stage = stage_now;
+                }
+            }
+            let span = tracing::info_span!("job", job_id = %run.record.id);
+            pool.spawn(move || span.in_scope(|| worker::run(run)));
+        });
+    }
+}

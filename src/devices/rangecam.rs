@@ -1,0 +1,355 @@
+//! The simulated structured-light scanner's optics: an object mesh standing on the simulated turntable, seen
+//! by a camera with a projector beside it. [`RangeCamera::capture`] ray-casts one range image at a table
+//! angle, as a real fringe-projection scanner measures one:
+//!
+//! - **resolution**: one ray per pixel of a `width × height` image over the field of view;
+//! - **occlusion**: the first surface a ray meets, and only where the projector lights it too (a second ray
+//!   from the point toward the projector, `baseline` to the camera's right, must reach it unblocked);
+//! - **grazing dropouts**: a point whose surface turns away from the camera or the projector by more than
+//!   `grazing_deg` is lost, and one between `grazing_deg − 20°` and it is lost with a probability rising
+//!   linearly to one (fringes smear at grazing angles);
+//! - **depth noise** along the ray, Gaussian, σ = `noise_rel` · (object diagonal) · (d / working distance)²
+//!   (triangulation error grows with the square of the distance);
+//! - **outliers**: a share `outliers` of the points moved along their ray by up to ±10 % of their depth.
+//!
+//! Every random draw comes from a generator seeded by (`seed`, the table angle in millidegrees, the pixel),
+//! so a view depends only on its angle and the seed: the same scan twice gives the same points, whatever
+//! order or how often the views are taken.
+//!
+//! Frames. The object mesh is placed on the table with its `up` axis along the table's axis, centred on it,
+//! its lowest point on the table top. The camera looks at the object's middle from `distance` away, raised
+//! by `elevation_deg`. Points are given in the **camera's frame**, which looks down −z (x right, y up; the
+//! station's and Stanford's convention), and the table axis in that frame is [`RangeCamera::axis`] — what a
+//! calibration gives the station (`[scan] axis_point`, `axis_direction`). The object at table angle 0 in the
+//! camera frame is [`RangeCamera::truth_in_scanner`]; in the table frame the station fuses in,
+//! [`RangeCamera::truth`]. The table top itself is not rendered (scanners crop it away by height).
+
+use std::f64::consts::PI;
+
+use crate::geometry::bvh::TriangleBvh;
+use crate::geometry::mesh::TriMesh;
+use crate::geometry::sampling::Rng;
+use crate::geometry::vec3::{Aabb, V3, add, cross, dot, norm, scale, sub, wide};
+
+/// The simulated scanner's optical settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraSettings {
+    /// Image width, pixels (one ray each).
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Vertical field of view, degrees.
+    pub fov_deg: f64,
+    /// From the camera to the object's middle, as a multiple of the object's bounding-box diagonal.
+    pub distance_rel: f64,
+    /// The camera's height above the table's plane, as an angle seen from the object's middle, degrees.
+    pub elevation_deg: f64,
+    /// The projector's offset to the camera's right, as a share of the working distance.
+    pub baseline_rel: f64,
+    /// Depth noise σ at the working distance, as a share of the object's diagonal (grows with distance²).
+    pub noise_rel: f64,
+    /// Points whose surface turns away from the camera or projector by more than this are lost, degrees.
+    pub grazing_deg: f64,
+    /// Share of points that are outliers (0–1).
+    pub outliers: f64,
+    /// Seed of every random draw.
+    pub seed: u64,
+}
+
+impl Default for CameraSettings {
+    /// 320 × 240 pixels over 30°, 2.2 diagonals away, 20° up, a 20 % baseline, σ 0.02 % of the diagonal,
+    /// lost beyond 80° from the surface normal, no outliers, seed 1.
+    fn default() -> Self {
+        CameraSettings {
+            width: 320,
+            height: 240,
+            fov_deg: 30.0,
+            distance_rel: 2.2,
+            elevation_deg: 20.0,
+            baseline_rel: 0.2,
+            noise_rel: 0.0002,
+            grazing_deg: 80.0,
+            outliers: 0.0,
+            seed: 1,
+        }
+    }
+}
+
+impl CameraSettings {
+    /// Check ranges.
+    ///
+    /// # Errors
+    /// A message naming the setting.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(8..=4096).contains(&self.width) || !(8..=4096).contains(&self.height) {
+            return Err("resolution: width and height must be 8 to 4096 pixels".into());
+        }
+        let ranges = [
+            ("fov_deg", self.fov_deg, 1.0, 120.0),
+            ("distance_rel", self.distance_rel, 0.5, 100.0),
+            ("elevation_deg", self.elevation_deg, -80.0, 80.0),
+            ("baseline_rel", self.baseline_rel, 0.0, 2.0),
+            ("noise_rel", self.noise_rel, 0.0, 0.1),
+            ("grazing_deg", self.grazing_deg, 30.0, 90.0),
+            ("outliers", self.outliers, 0.0, 0.5),
+        ];
+        for (name, v, lo, hi) in ranges {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                return Err(format!("{name}: {v} is outside {lo}..={hi}"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Which mesh axis points up on the table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Up {
+    /// +y (most character models: spot, the Stanford bunny).
+    Y,
+    /// +z (CAD and many scans).
+    Z,
+}
+
+/// The object on the table and the camera looking at it.
+pub struct RangeCamera {
+    settings: CameraSettings,
+    /// The object in the table's frame (z up along the axis, origin on the axis at the table top).
+    object: TriMesh,
+    bvh: TriangleBvh,
+    /// Camera centre, table frame.
+    eye: V3,
+    /// Camera axes (right, up, backward) in the table frame.
+    axes: [V3; 3],
+    /// Projector centre, table frame.
+    projector: V3,
+    /// Working distance (eye to the object's middle).
+    distance: f64,
+    /// The object's bounding-box diagonal.
+    diagonal: f64,
+}
+
+impl RangeCamera {
+    /// Place `mesh` on the table (`up` along the axis) and aim the camera at it.
+    ///
+    /// # Errors
+    /// Settings out of range, or a mesh with no triangles or no extent.
+    pub fn new(mesh: &TriMesh, up: Up, settings: CameraSettings) -> Result<RangeCamera, String> {
+        settings.validate()?;
+        if mesh.triangles.is_empty() {
+            return Err("the object mesh has no triangles".into());
+        }
+        // Mesh → table: `up` becomes +z (for y-up, (x, y, z) → (x, −z, y), a proper rotation).
+        let turn = |p: [f32; 3]| -> V3 {
+            let p = wide(p);
+            match up {
+                Up::Y => [p[0], -p[2], p[1]],
+                Up::Z => p,
+            }
+        };
+        let turned: Vec<V3> = mesh.positions.iter().map(|&p| turn(p)).collect();
+        let mut b = Aabb::EMPTY;
+        for &p in &turned {
+            b.add(p);
+        }
+        let diagonal = b.diagonal();
+        if !(diagonal > 0.0) {
+            return Err("the object mesh has no extent".into());
+        }
+        let centre = [(b.min[0] + b.max[0]) / 2.0, (b.min[1] + b.max[1]) / 2.0, b.min[2]];
+        let positions: Vec<[f32; 3]> = turned.iter().map(|&p| sub(p, centre).map(|c| c as f32)).collect();
+        let object = TriMesh { positions, triangles: mesh.triangles.clone() };
+        let bvh = TriangleBvh::new(&object);
+        let height = b.max[2] - b.min[2];
+        let aim = [0.0, 0.0, height / 2.0];
+        let distance = settings.distance_rel * diagonal;
+        let e = settings.elevation_deg.to_radians();
+        let forward = [0.0, e.cos(), -e.sin()];
+        let eye = sub(aim, scale(forward, distance));
+        let right = [1.0, 0.0, 0.0];
+        let back = scale(forward, -1.0);
+        let upv = cross(back, right);
+        let projector = add(eye, scale(right, settings.baseline_rel * distance));
+        Ok(RangeCamera { settings, object, bvh, eye, axes: [right, upv, back], projector, distance, diagonal })
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &CameraSettings {
+        &self.settings
+    }
+
+    /// A table-frame point in the camera frame.
+    fn to_camera(&self, p: V3) -> V3 {
+        let d = sub(p, self.eye);
+        [dot(self.axes[0], d), dot(self.axes[1], d), dot(self.axes[2], d)]
+    }
+
+    /// The table's axis in the camera frame: a point on it (the table top's centre) and its unit direction
+    /// (up). What the station's calibration gives it.
+    pub fn axis(&self) -> (V3, V3) {
+        let p = self.to_camera([0.0; 3]);
+        let d = [self.axes[0][2], self.axes[1][2], self.axes[2][2]];
+        (p, d)
+    }
+
+    /// The object in the table frame (origin at the table top's centre, z up the axis, x the camera's right):
+    /// the frame the station fuses a scan's views in, so what a scan should give back.
+    pub fn truth(&self) -> TriMesh {
+        self.object.clone()
+    }
+
+    /// The object at table angle 0 in the camera frame.
+    pub fn truth_in_scanner(&self) -> TriMesh {
+        let positions =
+            self.object.positions.iter().map(|&p| self.to_camera(wide(p)).map(|c| c as f32)).collect::<Vec<_>>();
+        TriMesh { positions, triangles: self.object.triangles.clone() }
+    }
+
+    /// One range image with the table at `angle_deg` (the object turned by that angle about the axis,
+    /// right-handed): the measured points in the camera frame, row by row. Cost: one or two ray casts per
+    /// pixel, O(log F) each.
+    pub fn capture(&self, angle_deg: f64) -> Vec<[f32; 3]> {
+        let s = &self.settings;
+        // Turning the object by θ is turning the camera and projector by −θ around it.
+        let (sin, cos) = (-angle_deg.to_radians()).sin_cos();
+        let rot = |v: V3| [cos * v[0] - sin * v[1], sin * v[0] + cos * v[1], v[2]];
+        let eye = rot(self.eye);
+        let projector = rot(self.projector);
+        let axes = self.axes.map(rot);
+        let half = (s.fov_deg.to_radians() / 2.0).tan();
+        let aspect = f64::from(s.width) / f64::from(s.height);
+        let sigma0 = s.noise_rel * self.diagonal;
+        let far = self.distance + 2.0 * self.diagonal;
+        let grazing = s.grazing_deg.to_radians().cos();
+        let ramp_start = (s.grazing_deg - 20.0).max(0.0).to_radians().cos();
+        let key = (angle_deg * 1000.0).round() as i64 as u64;
+        let mut out = Vec::new();
+        for j in 0..s.height {
+            for i in 0..s.width {
+                let mut rng = Rng::new(
+                    s.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                        ^ key.wrapping_mul(0xD1B5_4A32_D192_ED03)
+                        ^ (u64::from(j) << 32 | u64::from(i)),
+                );
+                let u = ((f64::from(i) + 0.5) / f64::from(s.width) * 2.0 - 1.0) * half * aspect;
+                let v = (1.0 - (f64::from(j) + 0.5) / f64::from(s.height) * 2.0) * half;
+                let cam_dir = [u, v, -1.0];
+                let len = norm(cam_dir);
+                let cam_dir = scale(cam_dir, 1.0 / len);
+                let dir = add(add(scale(axes[0], cam_dir[0]), scale(axes[1], cam_dir[1])), scale(axes[2], cam_dir[2]));
+                let Some((t, n)) = self.bvh.ray_first(eye, dir, 0.0, far) else { continue };
+                let hit = add(eye, scale(dir, t));
+                // Facing the camera, and lit by the projector.
+                let cos_cam = -dot(n, dir);
+                let to_proj = sub(projector, hit);
+                let proj_dist = norm(to_proj);
+                let to_proj = scale(to_proj, 1.0 / proj_dist);
+                let cos_proj = dot(n, to_proj);
+                let seen = cos_cam.min(cos_proj);
+                if seen <= grazing {
+                    continue;
+                }
+                if seen < ramp_start && rng.next_f64() > (seen - grazing) / (ramp_start - grazing) {
+                    continue;
+                }
+                let eps = 1e-6 * self.diagonal;
+                if self.bvh.ray_first(add(hit, scale(to_proj, eps)), to_proj, eps, proj_dist).is_some() {
+                    continue;
+                }
+                let sigma = sigma0 * (t / self.distance).powi(2);
+                let mut depth = t + sigma * gaussian(&mut rng);
+                if s.outliers > 0.0 && rng.next_f64() < s.outliers {
+                    depth *= 1.0 + 0.2 * (rng.next_f64() - 0.5);
+                }
+                out.push(scale(cam_dir, depth).map(|c| c as f32));
+            }
+        }
+        out
+    }
+}
+
+/// A standard normal draw (Box–Muller).
+fn gaussian(rng: &mut Rng) -> f64 {
+    let u1 = rng.next_f64().max(1e-300);
+    let u2 = rng.next_f64();
+    (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::pose::Pose;
+
+    /// A closed axis-aligned box, outward triangles.
+    fn cube(h: f32) -> TriMesh {
+        let p = |x: f32, y: f32, z: f32| [x * h, y * h, z * h];
+        let positions = vec![
+            p(-1., -1., -1.),
+            p(1., -1., -1.),
+            p(1., 1., -1.),
+            p(-1., 1., -1.),
+            p(-1., -1., 1.),
+            p(1., -1., 1.),
+            p(1., 1., 1.),
+            p(-1., 1., 1.),
+        ];
+        let triangles = vec![
+            [0, 2, 1],
+            [0, 3, 2],
+            [4, 5, 6],
+            [4, 6, 7],
+            [0, 1, 5],
+            [0, 5, 4],
+            [1, 2, 6],
+            [1, 6, 5],
+            [2, 3, 7],
+            [2, 7, 6],
+            [3, 0, 4],
+            [3, 4, 7],
+        ];
+        TriMesh { positions, triangles }
+    }
+
+    /// Noise-free views, placed by the turntable pose about the reported axis, land on the truth.
+    #[test]
+    fn noise_free_views_placed_about_the_axis_lie_on_the_truth() {
+        let s = CameraSettings { noise_rel: 0.0, width: 64, height: 48, ..Default::default() };
+        let cam = RangeCamera::new(&cube(1.0), Up::Z, s).expect("camera");
+        let truth = TriangleBvh::new(&cam.truth_in_scanner());
+        let (point, direction) = cam.axis();
+        for angle in [0.0, 30.0, 135.0, 270.0] {
+            let view = cam.capture(angle);
+            assert!(view.len() > 200, "angle {angle}: {} points", view.len());
+            let pose = Pose::turntable(point, direction, angle).expect("pose");
+            let worst = view.iter().map(|&p| truth.distance(pose.apply(wide(p)))).fold(0.0, f64::max);
+            assert!(worst < 1e-4, "angle {angle}: a point is {worst} from the truth");
+        }
+    }
+
+    /// The same seed and angle give the same view; another seed other noise of the same size.
+    #[test]
+    fn views_depend_only_on_seed_and_angle() {
+        let s = CameraSettings { width: 40, height: 30, noise_rel: 0.001, ..Default::default() };
+        let a = RangeCamera::new(&cube(1.0), Up::Z, s.clone()).expect("camera");
+        let b = RangeCamera::new(&cube(1.0), Up::Z, CameraSettings { seed: 2, ..s }).expect("camera");
+        assert_eq!(a.capture(15.0), a.capture(15.0));
+        assert_ne!(a.capture(15.0), b.capture(15.0));
+    }
+
+    /// Grazing faces are lost: looking straight at a face from 20° up, the top face (70° from the view) keeps
+    /// points, and with a 60° limit it loses them all.
+    #[test]
+    fn grazing_faces_drop_out() {
+        let s = CameraSettings { noise_rel: 0.0, width: 64, height: 48, ..Default::default() };
+        let count_top = |grazing_deg: f64| {
+            let cam = RangeCamera::new(&cube(1.0), Up::Z, CameraSettings { grazing_deg, ..s.clone() }).expect("cam");
+            let (point, direction) = cam.axis();
+            let pose = Pose::turntable(point, direction, 0.0).expect("pose");
+            let truth = cam.truth_in_scanner();
+            let top = truth.positions.iter().map(|p| dot(wide(*p), direction)).fold(f64::MIN, f64::max);
+            cam.capture(0.0).iter().filter(|&&p| (dot(pose.apply(wide(p)), direction) - top).abs() < 1e-6).count()
+        };
+        assert!(count_top(89.0) > 50, "top face at 89°: {}", count_top(89.0));
+        assert_eq!(count_top(60.0), 0);
+    }
+}
