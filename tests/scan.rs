@@ -16,6 +16,8 @@ use std::time::{Duration, Instant};
 
 use harness::*;
 
+const TURNTABLE: &str = "/org/scanstation/Station1/devices/turntable";
+
 /// The simulated rig (`scanstation sim rig`) holding spot, and its control socket.
 struct Rig {
     _sim: Sim,
@@ -159,4 +161,252 @@ fn a_twelve_view_scan_of_spot_becomes_a_solid_close_to_the_object() {
     let rms = rms_pct(&out.join("spot.solid.ply"), &dir.join("truth.ply"));
     eprintln!("solid vs the true object: RMS {rms:.4} % of the diagonal");
     assert!(rms < 0.5, "RMS {rms} % of the diagonal");
+}
+
+/// The capture log of the running scan (in `work/`), when there is one.
+fn running_log(st: &Station) -> Option<serde_json::Value> {
+    let work = st.spool("work");
+    for job in visible(&work) {
+        for e in visible(&work.join(&job)) {
+            let p = work.join(&job).join(e).join("capture.json");
+            if let Ok(b) = std::fs::read(&p)
+                && let Ok(v) = serde_json::from_slice::<serde_json::Value>(&b)
+            {
+                return Some(v);
+            }
+        }
+    }
+    None
+}
+
+/// Wait until the running scan has taken `n` views.
+fn wait_views(st: &Station, n: usize, limit: Duration) {
+    let t = Instant::now();
+    loop {
+        let got = running_log(st).map(|v| v["views"].as_array().map_or(0, |a| a.len())).unwrap_or(0);
+        if got >= n {
+            return;
+        }
+        assert!(t.elapsed() < limit, "{got} of {n} views after {limit:?}\n{}", st.log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The indices of the views a capture log (or fusion report) holds, checked to be distinct.
+fn view_indices(log: &serde_json::Value, what: &str) -> Vec<u64> {
+    let v: Vec<u64> = log["views"].as_array().unwrap().iter().map(|v| v["index"].as_u64().unwrap()).collect();
+    let mut d = v.clone();
+    d.sort();
+    d.dedup();
+    assert_eq!(d.len(), v.len(), "{what}: a view is there twice: {v:?}");
+    v
+}
+
+#[test]
+fn same_object_same_model_and_the_cli_scan_waits() {
+    need("busctl", "systemd");
+    let dir = common::scratch("scan-repeat");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let rig = start_rig(&dir, 7);
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, ""));
+    st.start();
+    // Twice with the same rig (same noise seed) and name, once through busctl and once through the CLI.
+    start_scan(&st, &["3", "views", "u", "12", "name", "s", "spot", "vertices", "u", "3000"]);
+    st.wait_done(1, Duration::from_secs(600));
+    let out = st.cli(&["scan", "--views", "12", "--name", "spot", "--vertices", "3000", "--wait", "--json"]);
+    assert!(out.status.success(), "scan --wait: {}\n{}", String::from_utf8_lossy(&out.stdout), st.log());
+    // Bundles sort by job id, which sorts by start time.
+    let bundles = visible(&st.spool("outbox"));
+    assert_eq!(bundles.len(), 2, "{bundles:?}");
+    let file = |i: usize, ext: &str| st.spool("outbox").join(&bundles[i]).join(format!("spot.{ext}"));
+    let (a, b) = (std::fs::read(file(0, "step")).unwrap(), std::fs::read(file(1, "step")).unwrap());
+    assert!(a == b, "two scans with the same seed gave different STEP files ({} and {} bytes)", a.len(), b.len());
+    let first = file(0, "solid.ply");
+    // Another noise seed: another model, close to the first.
+    drop(rig);
+    let _rig = start_rig(&dir, 8);
+    start_scan(&st, &["3", "views", "u", "12", "name", "s", "spot", "vertices", "u", "3000"]);
+    st.wait_done(3, Duration::from_secs(600));
+    let bundles = visible(&st.spool("outbox"));
+    let third = st.spool("outbox").join(&bundles[2]).join("spot.solid.ply");
+    let rms = rms_pct(&third, &first);
+    eprintln!("same seed: identical STEP ({} bytes); seeds 7 and 8: solids {rms:.4} % of the diagonal apart", a.len());
+    assert!(rms > 0.0 && rms < 0.2, "seeds 7 and 8: {rms} %");
+}
+
+#[test]
+fn an_unplugged_table_is_waited_for_and_the_scan_resumes() {
+    need("busctl", "systemd");
+    let dir = common::scratch("scan-replug");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let rig = start_rig(&dir, 7);
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, "replug_timeout = \"20s\""));
+    st.start();
+    start_scan(&st, &["2", "views", "u", "12", "vertices", "u", "3000"]);
+    wait_views(&st, 4, Duration::from_secs(60));
+    rig.send("unplug");
+    std::thread::sleep(Duration::from_millis(1500));
+    rig.send("replug");
+    st.wait_done(1, Duration::from_secs(600));
+    let out = only_entry(&st.spool("outbox"));
+    let fusion = json(&out.join("scan.fusion.json"));
+    let idx = view_indices(&fusion, "fusion report");
+    assert_eq!(idx, (0..12).collect::<Vec<_>>(), "views after the replug");
+    let replugs = fusion["capture"]["replugs"].as_u64().unwrap();
+    let homings = fusion["capture"]["homings"].as_u64().unwrap();
+    eprintln!("unplugged 1.5 s after view 4: {replugs} replug(s), {homings} homings, 12 views");
+    assert!(replugs >= 1 && homings >= 2, "replugs {replugs}, homings {homings}");
+}
+
+#[test]
+fn a_table_that_stays_unplugged_fails_the_scan_with_its_views_in_quarantine() {
+    need("busctl", "systemd");
+    let dir = common::scratch("scan-unplug");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let rig = start_rig(&dir, 7);
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, "replug_timeout = \"1s\""));
+    st.start();
+    let monitor = Monitor::start(&st.bus, dir.join("monitor.txt"));
+    let job = start_scan(&st, &["2", "views", "u", "12", "vertices", "u", "3000"]);
+    wait_views(&st, 3, Duration::from_secs(60));
+    rig.send("unplug");
+    let t = Instant::now();
+    st.wait_done(1, Duration::from_secs(60));
+    let failed_after = t.elapsed();
+    let signals = monitor.finish();
+    let q = only_entry(&st.spool("quarantine"));
+    let code = error_code_of(&q);
+    let scan_dir = q.join("scan.scan");
+    let log = json(&scan_dir.join("capture.json"));
+    let idx = view_indices(&log, "capture.json");
+    let files: Vec<String> = visible(&scan_dir).into_iter().filter(|f| f.starts_with("view-")).collect();
+    eprintln!("unplugged for good: {code} after {failed_after:?}; {} views kept in quarantine", files.len());
+    assert_eq!(code, "device.unplugged");
+    assert!(idx.len() >= 3 && files.len() == idx.len(), "views {idx:?}, files {files:?}");
+    assert_eq!(signals[&job].completed, vec![("failed".to_string(), "device.unplugged".to_string())]);
+    assert!(failed_after < Duration::from_secs(10), "failed only after {failed_after:?}");
+}
+
+#[test]
+fn cancel_stops_the_table_within_one_move_and_quarantines_the_views() {
+    need("busctl", "systemd");
+    let dir = common::scratch("scan-cancel");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let _rig = start_rig(&dir, 7);
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, ""));
+    st.start();
+    let job = start_scan(&st, &["2", "views", "u", "12", "vertices", "u", "3000"]);
+    wait_views(&st, 3, Duration::from_secs(60));
+    let at_cancel = running_log(&st).unwrap()["views"].as_array().unwrap().len();
+    let out = st.cli(&["cancel", &job]);
+    assert!(out.status.success(), "cancel: {}", String::from_utf8_lossy(&out.stderr));
+    let t = Instant::now();
+    st.wait_done(1, Duration::from_secs(30));
+    let stopped_after = t.elapsed();
+    let q = only_entry(&st.spool("quarantine"));
+    assert_eq!(error_code_of(&q), "cancelled");
+    let log = json(&q.join("scan.scan/capture.json"));
+    let n = view_indices(&log, "capture.json").len();
+    let angle_then = st.property("Turntable", TURNTABLE, "Angle");
+    std::thread::sleep(Duration::from_millis(1000));
+    let angle_later = st.property("Turntable", TURNTABLE, "Angle");
+    eprintln!(
+        "cancelled at {at_cancel} views: stopped after {stopped_after:?} with {n} views, table at {angle_then:?}"
+    );
+    assert!(n <= at_cancel + 1, "{n} views after a cancel at {at_cancel}: more than one move went on");
+    assert_eq!(angle_then, angle_later, "the table still turns after the job was cancelled");
+    assert!(stopped_after < Duration::from_secs(5), "cancel took {stopped_after:?}");
+}
+
+#[test]
+fn a_lost_view_is_triggered_again_and_skipped_when_it_never_arrives() {
+    need("busctl", "systemd");
+    let dir = common::scratch("scan-lost-view");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let rig = start_rig(&dir, 7);
+    // Two retries, then skip; the trigger waits 2 s for a view (rig_config).
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, "view_retries = 2\non_lost_view = \"skip\""));
+    st.start();
+    start_scan(&st, &["2", "views", "u", "12", "vertices", "u", "3000"]);
+    wait_views(&st, 2, Duration::from_secs(60));
+    // The next view's three triggers are all lost: it is skipped.
+    rig.send("drop-view 3");
+    wait_views(&st, 4, Duration::from_secs(60));
+    // One lost trigger: the view comes with the second.
+    rig.send("drop-view 1");
+    st.wait_done(1, Duration::from_secs(600));
+    let out = only_entry(&st.spool("outbox"));
+    let fusion = json(&out.join("scan.fusion.json"));
+    let idx = view_indices(&fusion, "fusion report");
+    let skipped = fusion["skipped"].as_array().unwrap();
+    let retries = fusion["capture"]["retries"].as_u64().unwrap();
+    eprintln!("lost views: {} taken, skipped {skipped:?}, {retries} retries", idx.len());
+    assert_eq!(idx.len(), 11);
+    assert_eq!(skipped.len(), 1);
+    assert!(skipped[0]["reason"].as_str().unwrap().starts_with("[device.timeout]"), "{skipped:?}");
+    assert!(!idx.contains(&skipped[0]["index"].as_u64().unwrap()));
+    assert_eq!(retries, 3, "2 for the skipped view, 1 for the late one");
+    let twice: Vec<_> = fusion["views"].as_array().unwrap().iter().filter(|v| v["tries"] == 2).collect();
+    assert_eq!(twice.len(), 1, "one view took two triggers: {twice:?}");
+}
+
+#[test]
+fn kill_9_during_capture_and_fusion_ten_times_keeps_every_view_once() {
+    need("busctl", "systemd");
+    let dir = common::scratch("scan-kill9");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let _rig = start_rig(&dir, 7);
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, ""));
+    // Seeded moments, per scan three rounds: a kill during its capture (after a random number of views and a
+    // random 0-300 ms more), one during its fusion and conversion (0.2 to 4 s after its last view), and one
+    // once it has finished (a restart over a finished scan).
+    let mut rng = scanstation::geometry::sampling::Rng::new(20261205);
+    let mut started = 0;
+    for round in 0..10 {
+        st.start();
+        if visible(&st.spool("work")).is_empty() {
+            start_scan(&st, &["2", "views", "u", "12", "vertices", "u", "3000"]);
+            started += 1;
+        }
+        let have = running_log(&st).map_or(0, |v| v["views"].as_array().map_or(0, |a| a.len()));
+        let what = match round % 3 {
+            0 if have < 11 => {
+                let k = have + 1 + (rng.next_f64() * (11 - have) as f64) as usize;
+                wait_views(&st, k, Duration::from_secs(60));
+                std::thread::sleep(Duration::from_millis((rng.next_f64() * 300.0) as u64));
+                format!("during capture, after view {k}")
+            }
+            0 | 1 => {
+                wait_views(&st, 12, Duration::from_secs(60));
+                let ms = 200 + (rng.next_f64() * 3800.0) as u64;
+                std::thread::sleep(Duration::from_millis(ms));
+                format!("during fusion and conversion, {ms} ms after the last view")
+            }
+            _ => {
+                st.wait_done(started, Duration::from_secs(300));
+                "after the scan finished".to_string()
+            }
+        };
+        let views = running_log(&st).map(|v| v["views"].as_array().map_or(0, |a| a.len()));
+        eprintln!("round {round}: kill -9 {what} ({views:?} views in work/)");
+        st.kill9();
+    }
+    st.start();
+    st.wait_done(started, Duration::from_secs(900));
+    let (out, quarantine) = (visible(&st.spool("outbox")), visible(&st.spool("quarantine")));
+    eprintln!("{started} scans: {} published, {} quarantined", out.len(), quarantine.len());
+    assert_eq!(out.len() + quarantine.len(), started, "outbox {out:?}, quarantine {quarantine:?}");
+    for b in &out {
+        let fusion = json(&st.spool("outbox").join(b).join("scan.fusion.json"));
+        let idx = view_indices(&fusion, b);
+        assert_eq!(idx, (0..12).collect::<Vec<_>>(), "{b}: views");
+        let files: Vec<String> =
+            visible(&st.spool("outbox").join(b).join("views")).into_iter().filter(|f| f.starts_with("view-")).collect();
+        assert_eq!(files.len(), 12, "{b}: view files {files:?}");
+        eprintln!("{b}: {} run(s) of the capture", fusion["capture"]["runs"]);
+    }
+    for q in &quarantine {
+        let code = error_code_of(&st.spool("quarantine").join(q));
+        panic!("{q} was quarantined ({code}) although pipeline.resume is on\n{}", st.log());
+    }
 }

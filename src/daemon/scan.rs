@@ -268,9 +268,12 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
     let total = angles.len().max(1) as f64;
     let share = |log: &CaptureLog| (log.views.len() + log.skipped.len()) as f64 / total;
 
-    // 1. Home (again after a restart: the table may have been turned by hand meanwhile).
-    (job.progress)(0.0, "home", "home/homing the turntable".into());
-    home(job, table, &mut log).await?;
+    // 1. Home (again after a restart: the table may have been turned by hand meanwhile), unless every view
+    //    is in already.
+    if (0..job.request.views).any(|i| !log.has(i)) {
+        (job.progress)(0.0, "home", "home/homing the turntable".into());
+        home(job, table, &mut log).await?;
+    }
 
     // 2. Every missing view, in plan order.
     for (i, &angle) in angles.iter().enumerate() {
@@ -286,13 +289,11 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
         tokio::time::sleep(cfg.settle).await;
         let mut last_error = None;
         let mut taken = None;
-        for attempt in 0..=cfg.view_retries {
+        // Triggers lost for this view so far.
+        let mut lost = 0;
+        loop {
             if job.cancel.load(Ordering::Relaxed) {
                 return Err(cancelled());
-            }
-            if attempt > 0 {
-                log.retries += 1;
-                tracing::warn!(view = index, attempt, "view lost; triggering again");
             }
             match take_view(job, trigger, index).await {
                 Ok((file, report)) => {
@@ -303,7 +304,7 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
                         reached_deg: reached,
                         seq: report.seq,
                         points: report.points,
-                        tries: attempt + 1,
+                        tries: lost + 1,
                         view_ms: report.view_ms,
                     });
                     break;
@@ -311,7 +312,18 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
                 Err(e)
                     if matches!(e.code, ErrorCode::DeviceTimeout | ErrorCode::DeviceRefused | ErrorCode::InputIo) =>
                 {
-                    last_error = Some(e)
+                    last_error = Some(e);
+                    lost += 1;
+                    if lost > cfg.view_retries {
+                        break;
+                    }
+                    log.retries += 1;
+                    tracing::warn!(view = index, lost, "view lost; triggering again");
+                }
+                // The scanner (or its bus) gone: waited for as the table is, then the view is tried again.
+                Err(e) if trigger_gone(&e) && cfg.on_unplug == OnUnplug::Wait => {
+                    wait_trigger(job, trigger, &e).await?;
+                    log.replugs += 1;
                 }
                 Err(e) => return Err(e),
             }
@@ -414,6 +426,41 @@ async fn wait_replug(job: &CaptureJob<'_>, table: &TurntableHandle, why: &Error)
             why.code,
             format!(
                 "the turntable did not come back within {:.0} s ({}); the views taken are kept in quarantine",
+                job.cfg.replug_timeout.as_secs_f64(),
+                why.message
+            ),
+        )),
+    }
+}
+
+fn trigger_gone(e: &Error) -> bool {
+    matches!(e.code, ErrorCode::DeviceUnplugged | ErrorCode::DeviceLost | ErrorCode::DeviceBusOff)
+}
+
+/// Wait up to `replug_timeout` for the scanner to be ready again.
+async fn wait_trigger(job: &CaptureJob<'_>, trigger: &TriggerHandle, why: &Error) -> Result<(), Error> {
+    tracing::warn!(error = %why, timeout_s = job.cfg.replug_timeout.as_secs_f64(), "scanner lost mid-scan; waiting for it");
+    (job.progress)(f64::NAN, "capture", "capture/waiting for the scanner to come back".into());
+    let mut w = trigger.watch();
+    let ready = async {
+        loop {
+            if w.borrow_and_update().ready() {
+                return true;
+            }
+            if w.changed().await.is_err() {
+                return false;
+            }
+        }
+    };
+    match tokio::time::timeout(job.cfg.replug_timeout, or_cancel(job.cancel, ready)).await {
+        Ok(r) => match r? {
+            true => Ok(()),
+            false => Err(why.clone()),
+        },
+        Err(_) => Err(Error::new(
+            why.code,
+            format!(
+                "the scanner did not come back within {:.0} s ({}); the views taken are kept in quarantine",
                 job.cfg.replug_timeout.as_secs_f64(),
                 why.message
             ),
