@@ -7,6 +7,9 @@
 //! Run with `cargo test --features conformance --test conformance` (`.ci/run` does). Fails, saying how to
 //! install, when the environment is missing.
 
+#[path = "harness/mod.rs"]
+mod harness;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -359,4 +362,30 @@ fn fea_surface_vtu_opens_in_meshio() {
     let (ours, theirs) = (r.result.max_von_mises.value, v["max_vm"].as_f64().unwrap());
     assert!((ours - theirs).abs() <= 1e-9 * ours, "max von Mises: report {ours}, VTU {theirs}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A scan on the simulated rig through the real daemon (`StartScan`, 12 views of spot) gives one valid OCCT
+/// solid.
+#[test]
+fn a_scan_on_the_simulated_rig_gives_a_valid_step_solid() {
+    use harness::*;
+    let kit = shared("SCANSTATION_VALIDATORS", "validators");
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("conformance_scan");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let _rig = start_rig(&dir, 7);
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, ""));
+    st.start();
+    start_scan(&st, &["3", "views", "u", "12", "name", "s", "spot", "vertices", "u", "3000"]);
+    st.wait_done(1, std::time::Duration::from_secs(900));
+    let step = only_entry(&st.spool("outbox")).join("spot.step");
+    let v = run_json(&kit.join("step_check.py"), &[step.as_os_str()]);
+    let s = &v["summary"];
+    println!("scan of spot: step_check {s}");
+    assert_eq!(s["solids"], 1, "OCCT solids: {s}");
+    assert_eq!(s["shells"], 1, "OCCT shells: {s}");
+    assert_eq!(s["valid"], true, "BRepCheck_Analyzer invalid: {}", v["occt"]["invalid_subshapes"]);
+    assert_eq!(s["all_shells_closed"], true, "shell not closed: {s}");
+    assert_eq!(s["free_edges"], 0, "free edges: {s}");
 }

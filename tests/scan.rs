@@ -9,108 +9,13 @@
 mod common;
 mod harness;
 
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use harness::*;
 
 const TURNTABLE: &str = "/org/scanstation/Station1/devices/turntable";
-
-/// The simulated rig (`scanstation sim rig`) holding spot, and its control socket.
-struct Rig {
-    _sim: Sim,
-    control: PathBuf,
-}
-
-impl Rig {
-    /// Send a fault command line (`unplug`, `replug`, `drop-view 3`, …).
-    fn send(&self, line: &str) {
-        let mut s = std::os::unix::net::UnixStream::connect(&self.control).expect("the rig's control socket");
-        writeln!(s, "{line}").unwrap();
-    }
-}
-
-/// Start the rig for `dir` with noise seed `seed`; returns it once its line, socket and calibration exist.
-fn start_rig(dir: &Path, seed: u64) -> Rig {
-    let link = dir.join("ttyTurntable");
-    let sock = dir.join("can.sock");
-    let control = dir.join("rig.ctl");
-    let calib = dir.join("calibration.toml");
-    for p in [&link, &sock, &control, &calib] {
-        let _ = std::fs::remove_file(p);
-    }
-    let object = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply");
-    let seed = seed.to_string();
-    let s = sim(
-        dir,
-        "rig",
-        &[
-            "rig",
-            "--object",
-            object.to_str().unwrap(),
-            "--link",
-            link.to_str().unwrap(),
-            "--bus",
-            &format!("unix:{}", sock.display()),
-            "--capture",
-            dir.join("capture").to_str().unwrap(),
-            "--calibration",
-            calib.to_str().unwrap(),
-            "--truth",
-            dir.join("truth.ply").to_str().unwrap(),
-            "--seed",
-            &seed,
-            "--time-scale",
-            "20",
-            "--heartbeat-ms",
-            "50",
-            "--exposure-ms",
-            "20",
-            "--control",
-            control.to_str().unwrap(),
-        ],
-    );
-    let t = Instant::now();
-    while !(link.exists() && sock.exists() && control.exists() && calib.exists()) {
-        assert!(
-            t.elapsed() < Duration::from_secs(10),
-            "the simulated rig did not come up: {}",
-            std::fs::read_to_string(dir.join("rig.log")).unwrap_or_default()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    Rig { _sim: s, control }
-}
-
-/// The station's config for a scan rig in `dir`: the devices, and `[scan]` with the rig's calibration plus
-/// `scan_extra` lines.
-fn scan_config(dir: &Path, scan_extra: &str) -> String {
-    let calib = std::fs::read_to_string(dir.join("calibration.toml")).unwrap();
-    format!(
-        "{}{calib}capture_dir = \"{}\"\nsettle = \"50ms\"\nview_file_timeout = \"2s\"\n{scan_extra}\n",
-        rig_config(dir),
-        dir.join("capture").display()
-    )
-}
-
-/// `StartScan` through busctl with `args` (`a{sv}` count and entries); the job's path.
-fn start_scan(st: &Station, args: &[&str]) -> String {
-    let mut a = vec!["call", NAME, ROOT, "org.scanstation.Station1.Manager", "StartScan", "a{sv}"];
-    a.extend_from_slice(args);
-    let out = st.busctl(&a);
-    assert!(out.status.success(), "StartScan failed: {}\n{}", String::from_utf8_lossy(&out.stderr), st.log());
-    let text = String::from_utf8_lossy(&out.stdout);
-    text.trim().trim_start_matches("o ").trim_matches('"').to_string()
-}
-
-/// The one outbox (or quarantine) entry of the finished scan.
-fn only_entry(dir: &Path) -> PathBuf {
-    let v = visible(dir);
-    assert_eq!(v.len(), 1, "{}: {v:?}", dir.display());
-    dir.join(&v[0])
-}
 
 /// `scanstation compare TEST REFERENCE --json`: the symmetric RMS as % of the reference's diagonal.
 fn rms_pct(test: &Path, reference: &Path) -> f64 {
