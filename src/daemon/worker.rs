@@ -155,7 +155,7 @@ impl Progress for Reporter<'_> {
             .iter()
             .copied()
             .find(|s| *s == stage_name)
-            .unwrap_or(self.state.lock().map(|s| s.1).unwrap_or(self.run.stage));
+            .unwrap_or(self.state.lock().map(|s| s.1).ok().filter(|s| !s.is_empty()).unwrap_or(self.run.stage));
         let (a, b) = self.span;
         self.send(a + fraction * (b - a), stage, phase.to_string());
     }
@@ -169,12 +169,13 @@ impl Progress for Reporter<'_> {
 pub fn run(job: JobRun) {
     let meter = StageMeter::start();
     let span = if job.record.scan.is_some() { (CAPTURE_END, FEA_AT) } else { (0.0, PUBLISH_AT) };
-    let reporter = Reporter { run: &job, state: Mutex::new((span.0, job.stage)), span };
+    // No stage yet: the first report names one (and is sent).
+    let reporter = Reporter { run: &job, state: Mutex::new((span.0, "")), span };
     let result = match &job.preset_error {
         Some(e) => Err(e.clone()),
         None => convert_and_publish(&job, &reporter),
     };
-    let stage = reporter.state.lock().map(|s| s.1).unwrap_or(job.stage).to_string();
+    let stage = reporter.state.lock().map(|s| s.1).ok().filter(|s| !s.is_empty()).unwrap_or(job.stage).to_string();
     let (_, peak_mib) = meter.finish();
     let peak_memory = peak_mib.map(|m| (m * 1024.0 * 1024.0) as u64).unwrap_or(0);
     let outcome = match result {

@@ -473,6 +473,11 @@ impl Rig {
 
 /// Start the rig for `dir` with noise seed `seed`; returns it once its line, socket and calibration exist.
 pub fn start_rig(dir: &Path, seed: u64) -> Rig {
+    start_rig_at(dir, seed, "20", "20")
+}
+
+/// [`start_rig`] with the turntable's time scale and the scanner's exposure (ms) given.
+pub fn start_rig_at(dir: &Path, seed: u64, time_scale: &str, exposure_ms: &str) -> Rig {
     let link = dir.join("ttyTurntable");
     let sock = dir.join("can.sock");
     let control = dir.join("rig.ctl");
@@ -502,11 +507,11 @@ pub fn start_rig(dir: &Path, seed: u64) -> Rig {
             "--seed",
             &seed,
             "--time-scale",
-            "20",
+            time_scale,
             "--heartbeat-ms",
             "50",
             "--exposure-ms",
-            "20",
+            exposure_ms,
             "--control",
             control.to_str().unwrap(),
         ],
@@ -528,9 +533,10 @@ pub fn start_rig(dir: &Path, seed: u64) -> Rig {
 pub fn scan_config(dir: &Path, scan_extra: &str) -> String {
     let calib = std::fs::read_to_string(dir.join("calibration.toml")).unwrap();
     format!(
-        "{}{calib}capture_dir = \"{}\"\nsettle = \"50ms\"\nview_file_timeout = \"2s\"\n{scan_extra}\n",
+        "{}{calib}capture_dir = \"{}\"\n{}view_file_timeout = \"2s\"\n{scan_extra}\n",
         rig_config(dir),
-        dir.join("capture").display()
+        dir.join("capture").display(),
+        if scan_extra.contains("settle") { "" } else { "settle = \"50ms\"\n" }
     )
 }
 

@@ -1,0 +1,102 @@
+//! A scan session's time: the real `scanstationd` on a private bus, the simulated rig as its own process
+//! (`scanstation sim rig` holding spot from `examples/`; the turntable at 1000 × real speed and no exposure,
+//! so motion and exposure are as good as zero), `StartScan` with 12 views at the station's default of
+//! 10,000 control vertices, from the call to the published bundle. Reports the time in every stage (from
+//! the job's `Stage` property, polled every 10 ms), the conversion's own per-stage time and peak memory (its
+//! report), the job's `PeakMemory` and the daemon's peak RSS, and the solid's RMS to the true object.
+//!
+//! Needs `dbus-daemon`, `busctl` and `gdbus` (as the daemon tests). Run: `cargo bench --bench scan`
+//! (`SCANSTATION_SCAN_VIEWS` overrides the 12 views, `SCANSTATION_SCAN_VERTICES` the vertex count).
+
+#[path = "../tests/harness/mod.rs"]
+mod harness;
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use harness::*;
+
+fn main() {
+    let views: u32 = std::env::var("SCANSTATION_SCAN_VIEWS").ok().and_then(|v| v.parse().ok()).unwrap_or(12);
+    let vertices: u32 = std::env::var("SCANSTATION_SCAN_VERTICES").ok().and_then(|v| v.parse().ok()).unwrap_or(10_000);
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bench-scan");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let _rig = start_rig_at(&dir, 7, "1000", "0");
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, "settle = \"0ms\""));
+    st.start();
+    // The rig connected before the clock starts.
+    st.wait_property(
+        "Turntable",
+        "/org/scanstation/Station1/devices/turntable",
+        "Connected",
+        "b true",
+        Duration::from_secs(10),
+    );
+    st.wait_property(
+        "Trigger",
+        "/org/scanstation/Station1/devices/trigger",
+        "NodeAlive",
+        "b true",
+        Duration::from_secs(10),
+    );
+    let rss_idle = st.peak_rss_kib();
+    let (v, n) = (views.to_string(), vertices.to_string());
+    let t0 = Instant::now();
+    let job = start_scan(&st, &["3", "views", "u", &v, "name", "s", "spot", "vertices", "u", &n]);
+    // Stage transitions, as a client sees them.
+    let mut stages: Vec<(String, Duration)> = Vec::new();
+    let done = loop {
+        let stage = st.property("Job", &job, "Stage").unwrap_or_default();
+        let state = st.property("Job", &job, "State").unwrap_or_default();
+        let name = stage.trim_start_matches("s ").trim_matches('"').to_string();
+        if stages.last().is_none_or(|(s, _)| *s != name) && !name.is_empty() {
+            stages.push((name, t0.elapsed()));
+        }
+        if state.contains("succeeded") || state.contains("failed") || state.contains("cancelled") {
+            break (state, t0.elapsed());
+        }
+        assert!(t0.elapsed() < Duration::from_secs(1800), "the scan did not finish: {}", st.log());
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let (state, total) = done;
+    assert!(state.contains("succeeded"), "the scan {state}: {}", st.log());
+    let peak_memory = st.property("Job", &job, "PeakMemory").unwrap_or_default();
+    let rss_peak = st.peak_rss_kib();
+    let out = only_entry(&st.spool("outbox"));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("spot.report.json")).unwrap()).unwrap();
+    let fusion: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("spot.fusion.json")).unwrap()).unwrap();
+
+    println!("# scan of spot: {views} views, {vertices} control vertices (turntable ×1000, no exposure)");
+    println!("| stage (Job.Stage) | from s | seconds |");
+    println!("|---|---:|---:|");
+    for (i, (name, at)) in stages.iter().enumerate() {
+        let end = stages.get(i + 1).map_or(total, |n| n.1);
+        println!("| {name} | {:.2} | {:.2} |", at.as_secs_f64(), (end - *at).as_secs_f64());
+    }
+    println!("| **StartScan → published** | | **{:.2}** |", total.as_secs_f64());
+    println!();
+    println!("| conversion stage (report) | seconds | peak MiB |");
+    println!("|---|---:|---:|");
+    for s in report["convert"]["stages"].as_array().into_iter().flatten() {
+        println!(
+            "| {} | {:.2} | {} |",
+            s["stage"].as_str().unwrap_or("?"),
+            s["seconds"].as_f64().unwrap_or(0.0),
+            s["peak_rss_mib"].as_f64().map_or("-".into(), |m| format!("{m:.0}"))
+        );
+    }
+    println!();
+    println!(
+        "job PeakMemory {peak_memory}; daemon peak RSS {:.0} MiB (idle {:.0} MiB)",
+        rss_peak as f64 / 1024.0,
+        rss_idle as f64 / 1024.0
+    );
+    println!(
+        "fusion: {} points, coverage {:.4}; solid {} faces",
+        fusion["fused_points"], fusion["coverage"]["share"], report["convert"]["brep"]["faces"]
+    );
+}
