@@ -106,7 +106,7 @@ impl Station {
                 let fraction = if s == "home" { 0.0 } else { HOME_END + share * (CAPTURE_END - HOME_END) };
                 let _ = events.send(WorkerEvent::Progress { id: id.clone(), fraction, stage: s, message });
             };
-            let request = run.record.scan.clone().unwrap_or_else(|| ScanRequest { views: 0, step_deg: 0.0, fea: None });
+            let request = run.record.scan.clone().unwrap_or(ScanRequest { views: 0, step_deg: 0.0, fea: None });
             let result = {
                 // One scan at a time on the rig.
                 if lock.try_lock().is_err() {
