@@ -53,19 +53,7 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
             Command::Submit(SubmitArgs { file, vertices, tolerance, wait, session }) => {
                 let conn = ops::connect(*session).await?;
                 let path = ops::submit(&conn, file, *vertices, *tolerance).await?;
-                if !*wait {
-                    if json {
-                        print_json(&serde_json::json!({ "job": path }));
-                    } else {
-                        outln!("{path}");
-                    }
-                    return Ok(true);
-                }
-                let done = ops::watch(&conn, Some(&path), json).await?;
-                if !json {
-                    outln!("{} {}", done["Result"], done["ErrorCode"]);
-                }
-                Ok(done["Result"] == "succeeded")
+                follow(&conn, &path, *wait, json).await
             }
             Command::Scan(a) => {
                 let conn = ops::connect(a.session).await?;
@@ -79,19 +67,7 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                     seed: a.seed,
                 };
                 let path = ops::scan(&conn, &o).await?;
-                if !a.wait {
-                    if json {
-                        print_json(&serde_json::json!({ "job": path }));
-                    } else {
-                        outln!("{path}");
-                    }
-                    return Ok(true);
-                }
-                let done = ops::watch(&conn, Some(&path), json).await?;
-                if !json {
-                    outln!("{} {}", done["Result"], done["ErrorCode"]);
-                }
-                Ok(done["Result"] == "succeeded")
+                follow(&conn, &path, a.wait, json).await
             }
             Command::Cancel(CancelArgs { id, session }) => {
                 let conn = ops::connect(*session).await?;
@@ -174,4 +150,21 @@ async fn rig(conn: &zbus::Connection, action: &RigAction, json: bool) -> Result<
         }
     }
     Ok(())
+}
+
+/// A new job's path printed, or with `wait` the job followed to its end: whether it succeeded.
+async fn follow(conn: &zbus::Connection, path: &str, wait: bool, json: bool) -> scanstation::Result<bool> {
+    if !wait {
+        if json {
+            print_json(&serde_json::json!({ "job": path }));
+        } else {
+            outln!("{path}");
+        }
+        return Ok(true);
+    }
+    let done = scanstation::daemon::client::ops::watch(conn, Some(path), json).await?;
+    if !json {
+        outln!("{} {}", done["Result"], done["ErrorCode"]);
+    }
+    Ok(done["Result"] == "succeeded")
 }
