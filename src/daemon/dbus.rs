@@ -249,22 +249,24 @@ pub(crate) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
+/// A non-negative integer of any D-Bus integer type.
+fn int(v: &Value<'_>) -> Option<u64> {
+    match v {
+        Value::U8(x) => Some(*x as u64),
+        Value::U16(x) => Some(*x as u64),
+        Value::U32(x) => Some(*x as u64),
+        Value::U64(x) => Some(*x),
+        Value::I16(x) => u64::try_from(*x).ok(),
+        Value::I32(x) => u64::try_from(*x).ok(),
+        Value::I64(x) => u64::try_from(*x).ok(),
+        Value::Value(b) => int(b),
+        _ => None,
+    }
+}
+
 /// Parse the `a{sv}` of `SubmitFile`: `vertices` (integer), `tolerance` (double), `seed` (integer),
 /// `accept_degraded` (boolean).
 fn parse_options(options: &HashMap<String, OwnedValue>) -> Result<JobOptions, StationError> {
-    fn int(v: &Value<'_>) -> Option<u64> {
-        match v {
-            Value::U8(x) => Some(*x as u64),
-            Value::U16(x) => Some(*x as u64),
-            Value::U32(x) => Some(*x as u64),
-            Value::U64(x) => Some(*x),
-            Value::I16(x) => u64::try_from(*x).ok(),
-            Value::I32(x) => u64::try_from(*x).ok(),
-            Value::I64(x) => u64::try_from(*x).ok(),
-            Value::Value(b) => int(b),
-            _ => None,
-        }
-    }
     let mut o = JobOptions::default();
     for (k, v) in options {
         let bad =
@@ -307,21 +309,8 @@ fn parse_scan_options(
             _ => Err(bad()),
         };
         match k.as_str() {
-            "views" => {
-                let n = match &**v {
-                    Value::U32(x) => i64::from(*x),
-                    Value::I32(x) => i64::from(*x),
-                    Value::U16(x) => i64::from(*x),
-                    Value::I16(x) => i64::from(*x),
-                    Value::U8(x) => i64::from(*x),
-                    Value::U64(x) => (*x).min(1 << 32) as i64,
-                    Value::I64(x) => *x,
-                    _ => return Err(bad()),
-                };
-                views = Some(
-                    u32::try_from(n).map_err(|_| StationError::InvalidArgument(format!("views: {n} is negative")))?,
-                );
-            }
+            // Beyond u32: refused by the range check below.
+            "views" => views = Some(u32::try_from(int(v).ok_or_else(bad)?).unwrap_or(u32::MAX)),
             "step_deg" => match &**v {
                 Value::F64(x) => step = Some(*x),
                 _ => return Err(bad()),

@@ -149,6 +149,38 @@ pub struct JobRecord {
 }
 
 impl JobRecord {
+    /// A record for a job just queued (not started, default options, no scan), in its first `stage`.
+    pub fn queued(
+        id: JobId,
+        input: String,
+        source: String,
+        input_sha256: String,
+        input_size: u64,
+        stage: &str,
+    ) -> JobRecord {
+        JobRecord {
+            schema: SCHEMA,
+            id,
+            input,
+            source,
+            input_sha256,
+            input_size,
+            options: JobOptions::default(),
+            state: JobState::Queued,
+            stage: stage.into(),
+            submitted_usec: now_usec(),
+            start_usec: 0,
+            finish_usec: 0,
+            runs: 0,
+            error_code: String::new(),
+            message: String::new(),
+            outputs: BTreeMap::new(),
+            peak_memory: 0,
+            announced: false,
+            scan: None,
+        }
+    }
+
     /// The stem used in outbox and quarantine names: the input name without its extension(s), reduced to
     /// safe characters.
     pub fn stem(&self) -> String {

@@ -182,25 +182,17 @@ pub fn persist(dir: &Path, log: &CaptureLog) -> Result<(), Error> {
     let io = |p: &Path, e: std::io::Error| {
         Error::new(ErrorCode::ResourceOutput, format!("cannot write {}: {e}", p.display()))
     };
-    let mut toml = String::from(
-        "# The station's scan: each view's points in the scanner's frame, posed into the table frame\n\
-         # (origin at the table top's centre, z up the turntable's axis). See capture.json.\n",
-    );
-    for v in &log.views {
-        let p = view_pose(log.axis_point, log.axis_direction, v.angle_deg);
-        let r = p.rotation;
-        let t = p.translation;
-        toml.push_str(&format!(
-            "\n[[view]]\nfile = \"{}\"\n# table at {} deg\nmatrix = [[{:?}, {:?}, {:?}, {:?}], [{:?}, {:?}, {:?}, {:?}], [{:?}, {:?}, {:?}, {:?}], [0.0, 0.0, 0.0, 1.0]]\n",
-            v.file, v.angle_deg, r[0][0], r[0][1], r[0][2], t[0], r[1][0], r[1][1], r[1][2], t[1], r[2][0], r[2][1], r[2][2], t[2]
-        ));
-    }
     let log_path = dir.join(CAPTURE_LOG);
     let json = serde_json::to_vec_pretty(log).unwrap_or_default();
     write_durable(&log_path, &json).map_err(|e| io(&log_path, e))?;
     if !log.views.is_empty() {
-        let m = dir.join(crate::geometry::io::scanset::MANIFEST);
-        write_durable(&m, toml.as_bytes()).map_err(|e| io(&m, e))?;
+        let listed: Vec<(String, Pose)> = log
+            .views
+            .iter()
+            .map(|v| (v.file.clone(), view_pose(log.axis_point, log.axis_direction, v.angle_deg)))
+            .collect();
+        crate::geometry::io::scanset::write_manifest(&dir.join(crate::geometry::io::scanset::MANIFEST), &listed)?;
+        sync_dir(dir).map_err(|e| io(dir, e))?;
     }
     Ok(())
 }
@@ -287,51 +279,9 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
         (job.progress)(share(&log), "capture", format!("capture/view {} of {} at {angle:.1}°", i + 1, angles.len()));
         let reached = move_to(job, table, &mut log, angle).await?;
         tokio::time::sleep(cfg.settle).await;
-        let mut last_error = None;
-        let mut taken = None;
-        // Triggers lost for this view so far.
-        let mut lost = 0;
-        loop {
-            if job.cancel.load(Ordering::Relaxed) {
-                return Err(cancelled());
-            }
-            match take_view(job, trigger, index).await {
-                Ok((file, report)) => {
-                    taken = Some(TakenView {
-                        index,
-                        file,
-                        angle_deg: angle,
-                        reached_deg: reached,
-                        seq: report.seq,
-                        points: report.points,
-                        tries: lost + 1,
-                        view_ms: report.view_ms,
-                    });
-                    break;
-                }
-                Err(e)
-                    if matches!(e.code, ErrorCode::DeviceTimeout | ErrorCode::DeviceRefused | ErrorCode::InputIo) =>
-                {
-                    last_error = Some(e);
-                    lost += 1;
-                    if lost > cfg.view_retries {
-                        break;
-                    }
-                    log.retries += 1;
-                    tracing::warn!(view = index, lost, "view lost; triggering again");
-                }
-                // The scanner (or its bus) gone: waited for as the table is, then the view is tried again.
-                Err(e) if trigger_gone(&e) && cfg.on_unplug == OnUnplug::Wait => {
-                    wait_trigger(job, trigger, &e).await?;
-                    log.replugs += 1;
-                }
-                Err(e) => return Err(e),
-            }
-        }
-        match taken {
-            Some(v) => log.views.push(v),
-            None => {
-                let e = last_error.unwrap_or_else(|| Error::new(ErrorCode::DeviceTimeout, "no view"));
+        match trigger_view(job, trigger, &mut log, index, (angle, reached)).await? {
+            Ok(v) => log.views.push(v),
+            Err(e) => {
                 let reason = format!("[{}] {}", e.code.as_str(), e.message);
                 if cfg.on_lost_view == OnLostView::Fail {
                     persist(job.dir, &log)?;
@@ -360,6 +310,52 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
         ));
     }
     Ok(log)
+}
+
+/// Trigger view `index` (the table asked to `angle`, at `reached`) until it arrives: `Ok(Ok(view))`, or `Ok(Err(last error))` when `view_retries` more triggers were lost too. A lost scanner
+/// is waited for (`on_unplug = "wait"`) and does not count as a lost view.
+async fn trigger_view(
+    job: &CaptureJob<'_>,
+    trigger: &TriggerHandle,
+    log: &mut CaptureLog,
+    index: u32,
+    (angle, reached): (f64, f64),
+) -> Result<Result<TakenView, Error>, Error> {
+    // Triggers lost for this view so far.
+    let mut lost = 0;
+    loop {
+        if job.cancel.load(Ordering::Relaxed) {
+            return Err(cancelled());
+        }
+        match take_view(job, trigger, index).await {
+            Ok((file, report)) => {
+                return Ok(Ok(TakenView {
+                    index,
+                    file,
+                    angle_deg: angle,
+                    reached_deg: reached,
+                    seq: report.seq,
+                    points: report.points,
+                    tries: lost + 1,
+                    view_ms: report.view_ms,
+                }));
+            }
+            Err(e) if matches!(e.code, ErrorCode::DeviceTimeout | ErrorCode::DeviceRefused | ErrorCode::InputIo) => {
+                lost += 1;
+                if lost > job.cfg.view_retries {
+                    return Ok(Err(e));
+                }
+                log.retries += 1;
+                tracing::warn!(view = index, lost, "view lost; triggering again");
+            }
+            // The scanner (or its bus) gone: waited for as the table is, then the view is tried again.
+            Err(e) if trigger_gone(&e) && job.cfg.on_unplug == OnUnplug::Wait => {
+                wait_trigger(job, trigger, &e).await?;
+                log.replugs += 1;
+            }
+            Err(e) => return Err(e),
+        }
+    }
 }
 
 /// Home, waiting for a replug when the table is gone and the settings say so.
@@ -402,14 +398,24 @@ async fn move_to(
 
 /// Wait up to `replug_timeout` for the table to be connected again.
 async fn wait_replug(job: &CaptureJob<'_>, table: &TurntableHandle, why: &Error) -> Result<(), Error> {
-    tracing::warn!(error = %why, timeout_s = job.cfg.replug_timeout.as_secs_f64(), "turntable lost mid-scan; waiting for it");
-    (job.progress)(f64::NAN, "capture", "capture/waiting for the turntable to come back".into());
-    let mut w = table.watch();
-    let deadline = tokio::time::sleep(job.cfg.replug_timeout);
-    tokio::pin!(deadline);
-    let connected = async {
+    wait_back(job, table.watch(), |s| s.connected, "turntable", why).await
+}
+
+/// Wait up to `replug_timeout` until `back` holds for the device `what` watched through `w` (checking the
+/// cancel flag); `why` is the error that sent us waiting, returned with the timeout named when it does not.
+async fn wait_back<T>(
+    job: &CaptureJob<'_>,
+    mut w: tokio::sync::watch::Receiver<T>,
+    back: impl Fn(&T) -> bool,
+    what: &str,
+    why: &Error,
+) -> Result<(), Error> {
+    let limit = job.cfg.replug_timeout;
+    tracing::warn!(error = %why, timeout_s = limit.as_secs_f64(), "{what} lost mid-scan; waiting for it");
+    (job.progress)(f64::NAN, "capture", format!("capture/waiting for the {what} to come back"));
+    let is_back = async {
         loop {
-            if w.borrow_and_update().connected {
+            if back(&w.borrow_and_update()) {
                 return true;
             }
             if w.changed().await.is_err() {
@@ -417,16 +423,16 @@ async fn wait_replug(job: &CaptureJob<'_>, table: &TurntableHandle, why: &Error)
             }
         }
     };
-    tokio::select! {
-        ok = or_cancel(job.cancel, connected) => match ok? {
+    match tokio::time::timeout(limit, or_cancel(job.cancel, is_back)).await {
+        Ok(r) => match r? {
             true => Ok(()),
             false => Err(why.clone()),
         },
-        _ = &mut deadline => Err(Error::new(
+        Err(_) => Err(Error::new(
             why.code,
             format!(
-                "the turntable did not come back within {:.0} s ({}); the views taken are kept in quarantine",
-                job.cfg.replug_timeout.as_secs_f64(),
+                "the {what} did not come back within {:.0} s ({}); the views taken are kept in quarantine",
+                limit.as_secs_f64(),
                 why.message
             ),
         )),
@@ -439,33 +445,7 @@ fn trigger_gone(e: &Error) -> bool {
 
 /// Wait up to `replug_timeout` for the scanner to be ready again.
 async fn wait_trigger(job: &CaptureJob<'_>, trigger: &TriggerHandle, why: &Error) -> Result<(), Error> {
-    tracing::warn!(error = %why, timeout_s = job.cfg.replug_timeout.as_secs_f64(), "scanner lost mid-scan; waiting for it");
-    (job.progress)(f64::NAN, "capture", "capture/waiting for the scanner to come back".into());
-    let mut w = trigger.watch();
-    let ready = async {
-        loop {
-            if w.borrow_and_update().ready() {
-                return true;
-            }
-            if w.changed().await.is_err() {
-                return false;
-            }
-        }
-    };
-    match tokio::time::timeout(job.cfg.replug_timeout, or_cancel(job.cancel, ready)).await {
-        Ok(r) => match r? {
-            true => Ok(()),
-            false => Err(why.clone()),
-        },
-        Err(_) => Err(Error::new(
-            why.code,
-            format!(
-                "the scanner did not come back within {:.0} s ({}); the views taken are kept in quarantine",
-                job.cfg.replug_timeout.as_secs_f64(),
-                why.message
-            ),
-        )),
-    }
+    wait_back(job, trigger.watch(), |s| s.ready(), "scanner", why).await
 }
 
 /// Trigger one view and take its file into the scan directory as `view-NNN.ply`.

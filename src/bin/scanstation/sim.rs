@@ -197,6 +197,19 @@ fn parse_trigger_command(line: &str) -> Result<ScannerFault, String> {
     })
 }
 
+/// Start the simulated scanner node on `bus` (`unix:PATH` or a CAN interface), on the current runtime;
+/// `Err` (exit status 3, reported) when it cannot.
+fn start_node(bus: &str, settings: ScannerSettings) -> Result<SimScanner, ExitCode> {
+    let node = match bus.strip_prefix("unix:") {
+        Some(path) => SimScanner::listen_unix(std::path::Path::new(path), settings),
+        None => SocketCanBus::open(bus).map(|b| SimScanner::spawn(b, settings)),
+    };
+    node.map_err(|e| {
+        eprintln!("scanstation: error: cannot start the simulated scanner node on {bus}: {e}");
+        ExitCode::from(3)
+    })
+}
+
 /// Run the simulated scanner node until `quit`, end of stdin with no control socket, or a signal.
 pub fn run_trigger(a: &SimTriggerArgs) -> ExitCode {
     let settings = ScannerSettings {
@@ -214,16 +227,9 @@ pub fn run_trigger(a: &SimTriggerArgs) -> ExitCode {
         }
     };
     rt.block_on(async {
-        let node = match a.bus.strip_prefix("unix:") {
-            Some(path) => SimScanner::listen_unix(std::path::Path::new(path), settings),
-            None => SocketCanBus::open(&a.bus).map(|bus| SimScanner::spawn(bus, settings)),
-        };
-        let node = match node {
+        let node = match start_node(&a.bus, settings) {
             Ok(n) => n,
-            Err(e) => {
-                eprintln!("scanstation: error: cannot start the simulated scanner node on {}: {e}", a.bus);
-                return ExitCode::from(3);
-            }
+            Err(code) => return code,
         };
         eprintln!("simulated scanner node {:#04x} on {} (heartbeat {} ms)", a.node, a.bus, a.heartbeat_ms);
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<String>();
@@ -395,13 +401,9 @@ pub fn run_rig(a: &SimRigArgs) -> ExitCode {
         Err(e) => return fail(format!("no async runtime: {e}")),
     };
     rt.block_on(async {
-        let node = match a.bus.strip_prefix("unix:") {
-            Some(path) => SimScanner::listen_unix(std::path::Path::new(path), settings),
-            None => SocketCanBus::open(&a.bus).map(|bus| SimScanner::spawn(bus, settings)),
-        };
-        let node = match node {
+        let node = match start_node(&a.bus, settings) {
             Ok(n) => n,
-            Err(e) => return fail(format!("cannot start the simulated scanner node on {}: {e}", a.bus)),
+            Err(code) => return code,
         };
         eprintln!(
             "simulated rig: turntable at {}, scanner node {:#04x} on {}, views into {}; axis point {:?} direction {:?}",

@@ -1,14 +1,13 @@
 //! Intake: the inbox scan, files settling, the claim (rename into `work/<id>/`, hash, admit) and
 //! `SubmitFile`.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::*;
 use crate::daemon::config::JobOptions;
 use crate::daemon::dbus::StationError;
-use crate::daemon::journal::{JobId, JobRecord, JobState, SCHEMA, now_usec, sync_dir};
+use crate::daemon::journal::{JobId, JobRecord, sync_dir};
 use crate::daemon::spool;
 use crate::daemon::watch::WatchEvent;
 use crate::daemon::worker::STAGES;
@@ -43,27 +42,7 @@ impl Station {
     fn record(id: JobId, input: &Path, source: String, sha: String) -> JobRecord {
         let name = input.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let size = crate::pipeline::provenance::input_size(input);
-        JobRecord {
-            schema: SCHEMA,
-            id,
-            input: name,
-            source,
-            input_sha256: sha,
-            input_size: size,
-            options: JobOptions::default(),
-            state: JobState::Queued,
-            stage: STAGES[0].into(),
-            submitted_usec: now_usec(),
-            start_usec: 0,
-            finish_usec: 0,
-            runs: 0,
-            error_code: String::new(),
-            message: String::new(),
-            outputs: BTreeMap::new(),
-            peak_memory: 0,
-            announced: false,
-            scan: None,
-        }
+        JobRecord::queued(id, name, source, sha, size, STAGES[0])
     }
 
     /// Read the sidecar, check size and duplicates: the record with its options, and an error that sends

@@ -7,7 +7,7 @@ use std::sync::atomic::Ordering;
 use super::*;
 use crate::daemon::config::JobOptions;
 use crate::daemon::dbus::StationError;
-use crate::daemon::journal::{JobId, JobRecord, JobState, SCHEMA, now_usec, sync_dir};
+use crate::daemon::journal::{JobId, JobRecord, now_usec, sync_dir};
 use crate::daemon::scan::{self, CaptureJob, ScanRequest};
 use crate::daemon::worker::{CAPTURE_END, HOME_END, JobRun, SCAN_STAGES};
 
@@ -54,25 +54,9 @@ impl Station {
             .and_then(|()| sync_dir(self.spool.work_dir(&id).as_path()))
             .map_err(|e| StationError::Internal(format!("cannot create {}: {e}", dir.display())))?;
         let rec = JobRecord {
-            schema: SCHEMA,
-            id: id.clone(),
-            input,
-            source,
-            input_sha256: String::new(),
-            input_size: 0,
             options,
-            state: JobState::Queued,
-            stage: SCAN_STAGES[0].into(),
-            submitted_usec: now_usec(),
-            start_usec: 0,
-            finish_usec: 0,
-            runs: 0,
-            error_code: String::new(),
-            message: String::new(),
-            outputs: Default::default(),
-            peak_memory: 0,
-            announced: false,
             scan: Some(request),
+            ..JobRecord::queued(id.clone(), input, source, String::new(), 0, SCAN_STAGES[0])
         };
         tracing::info!(job_id = %id, views = rec.scan.as_ref().map(|s| s.views), "scan queued");
         self.enqueue(rec, None).await.map_err(|e| StationError::Internal(e.to_string()))?;
