@@ -76,14 +76,8 @@ pub fn add(
             let views = crate::geometry::io::scanset::read_scan_set(scan_dir, &read)?;
             let solid = crate::geometry::io::read_mesh(&report.solid_mesh_file, &read)?.triangulate().0;
             // Rejected views saw nothing the solid was built from.
-            let kept: Vec<bool> = views.iter().map(|v| !f.rejected.contains(&v.name)).collect();
-            let (kv, kp): (Vec<_>, Vec<_>) = views
-                .into_iter()
-                .zip(f.poses.iter().copied())
-                .zip(&kept)
-                .filter(|(_, k)| **k)
-                .map(|(vp, _)| vp)
-                .unzip();
+            let (kv, kp): (Vec<_>, Vec<_>) =
+                views.into_iter().zip(f.poses.iter().copied()).filter(|(v, _)| !f.rejected.contains(&v.name)).unzip();
             Some(crate::pipeline::reconstruct::view_coverage(&solid, &kv, &kp))
         }
         None => None,
