@@ -258,6 +258,12 @@ fn trust_issue_mesh(file: &str) -> bool {
 /// (253 pairs, 13 folded faces, volume −1.08 %, RMS 0.54 %; 125 s); skull `quality.self-intersecting` (24
 /// pairs, 3 folded faces, RMS 0.19 %; 105 s); falconstatue_boundary `remesh.failed` (no face extracted;
 /// 10 s). Before the gates, the first two exited 0. The skull keeps genus 2.
+///
+/// Since 2026-12-06 (the direct route's working mesh split to two edges a lattice step, and its extraction
+/// refusing joins of clusters already linked) the scorpion and the skull are published as good: scorpion RMS
+/// 0.024 %, volume −0.034 %, skull RMS 0.009 %, no crossing, no fold (each at its second seed: the first
+/// solid has one folded face at a part thinner than 1.5 quad spacings); the falcon now extracts and is
+/// refused by its gates (its open base: crossings at the cap's rim).
 #[test]
 fn trust_issue_meshes_are_never_published_as_good() {
     use scanstation::ErrorCode;
@@ -277,8 +283,11 @@ fn trust_issue_meshes_are_never_published_as_good() {
                     && r.brep.folded_faces == 0
                     && r.volume_error_pct.abs() <= 0.5
                     && gate("rms").value <= gate("rms").bound;
-                println!("{f}: status {:?}, gates {:?}", r.status, r.gates);
+                println!("{f}: status {:?}, gates {:?}, attempts {:?}", r.status, r.gates, r.attempts);
                 assert_eq!(r.status == Status::Ok, clean, "{f}: status {:?} with gates {:?}", r.status, r.gates);
+                if !f.ends_with("falconstatue_boundary.ply") {
+                    assert_eq!(r.status, Status::Ok, "{f}: gates {:?}", r.gates);
+                }
                 if let Err(e) = r.verdict() {
                     assert_eq!(e.class(), scanstation::ErrorClass::Quality, "{f}: {e}");
                 }

@@ -195,6 +195,84 @@ pub fn csr(n: usize, sorted_pairs: &[(u32, u32)]) -> (Vec<u32>, Vec<u32>) {
     (off, sorted_pairs.iter().map(|&(_, b)| b).collect())
 }
 
+/// Split the edges of a triangle mesh longer than `max_len` at their midpoints until none is (the surface is
+/// unchanged), as Instant Meshes prepares its input: a position field needs at least two edges per lattice
+/// step. Each pass splits every long edge once, in both of its triangles (one long edge: two triangles; two:
+/// three, the quad cut along its shorter diagonal; three: four), so the mesh stays conforming. At most
+/// `max_passes` passes, and none once the mesh holds `max_vertices`. Returns the vertices added.
+///
+/// Cost: O(F) per pass; deterministic (new vertices are numbered in triangle order).
+pub fn split_long_edges(
+    p: &mut Vec<V3>,
+    tris: &mut Vec<[u32; 3]>,
+    max_len: f64,
+    max_passes: usize,
+    max_vertices: usize,
+) -> usize {
+    let start = p.len();
+    let long = |p: &[V3], a: u32, b: u32| vec3::norm2(vec3::sub(p[a as usize], p[b as usize])) > max_len * max_len;
+    for _ in 0..max_passes {
+        if p.len() >= max_vertices || !(max_len > 0.0) {
+            break;
+        }
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut out = Vec::with_capacity(tris.len() * 2);
+        for &t in tris.iter() {
+            let marked = [0, 1, 2].map(|k| long(p, t[k], t[(k + 1) % 3]));
+            let count = marked.iter().filter(|&&m| m).count();
+            if count == 0 {
+                out.push(t);
+                continue;
+            }
+            let mut m = [u32::MAX; 3];
+            for k in 0..3 {
+                if marked[k] {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    m[k] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                        p.push(vec3::scale(vec3::add(p[a as usize], p[b as usize]), 0.5));
+                        (p.len() - 1) as u32
+                    });
+                }
+            }
+            match count {
+                1 => {
+                    let k = (0..3).find(|&k| marked[k]).unwrap_or(0);
+                    let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+                    out.push([a, m[k], c]);
+                    out.push([m[k], b, c]);
+                }
+                2 => {
+                    // Edges k (a→b) and k+1 (b→c) are long, c→a is not.
+                    let k = (0..3).find(|&k| marked[k] && marked[(k + 1) % 3]).unwrap_or(0);
+                    let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+                    let (m1, m2) = (m[k], m[(k + 1) % 3]);
+                    out.push([m1, b, m2]);
+                    let d = |x: u32, y: u32| vec3::norm2(vec3::sub(p[x as usize], p[y as usize]));
+                    if d(a, m2) <= d(m1, c) {
+                        out.push([a, m1, m2]);
+                        out.push([a, m2, c]);
+                    } else {
+                        out.push([a, m1, c]);
+                        out.push([m1, m2, c]);
+                    }
+                }
+                _ => {
+                    out.push([t[0], m[0], m[2]]);
+                    out.push([t[1], m[1], m[0]]);
+                    out.push([t[2], m[2], m[1]]);
+                    out.push(m);
+                }
+            }
+        }
+        let split = !mid.is_empty();
+        *tris = out;
+        if !split {
+            break;
+        }
+    }
+    p.len() - start
+}
+
 /// Split every triangle into four at its edge midpoints (the surface is unchanged).
 pub fn subdivide_midpoints(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>) {
     let mut mid: HashMap<(u32, u32), u32> = HashMap::with_capacity(tris.len() * 3 / 2);

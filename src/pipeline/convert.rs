@@ -759,6 +759,8 @@ impl Chain<'_> {
                     pairs = crossings,
                     folds,
                     seed,
+                    crossing_at = ?t.brep.self_intersection_at,
+                    fold_at = ?t.brep.fold_at,
                     "the solid crosses itself or folds; trying another seed"
                 );
             }

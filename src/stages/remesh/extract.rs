@@ -1,8 +1,11 @@
 //! Extraction of a polygon mesh from the position field.
 //!
-//! 1. Every input edge gets the integer lattice offset between its endpoints' origins. Offset 0 joins the
-//!    endpoints into one output vertex (union–find); a unit offset proposes an output edge; anything else
-//!    is dropped.
+//! 1. Every input edge gets the integer lattice offset between its endpoints' origins. A unit offset
+//!    proposes an output edge; anything but 0 is dropped. Offset-0 edges join their endpoints into one
+//!    output vertex (union–find), smallest rounding residual first, unless their two clusters are linked by
+//!    a unit offset already: that join would swallow a lattice step, and chains of such joins collapse a
+//!    thin part, or a whole region when the spacing is near the working edges (Instant Meshes' collapse rule,
+//!    `extract_graph`; [`Extracted::linked_refused`]).
 //! 2. Output vertices closer than [`SNAP`]·scale are merged; vertices left with fewer than 3 edges are
 //!    removed (a valence-2 vertex between two quads is a "doublet": removing it merges them into one quad).
 //! 3. Faces come from a rotation system: the neighbours of each output vertex are sorted by angle in its
@@ -38,6 +41,8 @@ pub struct Extracted {
     pub low_valence_removed: usize,
     /// Output vertex pairs merged because they were closer than `SNAP`·scale.
     pub snapped: usize,
+    /// Offset-0 input edges not joined because their clusters were linked by a unit offset already.
+    pub linked_refused: usize,
     /// Edges removed because the same face lay on both sides.
     pub dangling_edges_removed: usize,
     /// Vertices removed because a face visited them twice (a pinch).
@@ -61,6 +66,7 @@ pub fn extract(
     s: &[f64],
     cancel: Option<integer::Cancel>,
     steps: Option<integer::Offsets>,
+    linked_guard: bool,
 ) -> Extracted {
     let n = level.len();
     // 1. Integer steps of every input edge (in parallel), optionally made consistent.
@@ -70,14 +76,9 @@ pub fn extract(
         out.integer = integer::cancel_pairs(&mut off, c.tris, c.reach, Some(c.blocked));
     }
     let mut uf = UnionFind::new(n);
-    let mut links = Vec::new();
-    for (&(i, j), d) in off.edges.iter().zip(&off.d) {
-        match d[0].abs() + d[1].abs() {
-            0 => uf.union(i, j),
-            1 => links.push((i, j)),
-            _ => {}
-        }
-    }
+    let links: Vec<(u32, u32)> =
+        off.edges.iter().zip(&off.d).filter(|(_, d)| d[0].abs() + d[1].abs() == 1).map(|(&e, _)| e).collect();
+    out.linked_refused = join_unlinked(&mut uf, n, &off, &links, linked_guard);
     // 2. Clusters, then snapping of near-coincident clusters (once).
     let mut graph = cluster_graph(level, o, s, &mut uf, &links);
     // With cancelled singularities the origins no longer agree with the steps along the paths: place the
@@ -159,6 +160,52 @@ pub fn extract(
         out.steps = Some(off);
     }
     out
+}
+
+/// Join the endpoints of every offset-0 edge of `off` in `uf` (over `n` working vertices); with `guard`,
+/// smallest rounding residual first (ties by edge), unless their clusters are linked by one of `links`
+/// (unit-offset edges) already. Returns the refused joins.
+///
+/// Cost: O(E log E) for the order; each join merges the two clusters' link lists (a few dozen entries).
+fn join_unlinked(uf: &mut UnionFind, n: usize, off: &integer::Offsets, links: &[(u32, u32)], guard: bool) -> usize {
+    if !guard {
+        for (&(i, j), d) in off.edges.iter().zip(&off.d) {
+            if *d == [0, 0] {
+                uf.union(i, j);
+            }
+        }
+        return 0;
+    }
+    let residual = |e: usize| off.m[e][0] * off.m[e][0] + off.m[e][1] * off.m[e][1];
+    let mut order: Vec<usize> = (0..off.edges.len()).filter(|&e| off.d[e] == [0, 0]).collect();
+    order.sort_by(|&a, &b| residual(a).total_cmp(&residual(b)).then(a.cmp(&b)));
+    // The working vertices each cluster's members are linked to, kept at the cluster's root.
+    let mut linked: Vec<Vec<u32>> = vec![Vec::new(); n];
+    for &(i, j) in links {
+        linked[i as usize].push(j);
+        linked[j as usize].push(i);
+    }
+    let mut refused = 0;
+    for e in order {
+        let (i, j) = off.edges[e];
+        let (a, b) = (uf.find(i), uf.find(j));
+        if a == b {
+            continue;
+        }
+        if linked[a as usize].iter().any(|&k| uf.find(k) == b) {
+            refused += 1;
+            continue;
+        }
+        uf.union(a, b);
+        let r = uf.find(a);
+        let mut both = std::mem::take(&mut linked[a as usize]);
+        both.append(&mut linked[b as usize]);
+        let mut roots: Vec<u32> = both.into_iter().map(|k| uf.find(k)).filter(|&k| k != r).collect();
+        roots.sort_unstable();
+        roots.dedup();
+        linked[r as usize] = roots;
+    }
+    refused
 }
 
 struct ClusterGraph {

@@ -94,7 +94,7 @@ pub(super) fn candidate(
     components: usize,
 ) -> Candidate {
     let (cancel, steps) = cancel.map_or((None, None), |(c, steps)| (Some(c), steps));
-    let ex = extract::extract(level, q, o, s, cancel, steps);
+    let ex = extract::extract(level, q, o, s, cancel, steps, mode.is_direct() && LINKED_GUARD_DIRECT);
     let mut by_degree = BTreeMap::new();
     for f in &ex.faces {
         *by_degree.entry(f.len()).or_insert(0) += 1;

@@ -116,6 +116,32 @@ pub const WORK_PER_VERTEX: f64 = 6.0;
 /// struts under the hind foot at one seed of three (RMS 0.081 %), with 10 at all three (0.074–0.092 %).
 pub const WORK_PER_VERTEX_DIRECT: f64 = 10.0;
 
+/// The direct routes' working-mesh edges longer than this share of their lattice step are split
+/// ([`crate::geometry::polygon::split_long_edges`]), as Instant Meshes splits its input's edges longer than
+/// half its scale: the position field rounds each edge's step to the lattice, and edges of more than half a
+/// step skip lattice points. Measured on the repaired scorpion at 10k (2026-12-06): its 50k-vertex input was
+/// the direct route's working mesh as it is (short of the midpoint subdivision's threshold), 2.2 edges to a
+/// step; its extraction made 4,429 vertices for 10,000, and its result missed 61 % of the working vertices
+/// (RMS 6.8 % of the diagonal), so `convert` kept the split route's net, which lost the legs (the solid: 253
+/// crossing pairs, RMS 0.54 %). With the split: the direct result misses 0.4 %, its net has no crossing, and
+/// the solid passes every gate (RMS 0.024 %). The split routes' working mesh is not split (4.9 edges a step).
+pub const WORK_EDGE_SPACINGS: f64 = 0.5;
+
+/// The direct routes' extraction refuses an offset-0 join of two clusters already linked by a unit offset
+/// (Instant Meshes' collapse rule; [`super::extract`]). At about two working edges to a lattice step, the
+/// rounding of neighbouring edges disagrees often enough that chains of joins swallow whole rows: measured on
+/// the repaired skull at 10k, seed 0, the direct route's quads cross in 3 triangle pairs without the rule
+/// and in none with it (scorpion: 0 and 0). The split routes keep the plain joins: there the rule raised the
+/// irregular vertices (torus test 26 instead of at most 20, igea 2.17 % instead of 1.63 %) for no crossing
+/// saved.
+pub const LINKED_GUARD_DIRECT: bool = true;
+
+/// Passes of [`WORK_EDGE_SPACINGS`]' edge splitting (each halves the longest edges).
+pub const WORK_SPLIT_PASSES: usize = 4;
+
+/// The edge splitting stops once the working mesh holds this many times the vertices it was made for.
+pub const WORK_SPLIT_GROWTH: f64 = 4.0;
+
 /// Inputs with more than this many times the direct routes' working vertices are decimated in two stages:
 /// to the direct routes' working mesh, then from it to the split routes' (on the dragon this saves a second
 /// 375k-vertex decimation, 1.5 s, when the direct routes run, and costs about 0.4 s when they do not).

@@ -9,12 +9,14 @@ use crate::geometry::decimate::{Crossings, decimate};
 use crate::geometry::vec3::{self, V3, cross, dot, sub};
 use crate::geometry::{linalg, polygon};
 
-/// Mesh `p`, `tris` decimated (QEM) or midpoint-subdivided toward `want` vertices, and how ("as-is",
-/// "decimated" or "subdivided ×k"). Cost: O(F log F) for the decimation.
+/// Mesh `p`, `tris` decimated (QEM) or midpoint-subdivided toward `want` vertices, then its edges longer than
+/// `max_edge` split ([`polygon::split_long_edges`], up to [`WORK_SPLIT_GROWTH`] × `want` vertices), and how
+/// ("as-is", "decimated" or "subdivided ×k", with "+N split"). Cost: O(F log F) for the decimation.
 pub(super) fn working_mesh(
     mut p: Vec<V3>,
     mut tris: Vec<[u32; 3]>,
     want: usize,
+    max_edge: f64,
     seed: u64,
 ) -> (Vec<V3>, Vec<[u32; 3]>, String) {
     let mut label = "as-is".to_string();
@@ -30,6 +32,11 @@ pub(super) fn working_mesh(
         if k > 0 {
             label = format!("subdivided ×{k}");
         }
+    }
+    let cap = ((WORK_SPLIT_GROWTH * want as f64) as usize).max(p.len());
+    let added = polygon::split_long_edges(&mut p, &mut tris, max_edge, WORK_SPLIT_PASSES, cap);
+    if added > 0 {
+        label = format!("{label}, +{added} split");
     }
     (p, tris, label)
 }
