@@ -382,7 +382,8 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             let (rms_bound, irregular_bound) = if f.contains("dragon") {
                 (0.07, 0.06)
             } else if f.contains("armadillo") {
-                (0.1, 0.042)
+                // seed 1: 4.21 % since 2026-12-06 (the direct routes' split working mesh; 3.81 % before).
+                (0.1, 0.045)
             } else {
                 (0.1, 0.03)
             };
@@ -449,7 +450,10 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
         let irregular = if f.contains("dragon") {
             0.05
         } else if f.contains("armadillo") {
-            0.036
+            // 4.23 % since 2026-12-06: the direct routes' working mesh has its long edges split (their result no
+            // longer collapses on the scorpion), and the refined direct net kept here has more irregular
+            // vertices (was 3.43 %).
+            0.045
         } else if f.contains("igea") {
             0.016
         } else if f.contains("fandisk") {

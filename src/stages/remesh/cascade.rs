@@ -7,7 +7,7 @@
 use std::time::Instant;
 
 use super::field;
-use super::finish::{Candidate, Finished, InputSide, candidate};
+use super::finish::{Candidate, Extraction, Finished, InputSide, candidate};
 use super::report::{Attempt, Mode, Refine, RemeshReport};
 use super::settings::*;
 use super::spacing::{refined_spacing, spacing_field, timed_thickness};
@@ -421,7 +421,9 @@ impl Route<'_> {
             let o = field::solve_position(levels, qs, &sl, opts.iterations, opts.seed);
             clocks.position += t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let mut c = candidate(&levels[0], &qs[0], &o, &sl[0], None, mode, report.input_components);
+            let linked_guard = LINKED_GUARD && mode.is_direct() && self.w.edges_split;
+            let how = Extraction { mode, components: report.input_components, linked_guard };
+            let mut c = candidate(&levels[0], &qs[0], &o, &sl[0], None, how);
             let (chi, manifold) = polygon::polygon_check(&c.faces);
             c.topology_ok = manifold && chi == report.input_euler_characteristic;
             let usable = manifold && c.counts.triangles_unpaired == 0;

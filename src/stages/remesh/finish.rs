@@ -81,20 +81,30 @@ pub(super) struct Candidate {
     pub(super) topology_ok: bool,
 }
 
+/// What a candidate is extracted for: its route, the input's component count (the clean-up keeps as many),
+/// and whether joins of clusters linked already are refused ([`LINKED_GUARD`]).
+#[derive(Clone, Copy)]
+pub(super) struct Extraction {
+    pub(super) mode: Mode,
+    pub(super) components: usize,
+    pub(super) linked_guard: bool,
+}
+
 /// Extract a candidate of route `mode` from the position field (origins `o`, spacings `s`) and clean it up to
 /// the polygon mesh the route finishes: with `cancel`, position singularities are first cancelled, starting
-/// from the field's own integer steps when they are given ([`extract::Extracted::steps`]).
+/// from the field's own integer steps when they are given ([`extract::Extracted::steps`]). `how` says the
+/// route ([`Extraction`]).
 pub(super) fn candidate(
     level: &hierarchy::Level,
     q: &[V3],
     o: &[V3],
     s: &[f64],
     cancel: Option<(integer::Cancel, Option<integer::Offsets>)>,
-    mode: Mode,
-    components: usize,
+    how: Extraction,
 ) -> Candidate {
+    let Extraction { mode, components, linked_guard } = how;
     let (cancel, steps) = cancel.map_or((None, None), |(c, steps)| (Some(c), steps));
-    let ex = extract::extract(level, q, o, s, cancel, steps, mode.is_direct() && LINKED_GUARD_DIRECT);
+    let ex = extract::extract(level, q, o, s, cancel, steps, linked_guard);
     let mut by_degree = BTreeMap::new();
     for f in &ex.faces {
         *by_degree.entry(f.len()).or_insert(0) += 1;

@@ -9,8 +9,8 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::finish::{
-    Candidate, Finished, InputSide, Unfitted, arrange, candidate, finish_alone, fit_pack, measure, missed_mask,
-    rms_allowed, settle, stats_on_input,
+    Candidate, Extraction, Finished, InputSide, Unfitted, arrange, candidate, finish_alone, fit_pack, measure,
+    missed_mask, rms_allowed, settle, stats_on_input,
 };
 use super::report::{CancelTrial, Mode, QuadStats, RemeshReport, quad_stats};
 use super::settings::*;
@@ -72,7 +72,9 @@ impl Tries<'_> {
             let t1 = Instant::now();
             // Before a re-solve the field is the candidate's own: start from its steps.
             let steps = if rescales == 0 { field_steps.clone() } else { None };
-            let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some((how, steps)), self.mode, self.components);
+            let linked_guard = LINKED_GUARD && self.mode.is_direct() && self.w.edges_split;
+            let route = Extraction { mode: self.mode, components: self.components, linked_guard };
+            let c2 = candidate(&levels[0], &qs[0], &o2, &s2, Some((how, steps)), route);
             t_cancel += t1.elapsed().as_secs_f64();
             let off = c2.predicted as f64 / target;
             if (off - 1.0).abs() <= CANCEL_COUNT_TOLERANCE || rescales == CANCEL_RESCALES || off == 0.0 {

@@ -9,8 +9,9 @@ use crate::geometry::decimate::{Crossings, decimate};
 use crate::geometry::vec3::{self, V3, cross, dot, sub};
 use crate::geometry::{linalg, polygon};
 
-/// Mesh `p`, `tris` decimated (QEM) or midpoint-subdivided toward `want` vertices, then its edges longer than
-/// `max_edge` split ([`polygon::split_long_edges`], up to [`WORK_SPLIT_GROWTH`] × `want` vertices), and how
+/// Mesh `p`, `tris` decimated (QEM) or midpoint-subdivided toward `want` vertices, then, when it was not
+/// decimated and has fewer than `want`, its edges longer than `max_edge` split ([`polygon::split_long_edges`], up to
+/// [`WORK_SPLIT_GROWTH`] × `want` vertices), and how
 /// ("as-is", "decimated" or "subdivided ×k", with "+N split"). Cost: O(F log F) for the decimation.
 pub(super) fn working_mesh(
     mut p: Vec<V3>,
@@ -33,6 +34,8 @@ pub(super) fn working_mesh(
             label = format!("subdivided ×{k}");
         }
     }
+    // A mesh decimated to `want` has about √(want / target) edges a step: only one left coarser is split.
+    let max_edge = if label != "decimated" && p.len() < want { max_edge } else { f64::INFINITY };
     let cap = ((WORK_SPLIT_GROWTH * want as f64) as usize).max(p.len());
     let added = polygon::split_long_edges(&mut p, &mut tris, max_edge, WORK_SPLIT_PASSES, cap);
     if added > 0 {
@@ -47,8 +50,10 @@ pub(super) struct Work {
     pub(super) tris: Vec<[u32; 3]>,
     pub(super) levels: Vec<hierarchy::Level>,
     pub(super) qs: Vec<Vec<V3>>,
-    /// "as-is", "decimated" or "subdivided ×k".
+    /// "as-is", "decimated" or "subdivided ×k" (with ", +N split").
     pub(super) label: String,
+    /// Its long edges were split ([`working_mesh`]): it is near two edges a lattice step.
+    pub(super) edges_split: bool,
     pub(super) coherence: Option<f64>,
     pub(super) orientation_singularities: usize,
     pub(super) seconds: Vec<(&'static str, f64)>,
@@ -77,7 +82,8 @@ impl Work {
         let qs = field::solve_orientation(&levels, opts.iterations, opts.seed, bias.as_deref());
         let orientation_singularities = orientation_singularities(&levels[0], &qs[0], &tris);
         lap("orientation", &mut seconds);
-        Work { p, tris, levels, qs, label, coherence, orientation_singularities, seconds }
+        let edges_split = label.ends_with(" split");
+        Work { p, tris, levels, qs, label, edges_split, coherence, orientation_singularities, seconds }
     }
 }
 
