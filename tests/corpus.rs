@@ -260,10 +260,9 @@ fn trust_issue_mesh(file: &str) -> bool {
 /// 10 s). Before the gates, the first two exited 0. The skull keeps genus 2.
 ///
 /// Since 2026-12-06 (the direct route's working mesh split to two edges a lattice step, and its extraction
-/// refusing joins of clusters already linked) the scorpion and the skull are published as good: scorpion RMS
-/// 0.024 %, volume −0.034 %, skull RMS 0.009 %, no crossing, no fold (each at its second seed: the first
-/// solid has one folded face at a part thinner than 1.5 quad spacings); the falcon now extracts and is
-/// refused by its gates (its open base: crossings at the cap's rim).
+/// refusing joins of clusters already linked, and the surface fit's smoothness 10⁻²) the scorpion and the
+/// skull are published as good at their first seed: scorpion RMS 0.021 %, volume 0.028 %, skull RMS 0.015 %,
+/// no crossing, no fold; the falcon now extracts and is refused by its gates (RMS 0.17 %: its open base).
 #[test]
 fn trust_issue_meshes_are_never_published_as_good() {
     use scanstation::ErrorCode;

@@ -169,12 +169,12 @@ proptest! {
 /// A torus (major radius 1) whose tube narrows from radius 0.3 at angle 0 to 0.065 opposite: a thin neck
 /// on a thick body, closed, χ 0.
 fn necked_torus() -> TriMesh {
-    necked_torus_to(0.065)
+    necked_torus_with(360, 48, 0.065)
 }
 
-/// [`necked_torus`] with the neck's radius `neck`.
-fn necked_torus_to(neck: f64) -> TriMesh {
-    let mut t = torus(1.0, 0.3, 360, 48);
+/// [`necked_torus`] with `n` × `m` vertices and the neck's radius `neck`.
+fn necked_torus_with(n: usize, m: usize, neck: f64) -> TriMesh {
+    let mut t = torus(1.0, 0.3, n, m);
     for p in &mut t.positions {
         let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
         let phi = y.atan2(x);
@@ -234,14 +234,14 @@ fn a_thin_neck_survives_through_the_adaptive_route() {
     assert!(d.symmetric.rms.pct_of_diagonal < 0.2, "RMS {} %", d.symmetric.rms.pct_of_diagonal);
 }
 
-/// The direct route keeps a thin neck on its own finer working mesh
-/// ([`scanstation::stages::remesh::WORK_PER_VERTEX_DIRECT`]), and on the coarser one the split routes use
-/// too: there its working edges longer than half a lattice step are split first
-/// ([`scanstation::stages::remesh::WORK_EDGE_SPACINGS`], as Instant Meshes prepares its input). Before that
-/// split the coarser working mesh's direct result kept the 0.065 neck only coarsely and the refined direct
-/// route had to recover it; now the direct result is kept with nothing missed, down to a 0.025 neck.
+/// Where the direct route's lattice cannot follow a thin part, the refined direct route solves again with a
+/// finer spacing there ([`scanstation::stages::remesh::REFINE_TRIES`]) and is kept when it is
+/// `FIDELITY_RATIO` times closer to the input. On the necked torus without the adaptive split route, the
+/// uniform split loses the neck; on the direct routes' own finer working mesh
+/// ([`scanstation::stages::remesh::WORK_PER_VERTEX_DIRECT`]) the direct route keeps it; on the coarser one
+/// the split routes use, it keeps it only coarsely and the refined route is closer.
 #[test]
-fn the_direct_route_keeps_a_thin_neck_on_either_working_mesh() {
+fn the_refined_direct_route_recovers_what_the_direct_route_missed() {
     let t = necked_torus();
     let base = RemeshOptions { cancel_singularities: false, coherent_pull: 0.0, adaptive_spacing: false, ..opts(1500) };
     let (_, r) = remesh(&t, &base, &NoProgress).unwrap();
@@ -253,32 +253,65 @@ fn the_direct_route_keeps_a_thin_neck_on_either_working_mesh() {
     assert_valid(&r.output, &r, "necked torus, direct");
     assert_eq!(r.mode, Some(Mode::Direct), "alternatives {:?}", r.alternatives);
     assert!(r.direct_working_vertices > r.working_vertices, "{} working vertices", r.direct_working_vertices);
-    // Measured: RMS 0.049 %, max 0.47 %.
+    // Measured: RMS 0.085 %, max 0.48 %.
     assert!(d.symmetric.rms.pct_of_diagonal < 0.1, "RMS {} %", d.symmetric.rms.pct_of_diagonal);
     assert!(d.reference_to_test.max.pct_of_diagonal < 1.0, "a part of the neck is missing: {d:?}");
 
-    // Measured (2026-12-06): neck 0.065: RMS 0.043 %, max 0.42 %; 0.025: RMS 0.056 %, max 0.63 %.
-    for neck in [0.065, 0.025] {
-        let t = necked_torus_to(neck);
-        let o = RemeshOptions { work_per_vertex_direct: scanstation::stages::remesh::WORK_PER_VERTEX, ..base.clone() };
-        let (q, r) = remesh(&t, &o, &NoProgress).unwrap();
-        let d = r.distance.as_ref().unwrap();
-        assert_eq!(crossings(&q), 0, "neck {neck}: the quads cross");
-        println!(
-            "neck {neck}: {:?}, missed {} working vertices, RMS {:.4} %, input→quad max {:.3} %, irregular {:.2} %",
-            r.mode,
-            r.missed_vertices,
-            d.symmetric.rms.pct_of_diagonal,
-            d.reference_to_test.max.pct_of_diagonal,
-            100.0 * r.output.irregular_fraction,
-        );
-        assert_valid(&r.output, &r, "necked torus, coarser working mesh");
-        assert_eq!(r.output.euler_characteristic, 0, "neck {neck}");
-        assert_eq!(r.mode, Some(Mode::Direct), "neck {neck}: alternatives {:?}", r.alternatives);
-        assert_eq!(r.missed_vertices, 0, "neck {neck}");
-        assert!(d.symmetric.rms.pct_of_diagonal < 0.1, "neck {neck}: RMS {} %", d.symmetric.rms.pct_of_diagonal);
-        assert!(d.reference_to_test.max.pct_of_diagonal < 1.0, "neck {neck}: a part is missing: {d:?}");
-    }
+    let o = RemeshOptions { work_per_vertex_direct: scanstation::stages::remesh::WORK_PER_VERTEX, ..base };
+    let (_, r) = remesh(&t, &o, &NoProgress).unwrap();
+    let d = r.distance.as_ref().unwrap();
+    println!(
+        "{:?}: missed {} working vertices, RMS {:.4} %, input→quad max {:.3} %, irregular {:.2} %, attempts {:?}, alternatives {:?}",
+        r.mode,
+        r.missed_vertices,
+        d.symmetric.rms.pct_of_diagonal,
+        d.reference_to_test.max.pct_of_diagonal,
+        100.0 * r.output.irregular_fraction,
+        r.attempts.iter().map(|a| (a.mode, a.refine)).collect::<Vec<_>>(),
+        r.alternatives
+    );
+    assert_valid(&r.output, &r, "necked torus, refined");
+    assert_eq!(r.mode, Some(Mode::RefinedDirect), "alternatives {:?}", r.alternatives);
+    assert!(r.missed_vertices > 0, "nothing was missed");
+    let direct = r.alternatives.iter().find(|a| a.mode == Mode::Direct).expect("the direct route ran");
+    assert!(
+        1.25 * d.symmetric.rms.pct_of_diagonal < direct.rms_pct_of_diagonal,
+        "refined RMS {} % against direct {} %",
+        d.symmetric.rms.pct_of_diagonal,
+        direct.rms_pct_of_diagonal
+    );
+    assert!(d.reference_to_test.max.pct_of_diagonal < 1.0, "a part of the neck is missing: {d:?}");
+}
+
+/// A scan coarser than the direct routes' working mesh asks for is used as it is (or subdivided), which left
+/// about two edges to a lattice step: the direct extraction then collapsed rows (the 50k scorpion at 10k made
+/// 4,429 vertices for 10,000). Its edges longer than half a step are split first
+/// ([`scanstation::stages::remesh::WORK_EDGE_SPACINGS`]) and clusters already linked are not joined
+/// ([`scanstation::stages::remesh::LINKED_GUARD`]). A necked torus of 1,920 vertices remeshed directly at 1,500
+/// (its working mesh subdivided once, to 7,680, for 15,000 asked): the direct result keeps the neck, its
+/// quads do not cross, and its working mesh grew by the split (measured: 16,928 vertices, RMS 0.060 %, max
+/// 0.48 %, 4.14 % irregular).
+#[test]
+fn a_coarse_scan_is_split_for_the_direct_route() {
+    let t = necked_torus_with(120, 16, 0.065);
+    let base = RemeshOptions { cancel_singularities: false, coherent_pull: 0.0, adaptive_spacing: false, ..opts(1500) };
+    let (q, r) = remesh(&t, &base, &NoProgress).unwrap();
+    let d = r.distance.as_ref().unwrap();
+    println!(
+        "coarse necked torus: {} direct working vertices, {:?}, missed {}, RMS {:.4} %, max {:.3} %, irregular {:.2} %",
+        r.direct_working_vertices,
+        r.mode,
+        r.missed_vertices,
+        d.symmetric.rms.pct_of_diagonal,
+        d.reference_to_test.max.pct_of_diagonal,
+        100.0 * r.output.irregular_fraction
+    );
+    assert_valid(&r.output, &r, "coarse necked torus");
+    assert!(r.direct_working_vertices > 7680, "not split: {} direct working vertices", r.direct_working_vertices);
+    assert!(r.mode.is_some_and(Mode::is_direct), "alternatives {:?}", r.alternatives);
+    assert_eq!(crossings(&q), 0, "the quads cross");
+    assert!(d.symmetric.rms.pct_of_diagonal < 0.1, "RMS {} %", d.symmetric.rms.pct_of_diagonal);
+    assert!(d.reference_to_test.max.pct_of_diagonal < 1.0, "a part of the neck is missing: {d:?}");
 }
 
 /// Regression (proptest `tori_remesh_validly`, CI run of 2026-12-03): a thin torus at a small target.
