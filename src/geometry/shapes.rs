@@ -210,3 +210,150 @@ pub fn quad_torus(major: f64, minor: f64, n: usize, m: usize) -> crate::geometry
         .collect();
     crate::geometry::mesh::PolyMesh::new(positions, &faces).expect("quad torus is valid")
 }
+
+/// A surface of revolution about the z axis: the profile's points `[r, z]` (r ≥ 0) swept round, each ring
+/// with as many vertices as keep its edges at most `step` long (at least 3), neighbouring rings zipped
+/// together by angle, so the triangles stay near-isotropic where the profile's points are about `step` apart
+/// (a thin rod's ring gets 3 vertices, not as many as the widest ring's).
+///
+/// An open profile runs from a point on the axis (r = 0, the bottom pole) to another (the top pole),
+/// counter-clockwise in the (r, z) plane: genus 0, its inner points become rings and each pole one vertex.
+/// A closed profile (`closed`: the last point joins the first; every r > 0), counter-clockwise, is a genus-1
+/// surface, as [`torus`]. Either way the result is closed and outward. Used by the thin-part oracles below.
+///
+/// # Panics
+/// A profile with fewer than 3 points, or an open one whose ends are off the axis.
+pub fn revolve(profile: &[[f64; 2]], closed: bool, step: f64) -> TriMesh {
+    use std::f64::consts::TAU;
+    assert!(profile.len() >= 3, "a profile needs 3 points");
+    let rings: &[[f64; 2]] = if closed {
+        profile
+    } else {
+        let ends = [profile[0][0], profile[profile.len() - 1][0]];
+        assert!(ends.iter().all(|r| r.abs() < 1e-9), "an open profile ends on the axis");
+        &profile[1..profile.len() - 1]
+    };
+    let mut positions = Vec::new();
+    let mut first = Vec::with_capacity(rings.len() + 1);
+    for &[r, z] in rings {
+        let n = ((TAU * r / step).ceil() as usize).max(3);
+        first.push(positions.len());
+        for i in 0..n {
+            let u = TAU * i as f64 / n as f64;
+            positions.push([(r * u.cos()) as f32, (r * u.sin()) as f32, z as f32]);
+        }
+    }
+    first.push(positions.len());
+    let m = rings.len();
+    let ring = |j: usize| (first[j % m], first[j % m + 1] - first[j % m]);
+    let mut triangles = Vec::new();
+    for j in 0..if closed { m } else { m - 1 } {
+        let ((a0, na), (b0, nb)) = (ring(j), ring(j + 1));
+        let (a, b) = (|i: usize| (a0 + i % na) as u32, |k: usize| (b0 + k % nb) as u32);
+        let (mut i, mut k) = (0, 0);
+        while i < na || k < nb {
+            // Advance on the ring whose next vertex comes first by angle.
+            if k == nb || (i < na && (i + 1) as f64 / na as f64 <= (k + 1) as f64 / nb as f64) {
+                triangles.push([a(i), a(i + 1), b(k)]);
+                i += 1;
+            } else {
+                triangles.push([a(i), b(k + 1), b(k)]);
+                k += 1;
+            }
+        }
+    }
+    if !closed {
+        let (bottom, top) = (positions.len() as u32, positions.len() as u32 + 1);
+        positions.push([0.0, 0.0, profile[0][1] as f32]);
+        positions.push([0.0, 0.0, profile[profile.len() - 1][1] as f32]);
+        let ((a0, na), (b0, nb)) = (ring(0), ring(m - 1));
+        for i in 0..na {
+            triangles.push([bottom, (a0 + (i + 1) % na) as u32, (a0 + i) as u32]);
+        }
+        for i in 0..nb {
+            triangles.push([(b0 + i) as u32, (b0 + (i + 1) % nb) as u32, top]);
+        }
+    }
+    TriMesh { positions, triangles }
+}
+
+/// Points every `step` (at most) along a polyline from `a` to `b`, `a` included, `b` not.
+fn segment(out: &mut Vec<[f64; 2]>, a: [f64; 2], b: [f64; 2], step: f64) {
+    let k = (((b[0] - a[0]).hypot(b[1] - a[1]) / step).ceil() as usize).max(1);
+    out.extend((0..k).map(|i| {
+        let t = i as f64 / k as f64;
+        [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]
+    }));
+}
+
+/// Points every `step` (at most) along the arc of `radius` about `c` from angle `a0` to `a1` (radians,
+/// counter-clockwise when `a1 > a0`), the start included, the end not.
+fn arc(out: &mut Vec<[f64; 2]>, c: [f64; 2], radius: f64, a0: f64, a1: f64, step: f64) {
+    let k = ((radius * (a1 - a0).abs() / step).ceil() as usize).max(1);
+    out.extend((0..k).map(|i| {
+        let a = a0 + (a1 - a0) * i as f64 / k as f64;
+        [(c[0] + radius * a.cos()).max(0.0), c[1] + radius * a.sin()]
+    }));
+}
+
+/// A round plate of radius 1 and `thickness`, its rim a half circle: genus 0. Profile points every `step`.
+pub fn plate_profile(thickness: f64, step: f64) -> Vec<[f64; 2]> {
+    use std::f64::consts::FRAC_PI_2;
+    let h = thickness / 2.0;
+    let mut p = Vec::new();
+    segment(&mut p, [0.0, -h], [1.0 - h, -h], step);
+    arc(&mut p, [1.0 - h, 0.0], h, -FRAC_PI_2, FRAC_PI_2, step);
+    segment(&mut p, [1.0 - h, h], [0.0, h], step);
+    p.push([0.0, h]);
+    p
+}
+
+/// Two balls of radius 1, centres 4 apart on z, joined by a "leg": a round rod of `radius` (< 1): genus 0.
+/// Profile points every `step`.
+pub fn leg_profile(radius: f64, step: f64) -> Vec<[f64; 2]> {
+    use std::f64::consts::FRAC_PI_2;
+    let (c, a) = (2.0, radius.clamp(1e-6, 0.99).acos());
+    let mut p = Vec::new();
+    arc(&mut p, [0.0, -c], 1.0, -FRAC_PI_2, a, step);
+    let z = (1.0 - radius * radius).sqrt();
+    segment(&mut p, [radius, -c + z], [radius, c - z], step);
+    arc(&mut p, [0.0, c], 1.0, -a, FRAC_PI_2, step);
+    p.push([0.0, c + 1.0]);
+    p
+}
+
+/// A ball of radius 1 under a cone of half-angle `half_angle_deg` whose tip is a sharp point on the axis,
+/// tangent to the ball: genus 0. Profile points every `step`.
+pub fn cone_tip_profile(half_angle_deg: f64, step: f64) -> Vec<[f64; 2]> {
+    use std::f64::consts::FRAC_PI_2;
+    let b = half_angle_deg.to_radians().clamp(0.01, 1.5);
+    // The cone touches the ball at the half angle above the equator; its tip is at 1 / sin b.
+    let touch = b;
+    let mut p = Vec::new();
+    arc(&mut p, [0.0, 0.0], 1.0, -FRAC_PI_2, touch, step);
+    segment(&mut p, [touch.cos(), touch.sin()], [0.0, 1.0 / b.sin()], step);
+    p.push([0.0, 1.0 / b.sin()]);
+    p
+}
+
+/// A sheet of `thickness` folded in two, its arms `gap` apart, as a closed (r, z) profile for [`revolve`]:
+/// the arms run from r = 1 to r = 2 and the fold is at r = 2, so the revolved shape is a genus-1 ring whose
+/// two inner faces look at each other across `gap`. Points every `step` along the sheet's middle line.
+pub fn folded_sheet_profile(thickness: f64, gap: f64, step: f64) -> Vec<[f64; 2]> {
+    use std::f64::consts::FRAC_PI_2;
+    let (w, h) = (thickness / 2.0, (gap + thickness) / 2.0);
+    let (r0, r1) = (1.0, 2.0);
+    let mut p = Vec::new();
+    // Counter-clockwise around the band: the bottom arm's underside out to the fold, around the fold's outside,
+    // the top arm's upper side back in, the top arm's end cap, the gap's two faces via the fold's inside, and
+    // the bottom arm's end cap.
+    segment(&mut p, [r0, -h - w], [r1, -h - w], step);
+    arc(&mut p, [r1, 0.0], h + w, -FRAC_PI_2, FRAC_PI_2, step);
+    segment(&mut p, [r1, h + w], [r0, h + w], step);
+    arc(&mut p, [r0, h], w, FRAC_PI_2, 3.0 * FRAC_PI_2, step);
+    segment(&mut p, [r0, h - w], [r1, h - w], step);
+    arc(&mut p, [r1, 0.0], h - w, FRAC_PI_2, -FRAC_PI_2, step);
+    segment(&mut p, [r1, -h + w], [r0, -h + w], step);
+    arc(&mut p, [r0, -h], w, FRAC_PI_2, 3.0 * FRAC_PI_2, step);
+    p
+}

@@ -7,7 +7,6 @@ use clap::Args;
 use crate::ranges;
 use scanstation::geometry::io::ReadOptions;
 use scanstation::pipeline::{self, ConvertOptions, ConvertReport, GateOptions, RemeshFileReport, Resolution};
-use scanstation::stages::NoProgress;
 use scanstation::stages::brep::step::LengthUnit;
 use scanstation::stages::quality::CompareOptions;
 use scanstation::stages::remesh::RemeshOptions;
@@ -72,7 +71,11 @@ pub struct RemeshArgs {
     /// vertices and faster, but features thinner than twice the spacing can be lost.
     #[arg(long)]
     pub split_only: bool,
-    /// One spacing everywhere (no finer spacing on thin parts).
+    /// Every route and finish, not only those `convert` uses: the adaptive split and refined direct routes,
+    /// the least-squares fit of the net to the input and dipole transport (slower: minutes on a 50k scan).
+    #[arg(long)]
+    pub all_routes: bool,
+    /// With `--all-routes`: one spacing everywhere (no adaptive split route).
     #[arg(long)]
     pub uniform_spacing: bool,
     /// Extract from the position field as it is, without cancelling its singularities in pairs.
@@ -81,19 +84,22 @@ pub struct RemeshArgs {
     /// Working-mesh vertices per output vertex (1 to 64).
     #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex, value_parser = ranges::per_vertex)]
     pub work_per_vertex: f64,
-    /// Working-mesh vertices per output vertex for the direct routes (which extract at the full count; 1 to 64).
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().work_per_vertex_direct, value_parser = ranges::per_vertex)]
-    pub work_per_vertex_direct: f64,
-    /// No refined direct route (a finer spacing where the direct result missed thin parts).
+    /// Working-mesh vertices per output vertex for the direct routes (which extract at the full count; 1 to
+    /// 64; default 6, or 10 with `--all-routes`).
+    #[arg(long, value_parser = ranges::per_vertex)]
+    pub work_per_vertex_direct: Option<f64>,
+    /// With `--all-routes`: no refined direct route (a finer spacing where the direct result missed thin parts).
     #[arg(long)]
     pub no_refine: bool,
-    /// Rounds of the least-squares fit of the quad mesh to the input (0 = vertices stay on the input; 0 to 1000).
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().fit_rounds, value_parser = ranges::rounds)]
-    pub fit_rounds: usize,
+    /// Rounds of the least-squares fit of the quad mesh to the input (0 = vertices stay on the input; 0 to
+    /// 1000; default 0, or 4 with `--all-routes`).
+    #[arg(long, value_parser = ranges::rounds)]
+    pub fit_rounds: Option<usize>,
     /// Longest chain of cost-neutral operations (edge rotations, vertex splits, diagonal collapses) that
-    /// moves a dipole (valence 3–5 pair) until it cancels another (0 = no dipole transport; 0 to 16).
-    #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().dipole_depth, value_parser = ranges::depth)]
-    pub dipole_depth: usize,
+    /// moves a dipole (valence 3–5 pair) until it cancels another (0 = no dipole transport; 0 to 16; default
+    /// 0, or 5 with `--all-routes`).
+    #[arg(long, value_parser = ranges::depth)]
+    pub dipole_depth: Option<usize>,
     /// Weight of the pull toward principal curvature directions (0 = off; 0 to 100).
     #[arg(long, default_value_t = scanstation::stages::remesh::RemeshOptions::default().curvature_weight, value_parser = ranges::weight)]
     pub curvature_weight: f64,
@@ -363,23 +369,25 @@ impl RepairArgs {
 }
 
 impl RemeshArgs {
-    /// Remesh's settings, the target count aside (see [`Self::run`]).
+    /// Remesh's settings, the target count aside (see [`Self::run`]): the routes `convert` uses
+    /// ([`RemeshOptions::convert_default`]), or every one with `--all-routes` ([`RemeshOptions::default`]).
     pub fn options(&self, memory_budget: u64) -> RemeshOptions {
+        let base = if self.all_routes { RemeshOptions::default() } else { RemeshOptions::convert_default() };
         RemeshOptions {
             seed: self.seed,
             iterations: self.iterations,
             curvature_weight: self.curvature_weight,
             coherent_pull: self.coherent_pull,
             work_per_vertex: self.work_per_vertex,
-            work_per_vertex_direct: self.work_per_vertex_direct,
-            refine_missed: !self.no_refine,
-            fit_rounds: self.fit_rounds,
-            dipole_depth: self.dipole_depth,
+            work_per_vertex_direct: self.work_per_vertex_direct.unwrap_or(base.work_per_vertex_direct),
+            refine_missed: base.refine_missed && !self.no_refine,
+            fit_rounds: self.fit_rounds.unwrap_or(base.fit_rounds),
+            dipole_depth: self.dipole_depth.unwrap_or(base.dipole_depth),
             try_direct: !self.split_only,
-            adaptive_spacing: !self.uniform_spacing,
+            adaptive_spacing: base.adaptive_spacing && !self.uniform_spacing,
             cancel_singularities: !self.keep_singularities,
             memory_budget,
-            ..Default::default()
+            ..base
         }
     }
 
@@ -398,7 +406,7 @@ impl RemeshArgs {
             (None, None) => return Err(Error::new(ErrorCode::InputBadArgument, "give --vertices or --edge-length")),
         };
         let opts = RemeshOptions { target_vertices: target, ..self.options(memory_budget) };
-        pipeline::remesh_file(&self.input, &self.output, read, &opts, &NoProgress)
+        pipeline::remesh_file(&self.input, &self.output, read, &opts, &crate::progress::LogProgress::new("remesh"))
     }
 }
 
@@ -441,7 +449,13 @@ impl ConvertArgs {
             scanstation::geometry::io::ensure_not_input(r, &others)?;
             scanstation::geometry::io::ensure_replaceable(r)?;
         }
-        let r = pipeline::convert_file(&self.input, &self.output, read, &opts, &NoProgress)?;
+        let r = pipeline::convert_file(
+            &self.input,
+            &self.output,
+            read,
+            &opts,
+            &crate::progress::LogProgress::new("convert"),
+        )?;
         if let Some(path) = &self.report {
             write_report(path, &r)?;
         }

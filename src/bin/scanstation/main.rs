@@ -17,6 +17,7 @@ mod args;
 #[cfg(feature = "daemon")]
 mod client;
 mod print;
+mod progress;
 mod ranges;
 #[cfg(feature = "daemon")]
 mod sim;
@@ -24,9 +25,9 @@ mod sim;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use progress::LogProgress;
 use scanstation::geometry::io::ReadOptions;
 use scanstation::pipeline;
-use scanstation::stages::NoProgress;
 
 use args::*;
 use print::emit;
@@ -131,11 +132,13 @@ fn main() -> ExitCode {
     let read = ReadOptions { memory_budget: budget, max_input_size: cli.max_input_size };
     let result = match &cli.command {
         Command::Inspect(a) => pipeline::inspect_file(&a.file, &read).map(|r| emit(json, &r, print::print_inspect)),
-        Command::Repair(a) => pipeline::repair_file(&a.input, &a.output, &read, &a.options(budget), &NoProgress)
-            .map(|r| emit(json, &r, print::print_repair)),
+        Command::Repair(a) => {
+            pipeline::repair_file(&a.input, &a.output, &read, &a.options(budget), &LogProgress::new("repair"))
+                .map(|r| emit(json, &r, print::print_repair))
+        }
         Command::Remesh(a) => a.run(&read, budget).map(|r| emit(json, &r, print::print_remesh)),
         Command::Reconstruct(a) => {
-            pipeline::reconstruct_file(&a.input, &a.output, &read, &a.options(budget), &NoProgress)
+            pipeline::reconstruct_file(&a.input, &a.output, &read, &a.options(budget), &LogProgress::new("reconstruct"))
                 .map(|r| emit(json, &r, print::print_reconstruct))
         }
         Command::Convert(a) => match a.run(&read, budget) {
@@ -150,7 +153,7 @@ fn main() -> ExitCode {
         },
         Command::Fea(a) => {
             let opts = scanstation::stages::fea::FeaOptions { memory_budget: budget };
-            pipeline::fea::fea_file(&a.input, &a.spec, &a.output, &read, &opts, &NoProgress)
+            pipeline::fea::fea_file(&a.input, &a.spec, &a.output, &read, &opts, &LogProgress::new("fea"))
                 .map(|r| emit(json, &r, print::print_fea))
         }
         Command::Compare(a) => pipeline::compare_files(
@@ -159,7 +162,7 @@ fn main() -> ExitCode {
             &read,
             &a.options(budget),
             a.error_map.as_deref(),
-            &NoProgress,
+            &LogProgress::new("compare"),
         )
         .map(|r| emit(json, &r, print::print_compare)),
         #[cfg(feature = "daemon")]

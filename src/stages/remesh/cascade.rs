@@ -161,10 +161,10 @@ impl<'a> Cascade<'a> {
                 modes.extend([Mode::RefinedDirect; REFINE_TRIES.len()]);
             }
         }
-        if opts.adaptive_spacing {
-            if opts.try_direct {
-                modes.push(Mode::AdaptiveSplit);
-            }
+        if opts.adaptive_spacing && opts.try_direct {
+            modes.push(Mode::AdaptiveSplit);
+        }
+        if opts.adaptive_spacing || opts.try_direct {
             modes.push(Mode::Split);
         }
         modes
@@ -251,9 +251,10 @@ impl<'a> Cascade<'a> {
         if mode == Mode::AdaptiveSplit && mi > 1 && !report.adaptive_split_skipped {
             return true;
         }
-        if mode == Mode::Split && mi == 0 && opts.adaptive_spacing {
+        if mode == Mode::Split && mi == 0 && (opts.adaptive_spacing || opts.try_direct) {
             // Parts thinner than the uniform split's lattice spacing fold onto one lattice row: on a mesh
-            // with many, that route cannot keep them, and the adaptive one runs instead.
+            // with many, that route cannot keep them, and the adaptive one (or, without it, the direct one)
+            // runs instead; the uniform split comes after the direct routes if they lose something too.
             let main = &self.work.main;
             let reach = self.reach;
             let t = self.thick_by[0]

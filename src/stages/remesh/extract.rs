@@ -156,6 +156,18 @@ pub fn extract(
         }
     }
     out.faces = faces.into_iter().map(|f| f.into_iter().map(|v| used[v as usize]).collect()).collect();
+    tracing::debug!(
+        clusters = nv,
+        links = links.len(),
+        refused = out.linked_refused,
+        snapped = out.snapped,
+        low_valence = out.low_valence_removed,
+        dangling = out.dangling_edges_removed,
+        pinched = out.pinch_vertices_removed,
+        vertices = out.positions.len(),
+        faces = out.faces.len(),
+        "extraction"
+    );
     if out.integer.is_none() {
         out.steps = Some(off);
     }
@@ -247,6 +259,28 @@ fn cluster_graph(level: &Level, o: &[V3], s: &[f64], uf: &mut UnionFind, links: 
         nn[c] = add(nn[c], scale(level.n[i], a));
         w[c] += a;
     }
+    // A cluster whose members face apart (the two sides of a part thinner than the spacing, joined at its
+    // rim) has a mean normal that says little: its rotation system turns about the fold's bisector instead.
+    let folded: Vec<usize> = (0..m).filter(|&c| vec3::norm(nn[c]) < FOLD_MEAN * w[c]).collect();
+    if !folded.is_empty() {
+        let mut slot = vec![usize::MAX; m];
+        for (k, &c) in folded.iter().enumerate() {
+            slot[c] = k;
+        }
+        let mut members: Vec<Vec<(V3, f64)>> = vec![Vec::new(); folded.len()];
+        for i in 0..n {
+            let k = slot[cluster[i] as usize];
+            if k != usize::MAX {
+                members[k].push((level.n[i], level.area[i].max(1e-300)));
+            }
+        }
+        for (k, &c) in folded.iter().enumerate() {
+            if let Some(b) = fold_bisector(&members[k]) {
+                nn[c] = scale(b, w[c]);
+            }
+        }
+    }
+    tracing::debug!(clusters = m, folded = folded.len(), "cluster normals");
     for c in 0..m {
         p[c] = scale(p[c], 1.0 / w[c]);
         cs[c] /= w[c];
@@ -262,6 +296,53 @@ fn cluster_graph(level: &Level, o: &[V3], s: &[f64], uf: &mut UnionFind, links: 
     edges.sort_unstable();
     edges.dedup();
     ClusterGraph { p, n: nn, s: cs, members: roots, cluster, edges }
+}
+
+/// A cluster whose area-weighted mean normal is shorter than this share of its area is folded: its members
+/// face apart, as the two sides of a part thinner than the spacing do where they meet at its rim.
+pub const FOLD_MEAN: f64 = 0.5;
+
+/// The widest gap between a folded cluster's normals about the fold's axis, as a share of a turn, below which
+/// it has no fold bisector ([`fold_bisector`]): a thin plate's rim spans half a turn (gap 1/2), noise a little
+/// more.
+pub const FOLD_GAP: f64 = 1.0 / 3.0;
+
+/// The middle of the arc a folded cluster's normals span: the fold's axis is the direction no member faces
+/// (the smallest eigenvector of Σ a·n·nᵀ); about it, the members' normals cover an arc, and the bisector is
+/// the direction opposite the middle of the widest gap between them. `None` when that gap is under
+/// [`FOLD_GAP`] of a turn (no fold: the normals go round, as at a cone's tip) or there are fewer than two.
+///
+/// Cost: O(k log k) for k members.
+fn fold_bisector(members: &[(V3, f64)]) -> Option<V3> {
+    if members.len() < 2 {
+        return None;
+    }
+    let mut c = [[0.0; 3]; 3];
+    for &(nv, a) in members {
+        for r in 0..3 {
+            for k in 0..3 {
+                c[r][k] += a * nv[r] * nv[k];
+            }
+        }
+    }
+    let axis = vec3::unit_or(crate::geometry::linalg::smallest_eigenvector(c), [0.0, 0.0, 1.0]);
+    let u = tangent_unit([1.0, 0.0, 0.0], axis);
+    let v = cross(axis, u);
+    let mut angles: Vec<f64> = members.iter().map(|&(nv, _)| dot(nv, v).atan2(dot(nv, u))).collect();
+    angles.sort_by(f64::total_cmp);
+    let tau = std::f64::consts::TAU;
+    let (mut gap, mut after) = (angles[0] + tau - angles[angles.len() - 1], angles[0]);
+    for w in angles.windows(2) {
+        if w[1] - w[0] > gap {
+            (gap, after) = (w[1] - w[0], w[1]);
+        }
+    }
+    // The normals span tau - gap; the arc starts at `after` and its middle is half that further on.
+    if gap < FOLD_GAP * tau {
+        return None;
+    }
+    let mid = after + 0.5 * (tau - gap);
+    Some(add(scale(u, mid.cos()), scale(v, mid.sin())))
 }
 
 /// Weight of a cluster's pull back to its members' mean origin against its unit steps in [`place_by_steps`].
@@ -435,4 +516,35 @@ fn trace_faces(p: &[V3], n: &[V3], edges: &[(u32, u32)]) -> (Vec<Vec<u32>>, Vec<
     }
     dangling.sort_unstable();
     (faces, dangling)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A thin plate's rim: normals from +z over the outward x to −z (and a little noise). The bisector is x,
+    /// whatever the share of top and bottom area; the area-weighted mean would tip toward the larger side.
+    #[test]
+    fn a_rims_fold_turns_about_its_bisector() {
+        let mut members = Vec::new();
+        for k in 0..=8 {
+            let a = std::f64::consts::PI * (0.5 - k as f64 / 8.0);
+            members.push(([a.cos(), 0.0, a.sin()], 1.0));
+        }
+        members.extend([([0.0, 0.0, 1.0], 30.0), ([0.0, 0.0, -1.0], 5.0), ([0.02, 0.01, 0.9998], 3.0)]);
+        let b = fold_bisector(&members).expect("a fold");
+        assert!(dot(b, [1.0, 0.0, 0.0]) > 0.99, "bisector {b:?}");
+    }
+
+    /// Normals all round an axis (a cone's tip seen from its side) have no fold: no bisector.
+    #[test]
+    fn normals_all_round_have_no_bisector() {
+        let members: Vec<(V3, f64)> = (0..12)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / 12.0;
+                ([a.cos(), a.sin(), 0.0], 1.0)
+            })
+            .collect();
+        assert_eq!(fold_bisector(&members), None);
+    }
 }

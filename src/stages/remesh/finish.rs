@@ -44,12 +44,14 @@ pub(super) struct Finished {
 }
 
 impl Finished {
-    /// 0: χ kept and no flipped face; 1: one of them fails; 2: both.
+    /// 0: χ kept, no flipped face and no crossing triangle pair; else how many of the three fail.
     pub(super) fn class(&self) -> u8 {
-        u8::from(self.changed) + u8::from(self.stats.flipped_faces > 0)
+        u8::from(self.changed)
+            + u8::from(self.stats.flipped_faces > 0)
+            + u8::from(self.stats.crossing_pairs.is_some_and(|x| x > 0))
     }
 
-    /// Nothing lost: χ kept, no flipped face, RMS within [`FALLBACK_TRIGGER_PCT`] of the diagonal and, for a
+    /// Nothing lost: χ kept, no flipped face, no crossing, RMS within [`FALLBACK_TRIGGER_PCT`] of the diagonal and, for a
     /// fitted result (whose RMS the fit lowers near a lost part), at most [`MISSED_MAX`] of the working
     /// vertices missed.
     pub(super) fn sound(&self, diagonal: f64) -> bool {

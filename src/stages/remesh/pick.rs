@@ -7,7 +7,7 @@ use crate::geometry::mesh::PolyMesh;
 
 /// The kept result of `finished` (not empty); the others go into `report.alternatives`.
 ///
-/// A result that keeps χ and has no flipped face beats one that does not, then one within [`COUNT_LIMIT`] of
+/// A result that keeps χ and has no flipped face and no crossing beats one that does not, then one within [`COUNT_LIMIT`] of
 /// the target beats one that is not, then a sound one beats one that is not; among equals a later route (more
 /// irregular vertices, as a rule) wins only when the earlier one is more than [`FIDELITY_RATIO`] times farther
 /// from the input, or when it has fewer irregular vertices for a small enough rise in RMS

@@ -56,6 +56,10 @@ pub struct QuadStats {
     pub edge_length_mean: f64,
     /// Coefficient of variation of the edge length.
     pub edge_length_cv: f64,
+    /// Crossing triangle pairs of the mesh's fan triangulation (exact predicates,
+    /// [`crate::geometry::intersect::self_intersections`]): where two sides of a thin part met. Measured with
+    /// the input (`None` without).
+    pub crossing_pairs: Option<usize>,
 }
 
 /// How the pure-quad mesh was made.
@@ -346,6 +350,8 @@ pub fn quad_stats(mesh: &PolyMesh, input: Option<(&TriMesh, &TriangleBvh)>) -> Q
                 }
             }
         }
+        let (t, _) = mesh.triangulate();
+        st.crossing_pairs = Some(crate::geometry::intersect::self_intersections(&p, &t.triangles).len());
     }
     st
 }
