@@ -381,8 +381,10 @@ fn every_closed_shared_mesh_remeshes_to_pure_quads() {
             let (rms_bound, irregular_bound) = if f.contains("dragon") {
                 (0.07, 0.06)
             } else if f.contains("armadillo") {
-                // seed 1: 4.21 % since 2026-12-06 (the direct routes' split working mesh; 3.81 % before).
-                (0.1, 0.045)
+                // seed 1: 4.56 % since 2026-12-06's second step: a crossing net became unsound, and every other
+                // net of seed 1 crosses (adaptive split 16 pairs, direct 5, refined 13 and 8; the 4.21 % one
+                // kept before was among them). 3.81 % before the direct routes' split working mesh.
+                (0.1, 0.047)
             } else {
                 (0.1, 0.03)
             };

@@ -32,6 +32,7 @@ pub(super) fn pick(mut finished: Vec<Finished>, diagonal: f64, report: &mut Reme
                 euler_characteristic: other.stats.euler_characteristic,
                 flipped_faces: other.stats.flipped_faces,
                 missed_fraction: other.missed,
+                crossing_pairs: other.stats.crossing_pairs,
             });
         }
     }

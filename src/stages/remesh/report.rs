@@ -137,6 +137,8 @@ pub struct Alternative {
     pub flipped_faces: usize,
     /// Fraction of the route's working vertices farther than [`MISS_SPACINGS`] final spacings from it.
     pub missed_fraction: f64,
+    /// Its crossing triangle pairs ([`QuadStats::crossing_pairs`]).
+    pub crossing_pairs: Option<usize>,
 }
 
 /// One re-extraction of a route's kept attempt with its position singularities cancelled.
