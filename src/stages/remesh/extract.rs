@@ -259,28 +259,7 @@ fn cluster_graph(level: &Level, o: &[V3], s: &[f64], uf: &mut UnionFind, links: 
         nn[c] = add(nn[c], scale(level.n[i], a));
         w[c] += a;
     }
-    // A cluster whose members face apart (the two sides of a part thinner than the spacing, joined at its
-    // rim) has a mean normal that says little: its rotation system turns about the fold's bisector instead.
-    let folded: Vec<usize> = (0..m).filter(|&c| vec3::norm(nn[c]) < FOLD_MEAN * w[c]).collect();
-    if !folded.is_empty() {
-        let mut slot = vec![usize::MAX; m];
-        for (k, &c) in folded.iter().enumerate() {
-            slot[c] = k;
-        }
-        let mut members: Vec<Vec<(V3, f64)>> = vec![Vec::new(); folded.len()];
-        for i in 0..n {
-            let k = slot[cluster[i] as usize];
-            if k != usize::MAX {
-                members[k].push((level.n[i], level.area[i].max(1e-300)));
-            }
-        }
-        for (k, &c) in folded.iter().enumerate() {
-            if let Some(b) = fold_bisector(&members[k]) {
-                nn[c] = scale(b, w[c]);
-            }
-        }
-    }
-    tracing::debug!(clusters = m, folded = folded.len(), "cluster normals");
+    turn_folded_clusters(level, &cluster, &w, &mut nn);
     for c in 0..m {
         p[c] = scale(p[c], 1.0 / w[c]);
         cs[c] /= w[c];
@@ -306,6 +285,33 @@ pub const FOLD_MEAN: f64 = 0.5;
 /// it has no fold bisector ([`fold_bisector`]): a thin plate's rim spans half a turn (gap 1/2), noise a little
 /// more.
 pub const FOLD_GAP: f64 = 1.0 / 3.0;
+
+/// A cluster whose members face apart (the two sides of a part thinner than the spacing, joined at its rim)
+/// has a mean normal that says little: its summed normal `nn[c]` (area `w[c]`) is replaced by its fold's
+/// bisector ([`fold_bisector`]), so its rotation system turns about that. `cluster[i]` is working vertex i's.
+///
+/// Cost: O(n) plus O(k log k) per folded cluster of k members.
+fn turn_folded_clusters(level: &Level, cluster: &[u32], w: &[f64], nn: &mut [V3]) {
+    let folded: Vec<usize> = (0..nn.len()).filter(|&c| vec3::norm(nn[c]) < FOLD_MEAN * w[c]).collect();
+    if folded.is_empty() {
+        return;
+    }
+    let mut slot = vec![usize::MAX; nn.len()];
+    for (k, &c) in folded.iter().enumerate() {
+        slot[c] = k;
+    }
+    let mut members: Vec<Vec<(V3, f64)>> = vec![Vec::new(); folded.len()];
+    for (i, &c) in cluster.iter().enumerate() {
+        if let Some(m) = members.get_mut(slot[c as usize]) {
+            m.push((level.n[i], level.area[i].max(1e-300)));
+        }
+    }
+    for (m, &c) in members.iter().zip(&folded) {
+        if let Some(b) = fold_bisector(m) {
+            nn[c] = scale(b, w[c]);
+        }
+    }
+}
 
 /// The middle of the arc a folded cluster's normals span: the fold's axis is the direction no member faces
 /// (the smallest eigenvector of Σ a·n·nᵀ); about it, the members' normals cover an arc, and the bisector is
