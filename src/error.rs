@@ -143,6 +143,9 @@ pub enum ErrorCode {
     /// Quality gate: the solid's RMS distance to the input misses its bound (the tolerance, or the default
     /// accuracy goal).
     QualityRms,
+    /// Quality gate: an open input's cap bulges past its rim's plane by more than the rim's own
+    /// non-planarity and the accuracy goal.
+    QualityCapBulge,
 }
 
 impl ErrorCode {
@@ -202,6 +205,7 @@ impl ErrorCode {
             ErrorCode::QualityFolded => "quality.folded",
             ErrorCode::QualityVolume => "quality.volume",
             ErrorCode::QualityRms => "quality.rms",
+            ErrorCode::QualityCapBulge => "quality.cap-bulge",
         }
     }
 
@@ -219,7 +223,8 @@ impl ErrorCode {
             ErrorCode::QualitySelfIntersecting
             | ErrorCode::QualityFolded
             | ErrorCode::QualityVolume
-            | ErrorCode::QualityRms => ErrorClass::Quality,
+            | ErrorCode::QualityRms
+            | ErrorCode::QualityCapBulge => ErrorClass::Quality,
             ErrorCode::DeviceUnplugged
             | ErrorCode::DeviceWrongFirmware
             | ErrorCode::DeviceTimeout

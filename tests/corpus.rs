@@ -263,6 +263,13 @@ fn trust_issue_mesh(file: &str) -> bool {
 /// refusing joins of clusters already linked, and the surface fit's smoothness 10⁻²) the scorpion and the
 /// skull are published as good at their first seed: scorpion RMS 0.021 %, volume 0.028 %, skull RMS 0.015 %,
 /// no crossing, no fold; the falcon now extracts and is refused by its gates (RMS 0.17 %: its open base).
+///
+/// Since the open-bases step (issue 43, 2026-12-06) the falcon's base is judged large by its size (rim radius
+/// 10.5 % of the diagonal) and capped flat; the solid's invented region is told apart by the surface repair
+/// invented, not by the nearest scan rim: solid → scan off it 0.024 % (was 0.246 % with cap vertices counted
+/// as surface), the solid over the cap bulges 0.049 % past the rim's plane, whose rim lies 0.081 % off it
+/// (`caps` gate −0.032 %, passed). Its RMS gate (0.055 %) still fails on scan → solid 0.074 %: a thin part of
+/// the statue lost by the quad net (the layout issue), not the base.
 #[test]
 fn trust_issue_meshes_are_never_published_as_good() {
     use scanstation::ErrorCode;
@@ -281,7 +288,8 @@ fn trust_issue_meshes_are_never_published_as_good() {
                 let clean = gate("crossings").value == 0.0
                     && r.brep.folded_faces == 0
                     && r.volume_error_pct.abs() <= 0.5
-                    && gate("rms").value <= gate("rms").bound;
+                    && gate("rms").value <= gate("rms").bound
+                    && r.gates.iter().filter(|g| g.name == "caps").all(|g| g.value <= g.bound);
                 println!("{f}: status {:?}, gates {:?}, attempts {:?}", r.status, r.gates, r.attempts);
                 assert_eq!(r.status == Status::Ok, clean, "{f}: status {:?} with gates {:?}", r.status, r.gates);
                 if !f.ends_with("falconstatue_boundary.ply") {
@@ -289,6 +297,17 @@ fn trust_issue_meshes_are_never_published_as_good() {
                 }
                 if let Err(e) = r.verdict() {
                     assert_eq!(e.class(), scanstation::ErrorClass::Quality, "{f}: {e}");
+                }
+                if f.ends_with("falconstatue_boundary.ply") {
+                    let o = r.open_input.as_ref().unwrap_or_else(|| panic!("{f}: an open input without its measure"));
+                    assert_eq!((o.holes_filled, o.caps), (1, 1), "{f}: {:?}", r.repair.holes.decisions);
+                    assert!(
+                        o.solid_to_scan_off_invented_rms_pct <= 0.05,
+                        "{f}: solid → scan off the invented region {o:?}"
+                    );
+                    let cap = &o.cap_measures[0];
+                    assert!(cap.bulge_pct <= cap.rim_residual_pct, "{f}: the cap bulges {cap:?}");
+                    assert!(gate("caps").passed, "{f}: {:?}", gate("caps"));
                 }
                 // The genus-2 skull keeps its genus through repair and remesh (the solid's faces follow the
                 // net): measured 2026-12-05, χ −2 → −2.

@@ -306,29 +306,52 @@ fn closest_facing_picks_the_sheet_facing_the_same_way() {
     assert!(bvh.closest_facing(p, [0.0, 0.0, 0.0]).is_none(), "no triangle faces a zero vector");
 }
 
-/// An open scan's measure: points of the whole sphere against the sphere with a hole punched out are split
-/// into those over the hole (their closest scan point on its rim) and the rest. The points over the hole are
-/// the ones farther than the sphere's facet error from the scan, and their share is the hole's share of the
-/// sphere (a cap of half-angle θ has the share (1 − cos θ)/2).
+/// An open scan's measure: points of the whole sphere against the sphere with a polar cap punched out, and
+/// the flat disc that closes it as the invented surface. The points on the removed cap are labelled invented,
+/// the rest scanned; their share is the hole's share of the sphere (a cap of half-angle θ has the share
+/// (1 − cos θ)/2), and the scanned points lie on the scan. A point on the sphere just below the rim (a wall)
+/// stays scanned although the disc is near; the pole, 0.2 above the disc, is invented although the rim is
+/// the nearest scan.
 #[test]
-fn points_over_a_hole_are_told_apart_by_their_closest_rim_point() {
-    use scanstation::stages::quality::split_by_holes;
+fn points_on_invented_surface_are_told_apart_from_scanned_ones() {
+    use scanstation::stages::quality::split_by_invented;
     let full = scanstation::geometry::shapes::icosphere(1.0, 5, [0.0; 3]);
     let mut scan = full.clone();
     // Remove every triangle with a corner above z = 0.8 (a polar cap of half-angle about 36.9°).
     scan.triangles.retain(|t| t.iter().all(|&i| full.positions[i as usize][2] <= 0.8));
+    // The invented surface: a 64-gon disc at z = 0.8 of the rim's radius, fanned from its centre.
+    let r = (1.0f64 - 0.64).sqrt();
+    let mut disc = TriMesh { positions: vec![[0.0, 0.0, 0.8]], triangles: Vec::new() };
+    for k in 0..64u32 {
+        let a = k as f64 * std::f64::consts::TAU / 64.0;
+        disc.positions.push([(r * a.cos()) as f32, (r * a.sin()) as f32, 0.8]);
+        disc.triangles.push([0, 1 + k, 1 + (k + 1) % 64]);
+    }
     let pts: Vec<[f64; 3]> = full.positions.iter().map(|p| p.map(f64::from)).collect();
-    let split = split_by_holes(&pts, &scan);
-    assert_eq!(split.off_holes.len() + split.over_holes.len(), pts.len());
-    let share = split.over_holes.len() as f64 / pts.len() as f64;
+    let split = split_by_invented(&pts, &scan, &disc);
+    assert_eq!(split.invented.len(), pts.len());
+    let over: Vec<usize> = (0..pts.len()).filter(|&i| split.invented[i].is_some()).collect();
+    let share = over.len() as f64 / pts.len() as f64;
     let expected = (1.0 - 0.8) / 2.0;
-    assert!((share - expected).abs() < 0.02, "share over the hole {share:.4}, the cap's {expected:.4}");
-    let off_max = split.off_holes.iter().copied().fold(0.0, f64::max);
-    assert!(off_max < 1e-6, "points off the hole lie on the scan: {off_max:e}");
-    let over_max = split.over_holes.iter().copied().fold(0.0, f64::max);
-    // The pole is 1 − 0.8 = 0.2 above the rim's plane, and farther still from the rim itself.
-    assert!(over_max > 0.2, "the pole's distance to the scan {over_max}");
-    // A closed scan has no hole: everything is off.
-    let closed = split_by_holes(&pts, &full);
-    assert!(closed.over_holes.is_empty());
+    assert!((share - expected).abs() < 0.02, "share on the invented disc {share:.4}, the cap's {expected:.4}");
+    let off_max = (0..pts.len()).filter(|&i| split.invented[i].is_none()).map(|i| split.to_scan[i]).fold(0.0, f64::max);
+    assert!(off_max < 1e-6, "points off the invented surface lie on the scan: {off_max:e}");
+    let pole = pts.iter().position(|p| p[2] > 0.9999).expect("the icosphere has a vertex at its pole");
+    assert!(
+        split.invented[pole].is_some() && split.to_scan[pole] > 0.2,
+        "the pole: {:?}, {}",
+        split.invented[pole],
+        split.to_scan[pole]
+    );
+    // Just below the rim, on the sphere: scanned (distance 0 to the scan, more to the disc).
+    let wall = [0.0, (1.0f64 - 0.78 * 0.78).sqrt(), 0.78];
+    let w = split_by_invented(&[wall], &scan, &disc);
+    assert_eq!(
+        w.invented[0], None,
+        "a wall point below the rim: to scan {}, to disc {}",
+        w.to_scan[0], w.to_invented[0]
+    );
+    // Nothing invented: everything is scanned.
+    let none = split_by_invented(&pts, &full, &TriMesh::default());
+    assert!(none.invented.iter().all(Option::is_none));
 }

@@ -6,6 +6,8 @@ use std::time::Instant;
 
 use super::gates::{Gate, GateOptions, Measured, Status, judge};
 use super::memory::StageMeter;
+pub use super::open_input::OpenInputMeasure;
+use super::open_input::open_input_measure;
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{ReadOptions, ensure_not_input};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
@@ -226,58 +228,6 @@ pub struct ConvertReport {
     pub gates: Vec<Gate>,
     /// Wall seconds of the whole conversion.
     pub total_seconds: f64,
-}
-
-/// How a solid of an open scan is measured: the scan has no surface where repair closed its holes, so the
-/// solid is held to the scan where the scan is (scan → solid, and solid → scan away from the caps), and the
-/// caps' own distance is reported apart. Percentages are of the input's bounding-box diagonal.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct OpenInputMeasure {
-    /// Holes repair filled.
-    pub holes_filled: usize,
-    /// Of those, closed by a planar cap (the rest faired).
-    pub planar_caps: usize,
-    /// RMS distance from the scan to the solid (area samples of the scan).
-    pub scan_to_solid_rms_pct: f64,
-    /// RMS distance from the solid's mesh vertices to the scan, over the vertices whose closest scan point is
-    /// not on a hole's rim.
-    pub solid_to_scan_off_caps_rms_pct: f64,
-    /// RMS distance to the scan of the solid's vertices over the holes (on the caps and fills).
-    pub caps_rms_pct: f64,
-    /// The largest of those.
-    pub caps_max_pct: f64,
-    /// Fraction of the solid's mesh vertices over the holes.
-    pub cap_vertex_fraction: f64,
-    /// What the RMS gate judges: √((scan → solid² + solid → scan off the caps²) / 2).
-    pub rms_pct: f64,
-}
-
-impl OpenInputMeasure {
-    fn measure(
-        solid_mesh: &PolyMesh,
-        scan: &PolyMesh,
-        scan_to_solid_rms: f64,
-        repair: &RepairReport,
-        diag: f64,
-    ) -> Self {
-        let pts: Vec<[f64; 3]> = solid_mesh.positions.iter().map(|q| q.map(f64::from)).collect();
-        let split = crate::stages::quality::split_by_holes(&pts, &scan.triangulate().0);
-        let rms =
-            |d: &[f64]| if d.is_empty() { 0.0 } else { (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt() };
-        let pct = |x: f64| 100.0 * x / diag;
-        let off = rms(&split.off_holes);
-        let total = (split.off_holes.len() + split.over_holes.len()).max(1);
-        OpenInputMeasure {
-            holes_filled: repair.holes.holes_filled,
-            planar_caps: repair.holes.planar_caps.len(),
-            scan_to_solid_rms_pct: pct(scan_to_solid_rms),
-            solid_to_scan_off_caps_rms_pct: pct(off),
-            caps_rms_pct: pct(rms(&split.over_holes)),
-            caps_max_pct: pct(split.over_holes.iter().copied().fold(0.0, f64::max)),
-            cap_vertex_fraction: split.over_holes.len() as f64 / total as f64,
-            rms_pct: pct(((scan_to_solid_rms * scan_to_solid_rms + off * off) / 2.0).sqrt()),
-        }
-    }
 }
 
 impl ConvertReport {
@@ -559,9 +509,8 @@ pub fn convert_file(
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
     let cloud_scatter_pct = reconstruct_step.as_ref().map(|r| r.distance.reference_to_test.rms.pct_of_diagonal);
-    let open_input = open_input_measure(&solid_mesh, &chain.input_geom, kept_input_to_solid_rms, &repair_report, diag);
-    let error_map_file = super::provenance::error_map_path(output);
-    let error_map_scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh), &chain.input_geom)?;
+    let (open_input, error_map_file, error_map_scale) =
+        measure_and_map(output, solid_mesh, &chain.input_geom, kept_input_to_solid_rms, &repair_report, diag)?;
     stages.push(clock.stop("quality", None));
     progress.report(1.0, "quality/done");
 
@@ -571,13 +520,13 @@ pub fn convert_file(
     let rms_pct = open_input.as_ref().map_or(100.0 * kept_rms / diag, |o| o.rms_pct);
     let rms_pct = if cloud_scatter_pct.is_some() { 100.0 * kept_input_to_solid_rms / diag } else { rms_pct };
     let tolerance_pct = if let Resolution::Tolerance(t) = resolution { Some(100.0 * t / diag) } else { None };
-    let open = open_input.is_some();
     let measured = Measured {
         crossings: kept_crossings,
         folded_faces: kept_folds,
         volume_error_pct,
         rms_pct,
-        open_input: open,
+        open_input: open_input.is_some(),
+        cap_excess_pct: open_input.as_ref().and_then(OpenInputMeasure::cap_excess_pct),
         cloud_scatter_pct,
         tolerance_pct,
     };
@@ -617,21 +566,21 @@ fn judge_logged(m: &Measured, opts: &GateOptions) -> (Status, Vec<super::gates::
     (status, gates)
 }
 
-/// For a mesh input whose holes repair filled: the open-input measure of the solid mesh (see
-/// [`OpenInputMeasure`]); `None` otherwise.
-fn open_input_measure(
-    solid_mesh: &PolyMesh,
+/// Step 6 of [`convert_file`]: an open input's measure of `solid_mesh` (see [`OpenInputMeasure`]), then the
+/// error map beside `output` (the solid mesh coloured by its distance to `input`, the invented region grey).
+/// Returns the measure, the error map's path and its colour-scale top.
+fn measure_and_map(
+    output: &Path,
+    solid_mesh: PolyMesh,
     input: &Geometry,
     input_to_solid_rms: f64,
     repair_report: &RepairReport,
     diag: f64,
-) -> Option<OpenInputMeasure> {
-    match input {
-        Geometry::Mesh(scan) if repair_report.holes.holes_filled > 0 => {
-            Some(OpenInputMeasure::measure(solid_mesh, scan, input_to_solid_rms, repair_report, diag))
-        }
-        _ => None,
-    }
+) -> Result<(Option<OpenInputMeasure>, PathBuf, f64)> {
+    let (open_input, invented) = open_input_measure(&solid_mesh, input, input_to_solid_rms, repair_report, diag);
+    let error_map_file = super::provenance::error_map_path(output);
+    let scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh), input, invented.as_deref())?;
+    Ok((open_input, error_map_file, scale))
 }
 
 /// Step 2b of [`convert_file`]: reconstruct a cloud input, measured against its points (its stage report

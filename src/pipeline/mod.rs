@@ -8,6 +8,7 @@ pub mod convert;
 pub mod fea;
 pub mod gates;
 pub mod memory;
+pub mod open_input;
 pub mod provenance;
 pub mod reconstruct;
 
@@ -181,7 +182,7 @@ pub fn compare_files(
     let read_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let distance = compare(&a, &b, opts, progress)?;
-    let scale = error_map.map(|out| write_error_map(out, &a, &b)).transpose()?;
+    let scale = error_map.map(|out| write_error_map(out, &a, &b, None)).transpose()?;
     Ok(CompareReport {
         test: InputSummary::of(test, &a),
         reference: InputSummary::of(reference, &b),

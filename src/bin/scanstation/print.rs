@@ -93,15 +93,34 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
     };
     if let Some(o) = &r.open_input {
         outln!(
-            "  open input: {} holes ({} planar caps); scan -> solid RMS {:.4} %, solid -> scan off the caps {:.4} %; caps RMS {:.4} %, max {:.4} % ({:.1} % of the solid's vertices)",
+            "  open input: {} holes ({} capped); scan -> solid RMS {:.4} %, solid -> scan off the invented region {:.4} %",
             o.holes_filled,
-            o.planar_caps,
+            o.caps,
             o.scan_to_solid_rms_pct,
-            o.solid_to_scan_off_caps_rms_pct,
-            o.caps_rms_pct,
-            o.caps_max_pct,
-            100.0 * o.cap_vertex_fraction
+            o.solid_to_scan_off_invented_rms_pct,
         );
+        let inv = &o.invented;
+        outln!(
+            "  invented region: {:.1} % of the solid's area ({:.4e} units²), {:.4} % RMS from what repair invented (max {:.4} %)",
+            100.0 * inv.area_fraction,
+            inv.area,
+            inv.to_repaired_rms_pct,
+            inv.to_repaired_max_pct,
+        );
+        for c in &o.cap_measures {
+            let kind = match c.kind {
+                Some(scanstation::stages::repair::caps::CapKind::Membrane) => "membrane",
+                _ => "planar",
+            };
+            outln!(
+                "    {kind} cap ({} rim edges): area {:.4e} units², {:.4} % RMS from its plane, bulge past it {:.4} % (rim off its plane {:.4} %)",
+                c.edges,
+                c.area,
+                c.plane_rms_pct,
+                c.bulge_pct,
+                c.rim_residual_pct,
+            );
+        }
     }
     outln!("  quality: {status}");
     for g in &r.gates {

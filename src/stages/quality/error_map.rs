@@ -21,19 +21,29 @@ pub fn color_ramp(t: f64) -> [u8; 3] {
     [0, 1, 2].map(|k| (STOPS[i][k] + (STOPS[i + 1][k] - STOPS[i][k]) * f).round() as u8)
 }
 
+/// Colour of invented surface (caps and fills that no scan saw) on an error map: neutral grey.
+pub const INVENTED_GREY: [u8; 3] = [160, 160, 160];
+
 /// Write `test` as a binary PLY with per-vertex `distance` (to `reference`, in input units) and a colour
 /// ramp from 0 (blue) to the 99th percentile of the vertex distances (red; larger values clamp to red).
-/// Returns the colour-scale top.
+/// Vertices marked in `invented` (surface no scan saw) are [`INVENTED_GREY`] instead, and left out of the
+/// percentile; the file's comment says so. Returns the colour-scale top.
 ///
 /// # Errors
 /// As [`vertex_distances`]; `resource.output` when the file cannot be written.
-pub fn write_error_map(path: &Path, test: &Geometry, reference: &Geometry) -> Result<f64> {
+pub fn write_error_map(path: &Path, test: &Geometry, reference: &Geometry, invented: Option<&[bool]>) -> Result<f64> {
     let d = vertex_distances(test, reference)?;
-    let mut tmp = d.clone();
+    let is_invented = |i: usize| invented.is_some_and(|m| m.get(i).copied().unwrap_or(false));
+    let mut tmp: Vec<f64> = (0..d.len()).filter(|&i| !is_invented(i)).map(|i| d[i]).collect();
     let top = percentile(&mut tmp, 0.99).max(f64::MIN_POSITIVE);
-    let colors: Vec<[u8; 3]> = d.iter().map(|&x| color_ramp(x / top)).collect();
+    let colors: Vec<[u8; 3]> =
+        (0..d.len()).map(|i| if is_invented(i) { INVENTED_GREY } else { color_ramp(d[i] / top) }).collect();
     let scalar: Vec<f32> = d.iter().map(|&x| x as f32).collect();
-    let comment = format!("scanstation error map: distance to reference; colour scale 0 (blue) .. {top:.6e} (red)");
+    let marked = (0..d.len()).filter(|&i| is_invented(i)).count();
+    let mut comment = format!("scanstation error map: distance to reference; colour scale 0 (blue) .. {top:.6e} (red)");
+    if marked > 0 {
+        comment.push_str(&format!("; grey: invented surface (caps and fills no scan saw), {marked} vertices"));
+    }
     let attrs = VertexAttributes { colors: Some(&colors), scalar: Some(("distance", &scalar)), normals: None };
     match test {
         Geometry::Mesh(m) => write_ply(path, m, &attrs, &[&comment])?,

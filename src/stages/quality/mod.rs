@@ -29,7 +29,7 @@ use crate::geometry::mesh::{Geometry, TriMesh};
 use crate::geometry::sampling::{Rng, fnv1a, sample_area_uniform};
 use crate::geometry::stats::percentile;
 use crate::geometry::tolerance::DISTANCE_ZERO_REL;
-use crate::geometry::vec3::{self, V3, wide};
+use crate::geometry::vec3::{V3, wide};
 use crate::stages::Progress;
 
 /// Settings of a comparison.
@@ -277,55 +277,41 @@ fn refine_max(mesh: &TriMesh, triangles: &[u32], d: &[f64], to: &Prepared) -> f6
         .reduce(|| 0.0, f64::max)
 }
 
-/// Distances of `points` to an open `scan`, split by where the closest scan point lies: on a boundary edge
-/// of the scan (the point is over one of its holes: on a cap or fill that closes it) or elsewhere.
+/// Distances of `points` to a scan, and which points lie on invented surface ([`split_by_invented`]).
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct HoleSplit {
-    /// Distances of the points whose closest scan point is not on a boundary edge.
-    pub off_holes: Vec<f64>,
-    /// Distances of the points over a hole.
-    pub over_holes: Vec<f64>,
+pub struct InventedSplit {
+    /// Per point: its distance to the scan.
+    pub to_scan: Vec<f64>,
+    /// Per point: `Some(t)` when it lies on the invented surface (nearer to its triangle `t` than to the
+    /// scan), `None` on scanned surface.
+    pub invented: Vec<Option<u32>>,
+    /// Per point: its distance to the invented surface (infinite without one).
+    pub to_invented: Vec<f64>,
 }
 
-/// Split the distances of `points` to `scan` by whether each point lies over a hole of the scan
-/// ([`HoleSplit`]): its closest scan point is within 10⁻⁷ of an edge's length of a boundary edge (an edge
-/// used by one triangle). For a closed scan everything is `off_holes`.
+/// Label `points` (the vertices of a surface made from `scan` closed by `invented`, the triangles repair added
+/// over its holes): a point is on invented surface where `invented` is nearer than `scan`, a tie going to
+/// the scan. Both distances are returned. A surface that follows its closed input within the chain's
+/// accuracy is labelled as that input was: its vertices over a cap lie on the cap, far from any scan point;
+/// those on a wall that curls under a cap lie on the wall.
 ///
-/// Cost: O(F log F) for the scan's tree, O(P log F) for the queries (parallel).
-pub fn split_by_holes(points: &[V3], scan: &TriMesh) -> HoleSplit {
-    let mut uses: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
-    for t in &scan.triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            *uses.entry((a.min(b), a.max(b))).or_insert(0) += 1;
-        }
-    }
-    let bvh = TriangleBvh::new(scan);
-    // Distance of `q` from the segment a–b.
-    let to_segment = |q: V3, a: V3, b: V3| {
-        let ab = vec3::sub(b, a);
-        let len2 = vec3::dot(ab, ab);
-        let s = if len2 > 0.0 { (vec3::dot(vec3::sub(q, a), ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
-        vec3::norm(vec3::sub(q, vec3::add(a, vec3::scale(ab, s))))
-    };
-    let pos = |i: u32| wide(scan.positions[i as usize]);
-    let on_rim = |c: &crate::geometry::bvh::Closest| {
-        let t = scan.triangles[c.index as usize];
-        (0..3).any(|k| {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            if uses.get(&(a.min(b), a.max(b))) != Some(&1) {
-                return false;
-            }
-            let (pa, pb) = (pos(a), pos(b));
-            let len = vec3::norm(vec3::sub(pb, pa));
-            len > 0.0 && to_segment(c.point, pa, pb) <= 1e-7 * len
+/// Cost: O((F_scan + F_invented) log F) for the trees, O(P log F) for the queries (parallel).
+pub fn split_by_invented(points: &[V3], scan: &TriMesh, invented: &TriMesh) -> InventedSplit {
+    let scan_tree = TriangleBvh::new(scan);
+    let fill_tree = (!invented.triangles.is_empty()).then(|| TriangleBvh::new(invented));
+    let found: Vec<(f64, Option<(u32, f64)>)> = points
+        .par_iter()
+        .map(|&p| {
+            let d = scan_tree.closest(p).map_or(f64::INFINITY, |c| c.distance);
+            let f = fill_tree.as_ref().and_then(|t| t.closest(p)).map(|c| (c.index, c.distance));
+            (d, f)
         })
-    };
-    let found: Vec<(bool, f64)> =
-        points.par_iter().filter_map(|&p| bvh.closest(p)).map(|c| (on_rim(&c), c.distance)).collect();
-    let mut split = HoleSplit::default();
-    for (over, d) in found {
-        if over { split.over_holes.push(d) } else { split.off_holes.push(d) }
+        .collect();
+    let mut split = InventedSplit::default();
+    for (d, f) in found {
+        split.to_scan.push(d);
+        split.to_invented.push(f.map_or(f64::INFINITY, |(_, e)| e));
+        split.invented.push(f.filter(|&(_, e)| e < d).map(|(t, _)| t));
     }
     split
 }

@@ -14,15 +14,15 @@
 //!    fixed positions from a quadric fitted around the loop ([`rim_anchors`]), so rim noise does not ripple
 //!    into the fill.
 //!
-//! **Planar caps.** A large hole whose rim lies in a plane and whose surroundings meet that plane at a steep
-//! angle is a cut, not a gap in a smooth surface: the open base of a statue scanned standing, a bust's cut.
-//! Thin-plate fairing would continue the walls past the rim into a bulge (3.7 % of the diagonal below a
-//! lion's base). Such a hole ([`planar_rim`]) is triangulated and refined as above, then its new vertices
-//! are put into the rim's least-squares plane and relaxed there (umbrella steps, projected), so the cap
-//! stays in the plane; it is not faired. Each cap is reported ([`PlanarCap`]).
+//! **Caps.** A large hole (the open base of a statue, a bust's cut) is not faired: thin-plate fairing would
+//! continue the walls past the rim into a bulge (3.7 % of the diagonal below a lion's base). Such a hole is
+//! triangulated and refined as above, then capped in its rim's plane or by a membrane spanning its rim
+//! ([`super::caps`], which also says how a hole is judged large). Each hole's decision and each cap are
+//! reported; every fill's triangles are kept as the invented surface ([`InventedSurface`]).
 
 use std::collections::{HashMap, HashSet};
 
+use super::caps::{self, Cap, HoleDecision};
 use crate::geometry::bvh::{BoxTree, box_of};
 use crate::geometry::intersect::mesh_triangles_intersect;
 use crate::geometry::linalg::solve_dense;
@@ -67,41 +67,27 @@ pub struct HoleReport {
     /// (its boundary loop and new vertices): whether the fill itself lies on a smooth surface. A flat fan
     /// has no new vertices (0 here) and shows in `patch_quadric_deviation` instead.
     pub patch_smoothness: Vec<f64>,
-    /// The holes closed by a planar cap instead of a faired fill.
-    pub planar_caps: Vec<PlanarCap>,
+    /// How each hole was judged (small: faired; large: capped), in the order they were filled.
+    pub decisions: Vec<HoleDecision>,
+    /// The holes closed by a cap (planar or membrane) instead of a faired fill.
+    pub caps: Vec<Cap>,
+    /// The surface repair invented: every fill's triangles, as filled (not serialised).
+    #[serde(skip)]
+    pub invented: InventedSurface,
 }
 
-/// A hole closed by a flat cap in its rim's plane.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
-pub struct PlanarCap {
-    /// Boundary edges of the hole.
-    pub edges: usize,
-    /// A point of the plane: the rim's centroid.
-    pub point: V3,
-    /// The plane's unit normal, pointing out of the mesh.
-    pub normal: V3,
-    /// Largest distance of a rim vertex from the plane (the fit residual), input units.
-    pub rim_residual: f64,
-    /// Mean distance of the rim vertices from their centroid, input units.
-    pub rim_radius: f64,
-    /// The cap's area.
-    pub area: f64,
-    /// Its triangles.
-    pub triangles: usize,
+/// The triangles repair added over the holes (fills and caps), with their positions as filled: the part of
+/// the closed mesh that no scan saw. Later stages label their own surface by it (a point is invented where
+/// this surface is nearer than the scan).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct InventedSurface {
+    /// Vertex positions.
+    pub positions: Vec<V3>,
+    /// Triangles.
+    pub triangles: Vec<[u32; 3]>,
+    /// Per triangle: the index in [`HoleReport::caps`] of its cap, or `None` for a faired fill.
+    pub cap_of: Vec<Option<u32>>,
 }
-
-/// Fewest boundary edges of a hole that may get a planar cap: smaller holes keep the faired fill.
-pub const PLANAR_CAP_MIN_EDGES: usize = 16;
-/// Largest rim-to-plane distance of a planar cap's rim, as a fraction of the rim's radius. The falcon
-/// statue's open base: 0.0079 (0.0020 of a 0.254 radius); a circular hole in a sphere's side is exactly
-/// planar too, which is why the angle test below is needed.
-pub const PLANAR_CAP_MAX_RESIDUAL: f64 = 0.03;
-/// Largest mean |cos| between the plane's normal and the normals of the faces along the rim: the walls must
-/// meet the plane at a steep angle on average (a cut). cos 30°: a hole in a smooth surface has its
-/// surroundings nearly tangent to the rim's plane (mean |cos| near 1). The falcon statue's base: 0.63.
-pub const PLANAR_CAP_MAX_MEAN_COS: f64 = 0.866;
-/// Relaxation steps of a planar cap's vertices.
-const CAP_RELAX_STEPS: usize = 30;
 
 /// Boundary loops as vertex sequences v0, v1, … where the mesh has the half-edges v_i → v_{i+1}.
 pub fn boundary_loops(tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
@@ -577,106 +563,29 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32], anchors: &HashMap<u32, V3
     (iters, worst)
 }
 
-/// The plane of a hole that should be capped flat ([`PLANAR_CAP_MIN_EDGES`], [`PLANAR_CAP_MAX_RESIDUAL`],
-/// [`PLANAR_CAP_MAX_MEAN_COS`]), or `None` for a hole the faired fill suits. `outside[i]` is the normal of
-/// the face across the loop edge i. The cap's normal points away from those faces' side of the plane (out of
-/// the mesh once closed). Cost: O(loop length).
-fn planar_rim(p: &[V3], lp: &[u32], outside: &[Option<V3>]) -> Option<PlanarCap> {
-    let n = lp.len();
-    if n < PLANAR_CAP_MIN_EDGES {
-        return None;
-    }
-    let pts: Vec<V3> = lp.iter().map(|&v| p[v as usize]).collect();
-    let c = vec3::scale(pts.iter().fold([0.0; 3], |a, &q| vec3::add(a, q)), 1.0 / n as f64);
-    let mut cov = [[0.0; 3]; 3];
-    for q in &pts {
-        let d = vec3::sub(*q, c);
-        for i in 0..3 {
-            for j in 0..3 {
-                cov[i][j] += d[i] * d[j];
-            }
-        }
-    }
-    let mut normal = crate::geometry::linalg::smallest_eigenvector(cov);
-    let len = vec3::norm(normal);
-    if !(len > 0.0) {
-        return None;
-    }
-    normal = vec3::scale(normal, 1.0 / len);
-    let radius = pts.iter().map(|q| vec3::norm(vec3::sub(*q, c))).sum::<f64>() / n as f64;
-    let residual = pts.iter().map(|q| vec3::dot(vec3::sub(*q, c), normal).abs()).fold(0.0, f64::max);
-    if !(radius > 0.0) || residual > PLANAR_CAP_MAX_RESIDUAL * radius {
-        return None;
-    }
-    let normals: Vec<V3> = outside.iter().flatten().copied().collect();
-    if normals.len() < n / 2 {
-        return None;
-    }
-    let mean_cos = normals.iter().map(|m| vec3::dot(*m, normal).abs()).sum::<f64>() / normals.len() as f64;
-    if mean_cos > PLANAR_CAP_MAX_MEAN_COS {
-        return None;
-    }
-    // Out of the mesh: the cap closes the loop, so its area vector is minus the loop's.
-    let mut area = [0.0; 3];
-    for i in 0..n {
-        area = vec3::add(area, vec3::cross(vec3::sub(pts[i], c), vec3::sub(pts[(i + 1) % n], c)));
-    }
-    if vec3::dot(area, normal) > 0.0 {
-        normal = vec3::scale(normal, -1.0);
-    }
-    Some(PlanarCap { edges: n, point: c, normal, rim_residual: residual, rim_radius: radius, area: 0.0, triangles: 0 })
-}
-
-/// Put a planar cap's new vertices (index ≥ `first`) into its plane and relax them there: umbrella steps over
-/// the cap's triangles, each projected back onto the plane, the rim fixed. A step that would turn a cap
-/// triangle over (against the plane's normal) is not taken for that vertex.
-fn flatten_cap(p: &mut [V3], patch: &[[u32; 3]], first: usize, cap: &PlanarCap) {
-    let onto = |q: V3| vec3::sub(q, vec3::scale(cap.normal, vec3::dot(vec3::sub(q, cap.point), cap.normal)));
-    for v in first..p.len() {
-        p[v] = onto(p[v]);
-    }
-    let mut nbrs: HashMap<u32, Vec<u32>> = HashMap::new();
-    let mut faces_of: HashMap<u32, Vec<usize>> = HashMap::new();
-    for (f, t) in patch.iter().enumerate() {
-        for k in 0..3 {
-            if t[k] as usize >= first {
-                let e = nbrs.entry(t[k]).or_default();
-                e.push(t[(k + 1) % 3]);
-                e.push(t[(k + 2) % 3]);
-                faces_of.entry(t[k]).or_default().push(f);
-            }
-        }
-    }
-    let mut verts: Vec<u32> = nbrs.keys().copied().collect();
-    verts.sort_unstable();
-    let upright = |p: &[V3], t: [u32; 3]| {
-        let [a, b, c] = t.map(|i| p[i as usize]);
-        vec3::dot(vec3::cross(vec3::sub(b, a), vec3::sub(c, a)), cap.normal) > 0.0
-    };
-    for _ in 0..CAP_RELAX_STEPS {
-        for &v in &verts {
-            let ns = &nbrs[&v];
-            let mean =
-                vec3::scale(ns.iter().fold([0.0; 3], |a, &u| vec3::add(a, p[u as usize])), 1.0 / ns.len() as f64);
-            let old = p[v as usize];
-            p[v as usize] = onto(mean);
-            if !faces_of[&v].iter().all(|&f| upright(p, patch[f])) {
-                p[v as usize] = old;
-            }
-        }
-    }
-}
-
 /// Fill every hole of the oriented manifold `tris` (in place), adding vertices to `p`. With `measure`, each
 /// patch's smoothness against its surroundings is measured (the `*_quadric_*` fields) and candidate
 /// triangles that would cross the existing surface are excluded (the self-intersection loop, which refills
 /// the holes it makes with `measure` off, checks its refills itself).
+///
+/// Large holes are capped ([`caps`]); "large" is judged against the bounding-box diagonal of `p`.
 pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> HoleReport {
-    fill(p, tris, measure, None)
+    let (lo, hi) = p.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(lo, hi), q| {
+        ([0, 1, 2].map(|k| lo[k].min(q[k])), [0, 1, 2].map(|k| hi[k].max(q[k])))
+    });
+    let diagonal = if p.is_empty() { 0.0 } else { vec3::norm(vec3::sub(hi, lo)) };
+    fill(p, tris, measure, None, diagonal)
 }
 
-/// [`fill_holes`], for the loops that pass through a vertex of `only` when it is given.
-fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&HashSet<u32>>) -> HoleReport {
+/// [`fill_holes`], for the loops that pass through a vertex of `only` when it is given; holes are judged large
+/// against `diagonal` ([`caps::judge`]; infinite: only planar cuts are capped).
+fn fill(
+    p: &mut Vec<V3>,
+    tris: &mut Vec<[u32; 3]>,
+    measure: bool,
+    only: Option<&HashSet<u32>>,
+    diagonal: f64,
+) -> HoleReport {
     let mut report = HoleReport::default();
     let mut loops = boundary_loops(tris);
     if let Some(only) = only {
@@ -708,8 +617,10 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
     let mut patches: Vec<Vec<u32>> = Vec::new();
     let all_sigma = loop_sigma(p, tris, &all_loops);
     let first_new_vertex = p.len();
-    // New vertices of planar caps: already in their plane, not faired.
+    // New vertices of caps: already placed, not faired.
     let mut capped: HashSet<u32> = HashSet::new();
+    // Each patch's triangles, and its cap's index.
+    let mut filled: Vec<(Vec<[u32; 3]>, Option<u32>)> = Vec::new();
     for lp in loops {
         let mut lp = lp;
         report.largest_hole_edges = report.largest_hole_edges.max(lp.len());
@@ -717,7 +628,8 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
         let mut outside: Vec<Option<V3>> =
             (0..n).map(|i| face_of_edge.get(&(lp[i], lp[(i + 1) % n])).and_then(|&t| tri_unit_normal(p, t))).collect();
         let mut sigma: HashMap<u32, f64> = lp.iter().map(|v| (*v, all_sigma[v])).collect();
-        let cap = planar_rim(p, &lp, &outside);
+        let (decision, cap) = caps::judge(p, &lp, &outside, diagonal);
+        report.decisions.push(decision);
         let mut patch = clip_ears(p, &mut lp, &mut outside, MWT_MAX_LOOP, &mut fixed_edges);
         let crosses = |t: [u32; 3]| {
             let (lo, hi) = box_of(&t.map(|i| p[i as usize]));
@@ -727,6 +639,7 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
             });
             hit
         };
+        let start = p.len();
         match mwt(p, &lp, &outside, &fixed_edges, &crosses) {
             Some(t) => patch.extend(t),
             None => {
@@ -737,13 +650,12 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
         let before = p.len();
         report.vertices_added += refine(p, &mut patch, &mut sigma, &fixed_edges);
         report.triangles_added += patch.len();
-        if let Some(mut cap) = cap {
-            flatten_cap(p, &patch, before, &cap);
-            cap.area = patch.iter().map(|t| tri_area(p, *t)).sum();
-            cap.triangles = patch.len();
-            capped.extend(before as u32..p.len() as u32);
-            report.planar_caps.push(cap);
-        }
+        let cap_index = cap.map(|cap| {
+            report.caps.push(place_cap(p, &patch, start, cap));
+            capped.extend(start as u32..p.len() as u32);
+            (report.caps.len() - 1) as u32
+        });
+        filled.push((patch.clone(), cap_index));
         let mut pv = lp.clone();
         pv.extend(patch.iter().flatten().copied().filter(|&v| v as usize >= before || !lp.contains(&v)));
         pv.sort_unstable();
@@ -756,6 +668,7 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
     let (it, res) = fair(p, tris, &free, &anchors);
     report.fair_iterations = it;
     report.fair_residual = res;
+    report.invented = invented_surface(p, &filled);
     if !measure {
         return report;
     }
@@ -769,6 +682,42 @@ fn fill(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool, only: Option<&
         report.patch_smoothness.push(own);
     }
     report
+}
+
+/// Put a large hole's new vertices (index ≥ `first`) where its cap wants them ([`caps::flatten_cap`] or
+/// [`caps::membrane_cap`]) and measure the cap: area, triangles, bulge past its plane.
+fn place_cap(p: &mut [V3], patch: &[[u32; 3]], first: usize, mut cap: Cap) -> Cap {
+    match cap.kind {
+        Some(caps::CapKind::Membrane) => caps::membrane_cap(p, patch, first, &cap),
+        _ => caps::flatten_cap(p, patch, first, &cap),
+    }
+    cap.area = patch.iter().map(|t| tri_area(p, *t)).sum();
+    cap.triangles = patch.len();
+    let mut vs: Vec<usize> = patch.iter().flatten().map(|&v| v as usize).collect();
+    vs.sort_unstable();
+    vs.dedup();
+    cap.bulge = caps::bulge(p, vs.into_iter(), &cap);
+    cap
+}
+
+/// The fills' triangles (`filled`: each patch with its cap's index) with their vertices' current positions,
+/// compacted.
+fn invented_surface(p: &[V3], filled: &[(Vec<[u32; 3]>, Option<u32>)]) -> InventedSurface {
+    let mut index: HashMap<u32, u32> = HashMap::new();
+    let mut out = InventedSurface::default();
+    for (patch, cap) in filled {
+        for t in patch {
+            let t = t.map(|v| {
+                *index.entry(v).or_insert_with(|| {
+                    out.positions.push(p[v as usize]);
+                    (out.positions.len() - 1) as u32
+                })
+            });
+            out.triangles.push(t);
+            out.cap_of.push(*cap);
+        }
+    }
+    out
 }
 
 /// A quadric height field z = h(x, y) = a x² + b xy + c y² + d x + e y + f over a local frame (origin, u, v,
@@ -859,7 +808,7 @@ pub fn fill_holes_near(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, rim: &HashSet<
     let mut lt: Vec<[u32; 3]> = faces.iter().map(|&f| tris[f as usize].map(|v| local_of[&v])).collect();
     let local_rim: HashSet<u32> = rim.iter().filter_map(|v| local_of.get(v).copied()).collect();
     let (n_local, f_local) = (lp.len(), lt.len());
-    let report = fill(&mut lp, &mut lt, false, Some(&local_rim));
+    let report = fill(&mut lp, &mut lt, false, Some(&local_rim), f64::INFINITY);
     // New local vertices become new global vertices, in order.
     let first_global = p.len() as u32;
     p.extend_from_slice(&lp[n_local..]);

@@ -20,6 +20,7 @@
 //! The result is checked with the foundation's topology report and measured against the input with
 //! `compare`.
 
+pub mod caps;
 pub mod handles;
 pub mod holes;
 pub mod intersections;
