@@ -700,9 +700,7 @@ fn statues_cut_open_at_the_base_pass_every_gate() {
         });
         let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
         let (a, b) = ((up + 1) % 3, (up + 2) % 3);
-        let mut n = [0.0; 3];
-        n[up] = 1.0;
-        n[a] = tilt;
+        // Height along the cut's normal: `up` tilted towards axis `a`.
         let len = (1.0 + tilt * tilt).sqrt();
         let h: Vec<f64> = p.iter().map(|q| (q[up] + tilt * q[a]) / len).collect();
         let (hmin, hmax) = h.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(x, y), &v| (x.min(v), y.max(v)));
