@@ -266,9 +266,9 @@ fn trust_issue_mesh(file: &str) -> bool {
 ///
 /// Since the open-bases step (issue 43, 2026-12-06) the falcon's base is judged large by its size (rim radius
 /// 10.5 % of the diagonal) and capped flat; the solid's invented region is told apart by the surface repair
-/// invented, not by the nearest scan rim: solid → scan off it 0.024 % (was 0.246 % with cap vertices counted
-/// as surface), the solid over the cap bulges 0.049 % past the rim's plane, whose rim lies 0.081 % off it
-/// (`caps` gate −0.032 %, passed). Its RMS gate (0.055 %) still fails on scan → solid 0.074 %: a thin part of
+/// invented, not by the nearest scan rim: solid → scan off it 0.026 % (was 0.246 % with cap vertices counted
+/// as surface), the solid over the cap bulges 0.038 % past the rim's plane, whose rim lies 0.081 % off it
+/// (`caps` gate −0.044 %, passed). Its RMS gate (0.063 %) still fails on scan → solid 0.085 %: a thin part of
 /// the statue lost by the quad net (the layout issue), not the base.
 #[test]
 fn trust_issue_meshes_are_never_published_as_good() {
@@ -678,8 +678,8 @@ fn bunny_scans_fuse_into_one_closed_mesh_near_the_zippered_bunny() {
 /// becomes one solid that passes every gate, its base closed by one membrane cap that bulges past the rim's
 /// plane no more than the rim does, and solid → scan off the invented region within the RMS bound. Measured
 /// 2026-12-06 (release, 2 cores; rim radius % of the diagonal, cap bulge / rim off its plane %, RMS gate %):
-/// igea 12.5, 0.390 / 0.534, 0.0140 (22.9 s); spot 14.0, 1.223 / 2.674, 0.0132 (13.5 s); skull 21.6,
-/// 0.576 / 1.116, 0.0130 (60 s).
+/// igea 12.5, 0.394 / 0.534, 0.0149 (21.9 s); spot 14.0, 1.204 / 2.674, 0.0179 (10.8 s); skull 21.6,
+/// 0.545 / 1.116, 0.0140 (23.9 s; 60 s before caps were triangulated in their plane).
 #[test]
 fn statues_cut_open_at_the_base_pass_every_gate() {
     use scanstation::geometry::io::{read_mesh, write_ply};

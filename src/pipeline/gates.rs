@@ -256,8 +256,8 @@ mod tests {
     }
 
     /// An open input with caps gets the `caps` gate, bounded by the RMS bound: a cap bulging 0.06 % of the
-    /// diagonal past its rim's non-planarity fails it with `quality.cap-bulge`; at -0.03 % (the falcon
-    /// statue's planar cap, 2026-12-06: bulge 0.049 %, rim 0.081 %) it passes. Without caps there is no such gate.
+    /// diagonal past its rim's non-planarity fails it with `quality.cap-bulge`; at -0.03 % it passes (the
+    /// falcon statue's planar cap, 2026-12-06: bulge 0.038–0.049 %, rim 0.081 %). Without caps there is no such gate.
     #[test]
     fn an_open_inputs_caps_are_judged_by_their_own_bound() {
         let open = Measured { open_input: true, cap_excess_pct: Some(0.06), ..clean() };

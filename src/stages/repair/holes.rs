@@ -16,7 +16,8 @@
 //!
 //! **Caps.** A large hole (the open base of a statue, a bust's cut) is not faired: thin-plate fairing would
 //! continue the walls past the rim into a bulge (3.7 % of the diagonal below a lion's base). Such a hole is
-//! triangulated and refined as above, then capped in its rim's plane or by a membrane spanning its rim
+//! triangulated in its rim's plane (`caps::triangulate_in_plane`; step 1 is the fallback when the projected
+//! rim is not simple) and refined as above, then capped in that plane or by a membrane spanning its rim
 //! ([`super::caps`], which also says how a hole is judged large). Each hole's decision and each cap are
 //! reported; every fill's triangles are kept as the invented surface ([`InventedSurface`]).
 
@@ -630,7 +631,14 @@ fn fill(
         let mut sigma: HashMap<u32, f64> = lp.iter().map(|v| (*v, all_sigma[v])).collect();
         let (decision, cap) = caps::judge(p, &lp, &outside, diagonal);
         report.decisions.push(decision);
-        let mut patch = clip_ears(p, &mut lp, &mut outside, MWT_MAX_LOOP, &mut fixed_edges);
+        // A cap's hole is triangulated in its plane; other holes (or a rim whose projection is not simple)
+        // by ears of smallest angle and the minimum-weight triangulation.
+        let in_plane = cap.as_ref().and_then(|c| caps::triangulate_in_plane(p, &lp, c, &fixed_edges));
+        let mut patch = if in_plane.is_some() {
+            Vec::new()
+        } else {
+            clip_ears(p, &mut lp, &mut outside, MWT_MAX_LOOP, &mut fixed_edges)
+        };
         let crosses = |t: [u32; 3]| {
             let (lo, hi) = box_of(&t.map(|i| p[i as usize]));
             let mut hit = false;
@@ -640,7 +648,7 @@ fn fill(
             hit
         };
         let start = p.len();
-        match mwt(p, &lp, &outside, &fixed_edges, &crosses) {
+        match in_plane.or_else(|| mwt(p, &lp, &outside, &fixed_edges, &crosses)) {
             Some(t) => patch.extend(t),
             None => {
                 sigma.insert(p.len() as u32, lp.iter().map(|v| sigma[v]).sum::<f64>() / lp.len() as f64);
