@@ -688,31 +688,13 @@ fn statues_cut_open_at_the_base_pass_every_gate() {
     let dir = data_dir();
     let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("corpus_open_bases");
     std::fs::create_dir_all(&out).unwrap();
-    // (file, up axis, share of the height cut off, tilt towards the next axis)
+    // (file, up axis, share of the height cut off, tilt towards the next axis): see `common::cut_open`.
     for (f, up, share, tilt) in
         [("meshes/igea.ply", 2, 0.12, 0.15f64), ("meshes/spot.ply", 2, 0.15, 0.2), ("meshes/skull.ply", 2, 0.2, 0.1)]
     {
         let mesh =
             read_mesh(&dir.join(f), &ReadOptions::default()).unwrap_or_else(|e| panic!("{f}: {e}")).triangulate().0;
-        let p: Vec<[f64; 3]> = mesh.positions.iter().map(|q| q.map(f64::from)).collect();
-        let (lo, hi) = p.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(lo, hi), q| {
-            ([0, 1, 2].map(|k| lo[k].min(q[k])), [0, 1, 2].map(|k| hi[k].max(q[k])))
-        });
-        let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
-        let (a, b) = ((up + 1) % 3, (up + 2) % 3);
-        // Height along the cut's normal: `up` tilted towards axis `a`.
-        let len = (1.0 + tilt * tilt).sqrt();
-        let h: Vec<f64> = p.iter().map(|q| (q[up] + tilt * q[a]) / len).collect();
-        let (hmin, hmax) = h.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(x, y), &v| (x.min(v), y.max(v)));
-        let c = [0, 1, 2].map(|k| p.iter().map(|q| q[k]).sum::<f64>() / p.len() as f64);
-        let keep: Vec<bool> = (0..p.len())
-            .map(|i| {
-                let ang = (p[i][b] - c[b]).atan2(p[i][a] - c[a]);
-                h[i] >= hmin + share * (hmax - hmin) + 0.003 * diag * (3.0 * ang).sin()
-            })
-            .collect();
-        let mut cut = mesh.clone();
-        cut.triangles.retain(|t| t.iter().all(|&v| keep[v as usize]));
+        let cut = common::cut_open(&mesh, up, share, tilt);
         let input = out.join(Path::new(f).file_name().unwrap());
         write_ply(&input, &cut.into(), &Default::default(), &[]).unwrap();
         let step = input.with_extension("step");

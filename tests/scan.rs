@@ -133,6 +133,13 @@ fn same_object_same_model_and_the_cli_scan_waits() {
     start_scan(&st, &["3", "views", "u", "12", "name", "s", "spot", "vertices", "u", "3000"]);
     st.wait_done(3, Duration::from_secs(600));
     let bundles = visible(&st.spool("outbox"));
+    assert_eq!(
+        bundles.len(),
+        3,
+        "the third scan was not published: outbox {bundles:?}, quarantine {:?}\n{}",
+        visible(&st.spool("quarantine")),
+        st.log()
+    );
     let third = st.spool("outbox").join(&bundles[2]).join("spot.solid.ply");
     let rms = rms_pct(&third, &first);
     eprintln!("same seed: identical STEP ({} bytes); seeds 7 and 8: solids {rms:.4} % of the diagonal apart", a.len());

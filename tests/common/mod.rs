@@ -83,3 +83,30 @@ pub fn jitter(m: &mut scanstation::TriMesh, seed: u64, amplitude: f64) {
         }
     }
 }
+
+/// A statue or bust open at the base, made from a closed `mesh`: the faces with a corner below a cut are
+/// dropped. The cut is a plane whose normal is axis `up` tilted by `tilt` towards the next axis, at `share` of
+/// the mesh's height along that normal above its lowest point, waving by ±0.3 % of the bounding-box diagonal
+/// (three waves round the centroid), so the rim is not planar (issue 43's class of input).
+pub fn cut_open(mesh: &scanstation::TriMesh, up: usize, share: f64, tilt: f64) -> scanstation::TriMesh {
+    let p: Vec<[f64; 3]> = mesh.positions.iter().map(|q| q.map(f64::from)).collect();
+    let (lo, hi) = p.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(lo, hi), q| {
+        ([0, 1, 2].map(|k| lo[k].min(q[k])), [0, 1, 2].map(|k| hi[k].max(q[k])))
+    });
+    let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    let (a, b) = ((up + 1) % 3, (up + 2) % 3);
+    // Height along the cut's normal: `up` tilted towards axis `a`.
+    let len = (1.0 + tilt * tilt).sqrt();
+    let h: Vec<f64> = p.iter().map(|q| (q[up] + tilt * q[a]) / len).collect();
+    let (hmin, hmax) = h.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(x, y), &v| (x.min(v), y.max(v)));
+    let c = [0, 1, 2].map(|k| p.iter().map(|q| q[k]).sum::<f64>() / p.len() as f64);
+    let keep: Vec<bool> = (0..p.len())
+        .map(|i| {
+            let ang = (p[i][b] - c[b]).atan2(p[i][a] - c[a]);
+            h[i] >= hmin + share * (hmax - hmin) + 0.003 * diag * (3.0 * ang).sin()
+        })
+        .collect();
+    let mut cut = mesh.clone();
+    cut.triangles.retain(|t| t.iter().all(|&v| keep[v as usize]));
+    cut
+}
