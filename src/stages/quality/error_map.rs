@@ -26,7 +26,7 @@ pub const INVENTED_GREY: [u8; 3] = [160, 160, 160];
 
 /// Write `test` as a binary PLY with per-vertex `distance` (to `reference`, in input units) and a colour
 /// ramp from 0 (blue) to the 99th percentile of the vertex distances (red; larger values clamp to red).
-/// Vertices marked in `invented` (surface no scan saw) are [`INVENTED_GREY`] instead, and left out of the
+/// Vertices marked in `invented` (surface no scan saw) are neutral grey (`INVENTED_GREY`) instead, and left out of the
 /// percentile; the file's comment says so. Returns the colour-scale top.
 ///
 /// # Errors

@@ -3,7 +3,7 @@
 //!
 //! Thin-plate fairing continues the surrounding surface into the hole. Over a small scanner dropout that is
 //! right; over a large hole whose walls point outward (a base, a cut) it balloons: 3.4 % of the diagonal
-//! under a lion's base. So each hole is judged first ([`judge`]), and the rule that decided is reported
+//! under a lion's base. So each hole is judged first (`judge`), and the rule that decided is reported
 //! ([`HoleRule`]):
 //!
 //! - fewer than [`CAP_MIN_EDGES`] rim edges: **small** (a dropout a few samples wide), faired;
@@ -14,8 +14,8 @@
 //!
 //! A large hole gets a cap:
 //! - its rim planar within [`PLANAR_CAP_MAX_RESIDUAL`] of its radius: a **planar** cap, its vertices in the
-//!   rim's least-squares plane ([`flatten_cap`]);
-//! - otherwise a **membrane** ([`membrane_cap`]): a discrete minimal (harmonic) surface spanning the rim,
+//!   rim's least-squares plane (`flatten_cap`);
+//! - otherwise a **membrane** (`membrane_cap`): a discrete minimal (harmonic) surface spanning the rim,
 //!   continuous at the rim but not tangent-continuous. Each of its vertices is the mean of its neighbours, so
 //!   by the discrete maximum principle the cap lies in the convex hull of its rim and bulges past the rim's
 //!   best plane by no more than the rim's own distance from it.
