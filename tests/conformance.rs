@@ -151,6 +151,18 @@ fn run_json(script: &Path, args: &[&std::ffi::OsStr]) -> Value {
     })
 }
 
+/// `step_check.py`'s verdict on `what`'s STEP file (printed): OpenCASCADE reads exactly one valid solid with one
+/// closed shell and no free edges.
+fn assert_one_valid_solid(what: &str, v: &Value) {
+    let s = &v["summary"];
+    println!("{what}: step_check {s}");
+    assert_eq!(s["solids"], 1, "{what}: OCCT solids: {s}");
+    assert_eq!(s["shells"], 1, "{what}: OCCT shells: {s}");
+    assert_eq!(s["valid"], true, "{what}: BRepCheck_Analyzer invalid: {}", v["occt"]["invalid_subshapes"]);
+    assert_eq!(s["all_shells_closed"], true, "{what}: shell not closed: {s}");
+    assert_eq!(s["free_edges"], 0, "{what}: free edges: {s}");
+}
+
 /// Issue 5 acceptance: every closed shared mesh (and the bunny, repaired on the way) converts to a STEP file
 /// that OpenCASCADE reads as exactly one valid solid with one closed shell and no free edges, whose text is
 /// closed and consistently oriented as written (OCCT heals on read), whose volume is within 0.5 % of the
@@ -230,13 +242,8 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
             args.extend(["--ref".as_ref(), input.as_os_str(), "--samples".as_ref(), "20000".as_ref()]);
         }
         let v = run_json(&kit.join("step_check.py"), &args);
+        assert_one_valid_solid(file, &v);
         let s = &v["summary"];
-        println!("{file}: step_check {s}");
-        assert_eq!(s["solids"], 1, "{file}: OCCT solids: {s}");
-        assert_eq!(s["shells"], 1, "{file}: OCCT shells: {s}");
-        assert_eq!(s["valid"], true, "{file}: BRepCheck_Analyzer invalid: {}", v["occt"]["invalid_subshapes"]);
-        assert_eq!(s["all_shells_closed"], true, "{file}: shell not closed: {s}");
-        assert_eq!(s["free_edges"], 0, "{file}: free edges: {s}");
         assert_eq!(
             s["text_all_shells_closed"], true,
             "{file}: STEP text: an edge not used exactly twice: {}",
@@ -405,14 +412,7 @@ fn scan_sets_and_clouds_convert_to_valid_step_solids() {
             "{what}: status {:?}, {} faces, volume {:+.4} %, {:.1} s",
             report.status, report.brep.faces, report.volume_error_pct, report.total_seconds
         );
-        let v = run_json(&kit.join("step_check.py"), &[step.as_os_str()]);
-        let s = &v["summary"];
-        println!("{what}: step_check {s}");
-        assert_eq!(s["solids"], 1, "{what}: OCCT solids: {s}");
-        assert_eq!(s["shells"], 1, "{what}: OCCT shells: {s}");
-        assert_eq!(s["valid"], true, "{what}: BRepCheck_Analyzer invalid: {}", v["occt"]["invalid_subshapes"]);
-        assert_eq!(s["all_shells_closed"], true, "{what}: shell not closed: {s}");
-        assert_eq!(s["free_edges"], 0, "{what}: free edges: {s}");
+        assert_one_valid_solid(what, &run_json(&kit.join("step_check.py"), &[step.as_os_str()]));
     }
 }
 
@@ -509,14 +509,8 @@ fn statues_cut_open_at_the_base_are_valid_solids_for_occt_and_gmsh() {
             report.status, report.brep.faces, report.repair.holes.caps
         );
         assert_eq!(report.repair.holes.caps.len(), 1, "{f} cut open: {:?}", report.repair.holes.decisions);
-        let v = run_json(&kit.join("step_check.py"), &[step.as_os_str()]);
-        let s = &v["summary"];
-        println!("{f} cut open: step_check {s}");
-        assert_eq!(s["solids"], 1, "{f} cut open: OCCT solids: {s}");
-        assert_eq!(s["shells"], 1, "{f} cut open: OCCT shells: {s}");
-        assert_eq!(s["valid"], true, "{f} cut open: BRepCheck_Analyzer invalid: {}", v["occt"]["invalid_subshapes"]);
-        assert_eq!(s["all_shells_closed"], true, "{f} cut open: shell not closed: {s}");
-        assert_eq!(s["free_edges"], 0, "{f} cut open: free edges: {s}");
+        let what = format!("{f} cut open");
+        assert_one_valid_solid(&what, &run_json(&kit.join("step_check.py"), &[step.as_os_str()]));
         let g = run_json(&root().join("tests/tools/gmsh_tetrahedralise.py"), &[step.as_os_str()]);
         println!("{f} cut open: gmsh {g}");
         assert_eq!(g["volumes"], 1, "{f} cut open: gmsh sees {} volumes", g["volumes"]);

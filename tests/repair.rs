@@ -378,10 +378,7 @@ use scanstation::stages::repair::caps::{CapKind, HoleRule};
 
 /// Bounding-box diagonal of a mesh's vertices.
 fn diagonal_of(t: &TriMesh) -> f64 {
-    let (lo, hi) = t.positions.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(lo, hi), p| {
-        ([0, 1, 2].map(|k| lo[k].min(p[k] as f64)), [0, 1, 2].map(|k| hi[k].max(p[k] as f64)))
-    });
-    (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt()
+    scanstation::geometry::vec3::Aabb::of_points(&t.positions).diagonal()
 }
 
 /// 2-D convex hull (Andrew's monotone chain), counter-clockwise.
@@ -431,20 +428,11 @@ fn cap_case(name: &str, open: TriMesh) -> CapCase {
     assert_eq!(rep.holes.holes_filled, 1, "{name}: {:?}", rep.holes.decisions);
     assert_eq!(rep.holes.caps.len(), 1, "{name}: not capped: {:?}", rep.holes.decisions);
     let cap = &rep.holes.caps[0];
+    use scanstation::geometry::vec3::{dot, plane_frame, sub};
     let (n, c) = (cap.normal, cap.point);
-    let along = |p: [f64; 3]| (0..3).map(|k| (p[k] - c[k]) * n[k]).sum::<f64>();
-    // A frame of the plane.
-    let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
-    let cr =
-        |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-    let u = cr(n, helper);
-    let ul = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
-    let u = u.map(|x| x / ul);
-    let w = cr(n, u);
-    let flat = |p: [f64; 3]| {
-        let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
-        [d[0] * u[0] + d[1] * u[1] + d[2] * u[2], d[0] * w[0] + d[1] * w[1] + d[2] * w[2]]
-    };
+    let along = |p: [f64; 3]| dot(sub(p, c), n);
+    let (u, w) = plane_frame(n);
+    let flat = |p: [f64; 3]| [dot(sub(p, c), u), dot(sub(p, c), w)];
     let (lo, hi) =
         rim.iter().map(|&p| along(p)).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), h| (a.min(h), b.max(h)));
     let hull = hull_2d(rim.iter().map(|&p| flat(p)).collect());

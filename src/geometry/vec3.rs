@@ -52,6 +52,14 @@ pub fn unit_or(a: V3, fallback: V3) -> V3 {
     if l > 1e-12 { scale(a, 1.0 / l) } else { fallback }
 }
 
+/// Two unit vectors (u, v) spanning the plane with unit normal `n`, with u × v = n: u is n × x̂ (n × ŷ when `n`
+/// is within about 26° of x̂), v = n × u.
+pub fn plane_frame(n: V3) -> (V3, V3) {
+    let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+    let u = unit_or(cross(n, helper), [0.0, 0.0, 1.0]);
+    (u, cross(n, u))
+}
+
 /// An axis-aligned box in f64. An empty box has `min > max`.
 #[derive(Copy, Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Aabb {

@@ -90,10 +90,7 @@ pub fn jitter(m: &mut scanstation::TriMesh, seed: u64, amplitude: f64) {
 /// (three waves round the centroid), so the rim is not planar (issue 43's class of input).
 pub fn cut_open(mesh: &scanstation::TriMesh, up: usize, share: f64, tilt: f64) -> scanstation::TriMesh {
     let p: Vec<[f64; 3]> = mesh.positions.iter().map(|q| q.map(f64::from)).collect();
-    let (lo, hi) = p.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(lo, hi), q| {
-        ([0, 1, 2].map(|k| lo[k].min(q[k])), [0, 1, 2].map(|k| hi[k].max(q[k])))
-    });
-    let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    let diag = scanstation::geometry::vec3::Aabb::of_points(&mesh.positions).diagonal();
     let (a, b) = ((up + 1) % 3, (up + 2) % 3);
     // Height along the cut's normal: `up` tilted towards axis `a`.
     let len = (1.0 + tilt * tilt).sqrt();

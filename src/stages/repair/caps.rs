@@ -301,10 +301,7 @@ pub(super) fn triangulate_in_plane(
     cap: &Cap,
     exists: &std::collections::HashSet<(u32, u32)>,
 ) -> Option<Vec<[u32; 3]>> {
-    let n = cap.normal;
-    let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
-    let u = vec3::unit_or(vec3::cross(n, helper), [0.0, 0.0, 1.0]);
-    let w = vec3::cross(n, u);
+    let (u, w) = vec3::plane_frame(cap.normal);
     // The loop reversed: the patch's own boundary, counter-clockwise about the normal.
     let mut q: Vec<u32> = lp.iter().rev().copied().collect();
     let xy = |v: u32| {

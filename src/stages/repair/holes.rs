@@ -571,11 +571,9 @@ fn fair(p: &mut [V3], tris: &[[u32; 3]], free: &[u32], anchors: &HashMap<u32, V3
 ///
 /// Large holes are capped ([`caps`]); "large" is judged against the bounding-box diagonal of `p`.
 pub fn fill_holes(p: &mut Vec<V3>, tris: &mut Vec<[u32; 3]>, measure: bool) -> HoleReport {
-    let (lo, hi) = p.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(lo, hi), q| {
-        ([0, 1, 2].map(|k| lo[k].min(q[k])), [0, 1, 2].map(|k| hi[k].max(q[k])))
-    });
-    let diagonal = if p.is_empty() { 0.0 } else { vec3::norm(vec3::sub(hi, lo)) };
-    fill(p, tris, measure, None, diagonal)
+    let mut bbox = vec3::Aabb::EMPTY;
+    p.iter().for_each(|&q| bbox.add(q));
+    fill(p, tris, measure, None, bbox.diagonal())
 }
 
 /// [`fill_holes`], for the loops that pass through a vertex of `only` when it is given; holes are judged large
@@ -620,8 +618,8 @@ fn fill(
     let first_new_vertex = p.len();
     // New vertices of caps: already placed, not faired.
     let mut capped: HashSet<u32> = HashSet::new();
-    // Each patch's triangles, and its cap's index.
-    let mut filled: Vec<(Vec<[u32; 3]>, Option<u32>)> = Vec::new();
+    // Each patch's cap index, in the order the patches are appended to `tris` after `original_faces`.
+    let mut cap_of_patch: Vec<(usize, Option<u32>)> = Vec::new();
     for lp in loops {
         let mut lp = lp;
         report.largest_hole_edges = report.largest_hole_edges.max(lp.len());
@@ -663,7 +661,7 @@ fn fill(
             capped.extend(start as u32..p.len() as u32);
             (report.caps.len() - 1) as u32
         });
-        filled.push((patch.clone(), cap_index));
+        cap_of_patch.push((patch.len(), cap_index));
         let mut pv = lp.clone();
         pv.extend(patch.iter().flatten().copied().filter(|&v| v as usize >= before || !lp.contains(&v)));
         pv.sort_unstable();
@@ -676,7 +674,7 @@ fn fill(
     let (it, res) = fair(p, tris, &free, &anchors);
     report.fair_iterations = it;
     report.fair_residual = res;
-    report.invented = invented_surface(p, &filled);
+    report.invented = invented_surface(p, &tris[original_faces..], &cap_of_patch);
     if !measure {
         return report;
     }
@@ -708,12 +706,15 @@ fn place_cap(p: &mut [V3], patch: &[[u32; 3]], first: usize, mut cap: Cap) -> Ca
     cap
 }
 
-/// The fills' triangles (`filled`: each patch with its cap's index) with their vertices' current positions,
-/// compacted.
-fn invented_surface(p: &[V3], filled: &[(Vec<[u32; 3]>, Option<u32>)]) -> InventedSurface {
+/// The fills' triangles (`added`, the patches one after another; `cap_of_patch`: each patch's length and
+/// cap index) with their vertices' current positions, compacted.
+fn invented_surface(p: &[V3], added: &[[u32; 3]], cap_of_patch: &[(usize, Option<u32>)]) -> InventedSurface {
     let mut index: HashMap<u32, u32> = HashMap::new();
     let mut out = InventedSurface::default();
-    for (patch, cap) in filled {
+    let mut rest = added;
+    for &(len, cap) in cap_of_patch {
+        let (patch, tail) = rest.split_at(len);
+        rest = tail;
         for t in patch {
             let t = t.map(|v| {
                 *index.entry(v).or_insert_with(|| {
@@ -722,7 +723,7 @@ fn invented_surface(p: &[V3], filled: &[(Vec<[u32; 3]>, Option<u32>)]) -> Invent
                 })
             });
             out.triangles.push(t);
-            out.cap_of.push(*cap);
+            out.cap_of.push(cap);
         }
     }
     out
@@ -748,9 +749,7 @@ impl HeightQuadric {
             return None;
         }
         let n = vec3::scale(normal, 1.0 / nl);
-        let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
-        let u = vec3::unit_or(vec3::cross(n, helper), [0.0, 0.0, 1.0]);
-        let v = vec3::cross(n, u);
+        let (u, v) = vec3::plane_frame(n);
         let origin =
             vec3::scale(pts.iter().fold([0.0; 3], |a, &i| vec3::add(a, p[i as usize])), 1.0 / pts.len() as f64);
         let mut q = HeightQuadric { origin, u, v, n, coef: [0.0; 6] };
