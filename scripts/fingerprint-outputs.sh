@@ -41,7 +41,9 @@ PY
 
 run() { # name, then the command's arguments; its --json report becomes NAME.json
   local name=$1; shift
-  "$bin" "$@" --json > "$out/$name.json" || echo "exit $? for $name" >> "$out/$name.json"
+  # A failed run (a gate refusing the solid) still writes its report: its exit status goes beside it, so the
+  # report stays JSON and is stripped like the others.
+  "$bin" "$@" --json > "$out/$name.json" || echo "exit $? for $name" > "$out/$name.exit"
   strip "$out/$name.json" 2>/dev/null || true
 }
 

@@ -127,6 +127,9 @@ pub enum ErrorCode {
     DeviceRefused,
     /// The turntable stopped away from its target.
     DevicePosition,
+    /// The device's configuration asks for more than the board allows (a speed above its top rate, homing
+    /// on a board without it); the board's own settings name the limit.
+    DeviceConfig,
     /// The CAN controller is bus-off (or error-passive with every send refused): nothing can be sent until it
     /// restarts.
     DeviceBusOff,
@@ -198,6 +201,7 @@ impl ErrorCode {
             ErrorCode::DeviceAlarm => "device.alarm",
             ErrorCode::DeviceRefused => "device.refused",
             ErrorCode::DevicePosition => "device.position",
+            ErrorCode::DeviceConfig => "device.config",
             ErrorCode::DeviceBusOff => "device.bus-off",
             ErrorCode::DeviceLost => "device.lost",
             ErrorCode::DeviceEmergency => "device.emergency",
@@ -231,6 +235,7 @@ impl ErrorCode {
             | ErrorCode::DeviceAlarm
             | ErrorCode::DeviceRefused
             | ErrorCode::DevicePosition
+            | ErrorCode::DeviceConfig
             | ErrorCode::DeviceBusOff
             | ErrorCode::DeviceLost
             | ErrorCode::DeviceEmergency => ErrorClass::Device,

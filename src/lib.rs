@@ -1,13 +1,17 @@
 //! # scanstation
 //!
-//! Turns 3D scans (point clouds and triangle meshes) into CAD solids with a metric quality report.
+//! Controls a 3D scanning station and turns its scans — posed range scans, point clouds and triangle meshes —
+//! into CAD solids (STEP) with a metric quality report and a meshless FEA.
 //!
-//! The crate is layered, bottom up; a lower layer never imports a higher one:
+//! The crate is layered, bottom up; a lower layer never imports a higher one (`tests/house.rs` checks it):
 //! * [`geometry`] — **geometry core**: mesh/cloud types, adjacency, spatial indices, sampling, file formats.
-//! * [`stages`] — the pipeline stages as plain functions (so far: [`stages::quality`]).
-//! * [`pipeline`] — runs stages on a file and assembles reports.
-//! * [`daemon`] — the unattended station: watch folders, job journal, D-Bus, systemd (tokio, zbus). Devices
-//!   (turntable, trigger) arrive with their own issue.
+//! * [`stages`] — the stages as plain functions over data: reconstruct, repair, remesh, surface, brep/STEP,
+//!   quality, fea.
+//! * [`pipeline`] — runs stages on files, enforces the quality gates, owns every artifact and report.
+//! * `devices` — the rig: the turntable (Grbl 1.1, serial) and the scanner's trigger (CAN), with simulators
+//!   (feature `daemon`).
+//! * `daemon` — the unattended station: watch folders, job journal, scan sessions, D-Bus, systemd (tokio,
+//!   zbus; feature `daemon`). It reaches the stages only through the pipeline.
 //!
 //! Errors everywhere are [`Error`] values with a stable [`ErrorCode`].
 //!

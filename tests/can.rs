@@ -10,9 +10,9 @@ use std::time::{Duration, Instant};
 
 use scanstation::ErrorCode;
 use scanstation::devices::DeviceFault;
-use scanstation::devices::can::{BusState, MemBus, StreamBus};
+use scanstation::devices::trigger::sim::{ScannerFault, ScannerSettings, SimScanner};
+use scanstation::devices::trigger::transport::{BusState, MemBus, StreamBus};
 use scanstation::devices::trigger::{TriggerHandle, TriggerSettings, TriggerState, spawn_trigger};
-use scanstation::devices::trigger_sim::{ScannerFault, ScannerSettings, SimScanner};
 
 /// Heartbeat period of these tests (the default is 100 ms; shorter keeps the tests quick).
 const BEAT: Duration = Duration::from_millis(20);

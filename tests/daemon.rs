@@ -831,6 +831,17 @@ fn the_rig_on_dbus_moves_fires_degrades_and_recovers_with_its_simulators() {
     println!("rig connected {t:?} after the name was taken");
     assert_eq!(st.property("Turntable", TURNTABLE, "StepsPerRevolution").as_deref(), Some("u 3200"));
     assert_eq!(st.property("Turntable", TURNTABLE, "Firmware").as_deref(), Some("s \"Grbl 1.1h\""));
+    // The board's own settings, read at connect: a factory-fresh Grbl 1.1h ten times faster ($110 = 500 °/min,
+    // $120 = 10 °/s² in simulated time), homing off, so the table is unlocked, not homed.
+    for (prop, want) in [
+        ("BoardHoming", "b false"),
+        ("BoardMaxRate", "d 5000"),
+        ("BoardAcceleration", "d 1000"),
+        ("BoardStepsPerDegree", "d 250"),
+        ("Homing", "s \"unlock\""),
+    ] {
+        assert_eq!(st.property("Turntable", TURNTABLE, prop).as_deref(), Some(want), "{prop}");
+    }
 
     // MoveTo moves, and Angle follows.
     let monitor_log = dir.join("monitor.log");

@@ -8,13 +8,18 @@
 //!   internals, nor the pipeline or the daemon;
 //! * `src/pipeline` never imports the daemon;
 //! * `src/devices` imports neither the stages, the pipeline nor the daemon;
+//! * `src/daemon` imports no stage: it reaches them only through the pipeline;
 //! * nothing below the daemon (geometry, stages, pipeline) names tokio, zbus, inotify, futures or journald.
 //!
-//! Limits in `src/stages/remesh`, `src/pipeline`, `src/daemon` and `src/bin`: no function over
-//! [`MAX_FN_LINES`] lines, no file over [`MAX_FILE_LINES`] lines; anywhere in `src`: no function with more than
-//! [`MAX_PARAMS`] parameters (`self` not counted). Run with `--nocapture` for the table of the largest ones.
+//! Limits everywhere in `src`: no function over [`MAX_FN_LINES`] lines, no file over [`MAX_FILE_LINES`] lines,
+//! no function with more than [`MAX_PARAMS`] parameters (`self` not counted). Run with `--nocapture` for the
+//! table of the largest ones.
+//!
+//! No circles: no set of files imports itself round (`a.rs` names `b.rs`, which names `a.rs`, directly or
+//! through others). A module's root file naming its own submodules (`mod x; pub use x::Y;`) is a declaration,
+//! not an import, and is not counted.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// Lines of one function, from its `fn` line to its closing brace.
@@ -24,7 +29,7 @@ const MAX_FILE_LINES: usize = 1000;
 /// Parameters of one function, `self` not counted.
 const MAX_PARAMS: usize = 7;
 /// The folders the length limits hold in.
-const LIMITED: [&str; 4] = ["src/stages/remesh", "src/pipeline", "src/daemon", "src/bin"];
+const LIMITED: [&str; 1] = ["src"];
 /// What only the daemon layer (and the binaries above it) may name.
 const ASYNC_CRATES: [&str; 5] = ["tokio", "zbus", "inotify", "futures_util", "tracing_journald"];
 /// What a stage may import from the quality stage: the two-sided distance every stage reports with.
@@ -363,6 +368,8 @@ fn layering_violations(file: &Path, code: &str, stages: &[String]) -> Vec<String
             _ if layer("pipeline") => ["daemon", "devices"].contains(&top),
             // Devices sit beside the pipeline, under the daemon: they use neither, nor the stages.
             _ if layer("devices") => ["stages", "pipeline", "daemon"].contains(&top),
+            // The daemon reaches the stages only through the pipeline.
+            _ if layer("daemon") => top == "stages",
             _ => false,
         };
         if above {
@@ -425,6 +432,9 @@ fn the_layering_check_catches_what_it_should() {
     assert_eq!(layering_violations(devices, "use crate::pipeline::convert_file;", &stages).len(), 1);
     assert!(layering_violations(devices, "use crate::error::Error; fn f() { tokio::spawn(x); }", &stages).is_empty());
     assert!(layering_violations(pipeline, "use crate::stages::repair::decimate;", &stages).is_empty());
+    let daemon = Path::new("src/daemon/worker.rs");
+    assert_eq!(layering_violations(daemon, "fn f() { crate::stages::check_cancelled(p); }", &stages).len(), 1);
+    assert!(layering_violations(daemon, "use crate::pipeline::{Progress, check_cancelled};", &stages).is_empty());
 }
 
 #[test]
@@ -475,4 +485,148 @@ fn functions_and_files_stay_within_the_limits() {
         println!("| {area} | {f} | {fl} | {file} | {l} | {p} | {pc} |");
     }
     assert!(bad.is_empty(), "over the limits ({} places):\n{}", bad.len(), bad.join("\n"));
+}
+
+/// The crate root folder of `file` and its module path inside that crate (`src/a/b.rs` → (`src`, [a, b]);
+/// `src/bin/x/y.rs` → (`src/bin/x`, [y])).
+fn module_of(file: &Path) -> (PathBuf, Vec<String>) {
+    let parts: Vec<String> = file.iter().map(|p| p.to_string_lossy().into_owned()).collect();
+    let (root, rest) = if parts.len() >= 3 && parts[1] == "bin" && !parts[2].ends_with(".rs") {
+        (PathBuf::from("src/bin").join(&parts[2]), &parts[3..])
+    } else if parts.len() == 3 && parts[1] == "bin" {
+        (PathBuf::from("src/bin"), &parts[2..])
+    } else {
+        (PathBuf::from("src"), &parts[1..])
+    };
+    let mut m: Vec<String> = rest.iter().map(|s| s.trim_end_matches(".rs").to_string()).collect();
+    if matches!(m.last().map(String::as_str), Some("mod" | "lib" | "main")) {
+        m.pop();
+    }
+    (root, m)
+}
+
+/// The file of the longest prefix of module path `m` under crate root `root` that is a file.
+fn file_of(root: &Path, m: &[String]) -> Option<PathBuf> {
+    for k in (0..=m.len()).rev() {
+        let base = root.join(m[..k].join("/"));
+        let candidates = if k == 0 {
+            vec![root.join("lib.rs"), root.join("main.rs")]
+        } else {
+            vec![base.with_extension("rs"), base.join("mod.rs")]
+        };
+        if let Some(f) = candidates.into_iter().find(|c| root_join(c).is_file()) {
+            return Some(f);
+        }
+    }
+    None
+}
+
+fn root_join(p: &Path) -> PathBuf {
+    root().join(p)
+}
+
+/// The files `file` imports: every `crate::…`, `super::…` and `self::…` path resolved to the file that holds
+/// it (inline test modules at the end of a file are left out). A root file's own submodules are not counted.
+fn imported_files(file: &Path, code: &str) -> BTreeSet<PathBuf> {
+    let code = code.split("#[cfg(test)]\nmod tests").next().unwrap_or(code);
+    let (root, module) = module_of(file);
+    let is_root_file = matches!(file.file_name().and_then(|n| n.to_str()), Some("mod.rs" | "lib.rs" | "main.rs"));
+    let mut out = BTreeSet::new();
+    for (kw, skip) in [("crate::", 0usize), ("super::", 1), ("self::", 0)] {
+        let mut i = 0;
+        while let Some(k) = code[i..].find(kw) {
+            let at = i + k;
+            i = at + kw.len();
+            if ident_before(code.as_bytes(), at) || (kw != "crate::" && code[..at].ends_with("::")) {
+                continue;
+            }
+            let mut paths = Vec::new();
+            expand(&code[at + kw.len()..], String::new(), &mut paths);
+            let base: Vec<String> = match kw {
+                "crate::" => Vec::new(),
+                _ => module[..module.len().saturating_sub(skip)].to_vec(),
+            };
+            for p in paths {
+                let mut m = base.clone();
+                for seg in p.split("::") {
+                    if seg == "super" {
+                        m.pop();
+                    } else {
+                        m.push(seg.to_string());
+                    }
+                }
+                let Some(target) = file_of(&root, &m) else { continue };
+                let (_, tm) = module_of(&target);
+                let own_child = is_root_file && tm.len() > module.len() && tm.starts_with(&module);
+                if target != file && !own_child {
+                    out.insert(target);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The import circles among `edges` (file → files it imports): each strongly connected set of two or more files.
+fn circles(edges: &BTreeMap<PathBuf, BTreeSet<PathBuf>>) -> Vec<Vec<PathBuf>> {
+    let reach = |from: &PathBuf| -> BTreeSet<PathBuf> {
+        let mut seen = BTreeSet::new();
+        let mut stack = vec![from.clone()];
+        while let Some(f) = stack.pop() {
+            for t in edges.get(&f).into_iter().flatten() {
+                if seen.insert(t.clone()) {
+                    stack.push(t.clone());
+                }
+            }
+        }
+        seen
+    };
+    let reached: BTreeMap<&PathBuf, BTreeSet<PathBuf>> = edges.keys().map(|f| (f, reach(f))).collect();
+    let mut done = BTreeSet::new();
+    let mut out = Vec::new();
+    for (f, r) in &reached {
+        if done.contains(*f) || !r.contains(*f) {
+            continue;
+        }
+        let set: Vec<PathBuf> =
+            r.iter().filter(|g| reached.get(g).is_some_and(|rg| rg.contains(*f))).cloned().collect();
+        done.extend(set.iter().cloned());
+        out.push(set);
+    }
+    out
+}
+
+#[test]
+fn no_files_import_each_other_round() {
+    let mut edges = BTreeMap::new();
+    for file in rust_files(Path::new("src")) {
+        let src = std::fs::read_to_string(root().join(&file)).unwrap();
+        edges.insert(file.clone(), imported_files(&file, &code_only(&src)));
+    }
+    let found = circles(&edges);
+    let text: Vec<String> =
+        found.iter().map(|c| c.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(" ⇄ ")).collect();
+    assert!(found.is_empty(), "import circles ({}):\n{}", found.len(), text.join("\n"));
+}
+
+#[test]
+fn the_circle_check_catches_what_it_should() {
+    let journal = Path::new("src/daemon/journal.rs");
+    let got =
+        imported_files(journal, &code_only("use super::scan::plan::Plan;\nuse crate::daemon::spool::{Spool, Job};\n"));
+    let want: BTreeSet<PathBuf> = ["src/daemon/scan/plan.rs", "src/daemon/spool.rs"].map(PathBuf::from).into();
+    assert_eq!(got, want);
+    let module = Path::new("src/daemon/mod.rs");
+    assert!(imported_files(module, &code_only("pub use journal::Journal; use self::scan::X;")).is_empty());
+    let a = PathBuf::from("a.rs");
+    let b = PathBuf::from("b.rs");
+    let c = PathBuf::from("c.rs");
+    let edges: BTreeMap<PathBuf, BTreeSet<PathBuf>> = [
+        (a.clone(), [b.clone()].into()),
+        (b.clone(), [c.clone()].into()),
+        (c.clone(), [a.clone()].into()),
+        (PathBuf::from("d.rs"), [a.clone()].into()),
+    ]
+    .into();
+    assert_eq!(circles(&edges), vec![vec![a, b, c]]);
 }

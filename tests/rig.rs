@@ -8,10 +8,10 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use scanstation::ErrorCode;
-use scanstation::devices::grbl_sim::{Fault, SimSettings};
-use scanstation::devices::link::{DeviceFault, LinkSettings, TurntableHandle, spawn_turntable};
-use scanstation::devices::sim_pty::{SimCommand, SimTurntable};
 use scanstation::devices::turntable::TurntableSettings;
+use scanstation::devices::turntable::actor::{DeviceFault, LinkSettings, TurntableHandle, spawn_turntable};
+use scanstation::devices::turntable::sim::{Fault, SimSettings};
+use scanstation::devices::turntable::transport::{SimCommand, SimTurntable};
 
 /// Simulated time runs this much faster than the wall clock.
 const TIME_SCALE: f64 = 10.0;
@@ -21,11 +21,9 @@ fn runtime() -> tokio::runtime::Runtime {
 }
 
 fn link_settings(port: &Path) -> LinkSettings {
-    // The driver's speed and acceleration are above the board's (90 °/s, 180 °/s² simulated, ten times that
-    // in wall time): the board limits the moves, and the driver's deadlines stay short.
+    // Speed and acceleration are the board's (read with `$$`: 90 °/s, 180 °/s² simulated, ten times that in
+    // wall time, as the simulator reports them); the deadlines stay short.
     let driver = TurntableSettings {
-        speed: 600.0,
-        accel: 1200.0,
         reply_timeout: Duration::from_millis(500),
         banner_timeout: Duration::from_secs(2),
         home_timeout: Duration::from_secs(5),
@@ -41,9 +39,10 @@ fn link_settings(port: &Path) -> LinkSettings {
     }
 }
 
-/// A simulated board: 90 °/s top speed and 180 °/s² in simulated time.
+/// A simulated board with homing (`$22=1`): 90 °/s top speed and 180 °/s² in simulated time.
 fn sim(dir: &Path, banner: &str) -> SimTurntable {
-    let settings = SimSettings { banner: banner.into(), ..Default::default() };
+    let settings =
+        SimSettings { banner: banner.into(), homing: true, max_speed: 90.0, accel: 180.0, ..Default::default() };
     SimTurntable::spawn(settings, &dir.join("ttyTurntable"), TIME_SCALE).expect("a pty")
 }
 
@@ -51,7 +50,7 @@ async fn until(
     h: &TurntableHandle,
     what: &str,
     limit: Duration,
-    f: impl Fn(&scanstation::devices::link::TurntableState) -> bool,
+    f: impl Fn(&scanstation::devices::turntable::actor::TurntableState) -> bool,
 ) {
     let t = Instant::now();
     let mut w = h.watch();
@@ -204,4 +203,110 @@ fn a_wrong_firmware_and_a_missing_port_are_faults_not_crashes() {
         tokio::time::sleep(Duration::from_millis(900)).await;
         assert_eq!(missing.state().faults, 1, "{:?}", missing.state());
     });
+}
+
+/// A factory-fresh Grbl 1.1h (homing off, `$110=500`, `$120=10`, real time) driven with the default settings
+/// only: the driver reads the board, does not send `$H` (the board would refuse it, `error:5`), times the
+/// move by the board's 8.3 °/s and 10 °/s², and reaches 90°. A config asking for more than the board allows is
+/// `device.config`, never a move; one asking for less is used, with a warning.
+#[test]
+fn a_factory_fresh_board_is_read_and_driven_with_the_default_settings() {
+    let dir = common::scratch("rig-factory");
+    let board = SimTurntable::spawn(SimSettings::default(), &dir.join("ttyTurntable"), 1.0).expect("a pty");
+    runtime().block_on(async {
+        let defaults = LinkSettings { reconnect_min: Duration::from_millis(100), ..LinkSettings::new(board.link()) };
+        let tt = spawn_turntable(defaults);
+        until(&tt, "connected", Duration::from_secs(8), |s| s.connected).await;
+        let s = tt.state();
+        let b = s.board.expect("the board's settings");
+        assert_eq!((b.homing, b.max_rate, b.accel, b.steps_per_degree), (false, 500.0, 10.0, 250.0), "{s:?}");
+        assert_eq!((s.homing.as_str(), s.homed), ("unlock", true), "no $H on a board without homing: {s:?}");
+        assert!((s.speed - 500.0 / 60.0).abs() < 1e-9, "the board's top rate: {s:?}");
+        let r = tt.move_to(90.0).await.unwrap_or_else(|e| panic!("move to 90 on a factory board: {e}"));
+        let want = scanstation::devices::turntable::protocol::move_seconds(90.0, 500.0 / 60.0, 10.0);
+        println!("factory board: 90° in {:.2} s (the trapezoid at 8.3 °/s, 10 °/s²: {want:.2} s)", r.seconds);
+        assert!((r.reached - 90.0).abs() <= 0.01, "reached {}", r.reached);
+        assert!(r.seconds >= want - 0.1, "the move took {:.2} s, the board needs {want:.2} s", r.seconds);
+        assert_eq!(tt.state().faults, 0, "{:?}", tt.state().last_fault);
+        // Unplugged and plugged in again (the board powers up at 0): reconnected, and it moves.
+        inject(&board, SimCommand::Unplug).await;
+        until(&tt, "the unplug seen", Duration::from_secs(3), |s| !s.connected).await;
+        inject(&board, SimCommand::Replug).await;
+        until(&tt, "reconnected", Duration::from_secs(8), |s| s.connected && s.homed).await;
+        let r = tt.move_to(10.0).await.unwrap_or_else(|e| panic!("a move after the replug: {e}"));
+        assert!((r.reached - 10.0).abs() <= 0.01, "reached {} after the replug", r.reached);
+    });
+    drop(board);
+    // Asking for more than the board allows: a fault with the board's value, and moves refused with it.
+    let board = SimTurntable::spawn(SimSettings::default(), &dir.join("ttyTurntable"), 1.0).expect("a pty");
+    runtime().block_on(async {
+        let driver = TurntableSettings { speed: Some(60.0), ..Default::default() };
+        let tt = spawn_turntable(LinkSettings { driver, ..LinkSettings::new(board.link()) });
+        let mut faults = tt.faults();
+        let f = next_fault(&mut faults, Duration::from_secs(8)).await;
+        assert_eq!(f.code, ErrorCode::DeviceConfig, "{f:?}");
+        assert!(f.message.contains("speed = 60") && f.message.contains("$110 = 500"), "{}", f.message);
+        let e = tt.move_to(10.0).await.unwrap_err();
+        assert_eq!(e.code, ErrorCode::DeviceConfig, "{e}");
+        assert_eq!(board.angle(), 0.0, "the table never moved");
+    });
+    drop(board);
+    // Less than the board allows: used.
+    let board = SimTurntable::spawn(SimSettings::default(), &dir.join("ttyTurntable"), 1.0).expect("a pty");
+    runtime().block_on(async {
+        let driver = TurntableSettings { speed: Some(5.0), accel: Some(5.0), ..Default::default() };
+        let tt = spawn_turntable(LinkSettings { driver, ..LinkSettings::new(board.link()) });
+        until(&tt, "connected", Duration::from_secs(8), |s| s.connected).await;
+        assert_eq!(tt.state().speed, 5.0);
+        let r = tt.move_to(5.0).await.expect("a slower move");
+        assert!((r.reached - 5.0).abs() <= 0.01, "reached {}", r.reached);
+    });
+}
+
+/// Resident memory of process `pid`, KiB (`VmRSS` in /proc).
+fn rss_kib(pid: u32) -> u64 {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let line = s.lines().find(|l| l.starts_with("VmRSS:")).expect("VmRSS");
+    line.split_whitespace().nth(1).unwrap().parse().unwrap()
+}
+
+/// Regression: `scanstation sim turntable < /dev/zero` grew by about 750 MB/s until the kernel killed it (4.4 GB
+/// after 6 s), and a control-socket line without a newline the same. Both readers are bounded now: after
+/// 3 s of NULs on stdin and 64 MB without a newline on the socket the simulator holds under 64 MiB and still
+/// takes `quit`.
+#[test]
+fn the_simulators_command_readers_are_bounded() {
+    use std::io::Write;
+    let dir = common::scratch("rig-bounded");
+    let (link, control) = (dir.join("ttyTurntable"), dir.join("control.sock"));
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_scanstation"))
+        .args(["sim", "turntable", "--link", link.to_str().unwrap(), "--control", control.to_str().unwrap()])
+        .stdin(std::fs::File::open("/dev/zero").unwrap())
+        .stderr(std::fs::File::create(dir.join("sim.log")).unwrap())
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while !control.exists() {
+        assert!(t.elapsed() < Duration::from_secs(5), "no control socket");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_secs(3));
+    let after_stdin = rss_kib(child.id());
+    let mut sock = std::os::unix::net::UnixStream::connect(&control).unwrap();
+    let chunk = vec![b'x'; 1 << 20];
+    for _ in 0..64 {
+        sock.write_all(&chunk).unwrap();
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    let after_socket = rss_kib(child.id());
+    println!("simulator resident: {after_stdin} KiB after 3 s of /dev/zero, {after_socket} KiB after 64 MB unbroken");
+    assert!(after_stdin < 64 * 1024 && after_socket < 64 * 1024, "{after_stdin} KiB, {after_socket} KiB");
+    sock.write_all(b"\nquit\n").unwrap();
+    let t = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        assert!(t.elapsed() < Duration::from_secs(10), "quit after the overlong line was not taken");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let log = std::fs::read_to_string(dir.join("sim.log")).unwrap();
+    assert!(log.contains("was dropped"), "{log}");
 }

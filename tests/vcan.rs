@@ -7,10 +7,10 @@
 use std::time::{Duration, Instant};
 
 use scanstation::ErrorCode;
-use scanstation::devices::can::{BusState, CanBus, Frame, is_enobufs};
-use scanstation::devices::socketcan_bus::SocketCanBus;
+use scanstation::devices::trigger::sim::{ScannerFault, ScannerSettings, SimScanner};
+use scanstation::devices::trigger::socketcan::SocketCanBus;
+use scanstation::devices::trigger::transport::{BusState, CanBus, Frame, is_enobufs};
 use scanstation::devices::trigger::{TriggerHandle, TriggerSettings, TriggerState, spawn_trigger};
-use scanstation::devices::trigger_sim::{ScannerFault, ScannerSettings, SimScanner};
 
 fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap()

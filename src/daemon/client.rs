@@ -48,13 +48,13 @@ pub trait Job {
 /// What the CLI client does, over D-Bus; every function returns JSON for `--json` and text output.
 pub mod ops {
     use std::collections::HashMap;
-    use std::io::{IsTerminal, Write};
 
     use futures_util::StreamExt;
     use zbus::Connection;
     use zbus::zvariant::{OwnedValue, Value};
 
     use super::{JobProxy, ManagerProxy};
+    use crate::daemon::config::{JobOptions, option_keys};
     use crate::daemon::dbus::{BUS_NAME, JOB_IFACE, MANAGER_PATH};
     use crate::error::{Error, ErrorCode, Result};
 
@@ -68,6 +68,7 @@ pub mod ops {
             ErrorCode::DeviceAlarm,
             ErrorCode::DeviceRefused,
             ErrorCode::DevicePosition,
+            ErrorCode::DeviceConfig,
             ErrorCode::DeviceBusOff,
             ErrorCode::DeviceLost,
             ErrorCode::DeviceEmergency,
@@ -204,24 +205,30 @@ pub mod ops {
     ///
     /// # Errors
     /// `daemon.*`; `input.not-found` when the path cannot be made absolute.
-    pub async fn submit(
-        conn: &Connection,
-        file: &std::path::Path,
-        vertices: Option<u32>,
-        tolerance: Option<f64>,
-    ) -> Result<String> {
+    pub async fn submit(conn: &Connection, file: &std::path::Path, job: &JobOptions) -> Result<String> {
         let abs = std::fs::canonicalize(file)
             .map_err(|e| Error::new(ErrorCode::InputNotFound, format!("{}: {e}", file.display())))?;
         let mgr = ManagerProxy::new(conn).await.map_err(bus_err)?;
         let mut opts: HashMap<&str, Value<'_>> = HashMap::new();
-        if let Some(v) = vertices {
-            opts.insert("vertices", Value::U32(v));
-        }
-        if let Some(t) = tolerance {
-            opts.insert("tolerance", Value::F64(t));
-        }
+        job_options(job, &mut opts);
         let p = mgr.submit_file(&abs.to_string_lossy(), opts).await.map_err(bus_err)?;
         Ok(p.to_string())
+    }
+
+    /// A job's options as `SubmitFile` and `StartScan` take them ([`option_keys::JOB`]): only those given.
+    fn job_options(o: &JobOptions, opts: &mut HashMap<&str, Value<'_>>) {
+        if let Some(v) = o.vertices {
+            opts.insert(option_keys::VERTICES, Value::U32(u32::try_from(v).unwrap_or(u32::MAX)));
+        }
+        if let Some(t) = o.tolerance {
+            opts.insert(option_keys::TOLERANCE, Value::F64(t));
+        }
+        if let Some(s) = o.seed {
+            opts.insert(option_keys::SEED, Value::U64(s));
+        }
+        if let Some(a) = o.accept_degraded {
+            opts.insert(option_keys::ACCEPT_DEGRADED, Value::Bool(a));
+        }
     }
 
     /// Start a scan session; the job's object path.
@@ -232,28 +239,20 @@ pub mod ops {
         let mgr = ManagerProxy::new(conn).await.map_err(bus_err)?;
         let mut opts: HashMap<&str, Value<'_>> = HashMap::new();
         if let Some(v) = o.views {
-            opts.insert("views", Value::U32(v));
+            opts.insert(option_keys::VIEWS, Value::U32(v));
         }
         if let Some(s) = o.step_deg {
-            opts.insert("step_deg", Value::F64(s));
+            opts.insert(option_keys::STEP_DEG, Value::F64(s));
         }
         if let Some(n) = &o.name {
-            opts.insert("name", Value::from(n.as_str()));
+            opts.insert(option_keys::NAME, Value::from(n.as_str()));
         }
         if let Some(f) = &o.fea {
             let abs = std::fs::canonicalize(f)
                 .map_err(|e| Error::new(ErrorCode::InputNotFound, format!("{}: {e}", f.display())))?;
-            opts.insert("fea", Value::from(abs.to_string_lossy().into_owned()));
+            opts.insert(option_keys::FEA, Value::from(abs.to_string_lossy().into_owned()));
         }
-        if let Some(v) = o.vertices {
-            opts.insert("vertices", Value::U32(v));
-        }
-        if let Some(t) = o.tolerance {
-            opts.insert("tolerance", Value::F64(t));
-        }
-        if let Some(s) = o.seed {
-            opts.insert("seed", Value::U64(s));
-        }
+        job_options(&o.job, &mut opts);
         let p = mgr.start_scan(opts).await.map_err(bus_err)?;
         Ok(p.to_string())
     }
@@ -269,12 +268,8 @@ pub mod ops {
         pub name: Option<String>,
         /// An FEA spec (made absolute here).
         pub fea: Option<std::path::PathBuf>,
-        /// Control vertices.
-        pub vertices: Option<u32>,
-        /// RMS tolerance.
-        pub tolerance: Option<f64>,
-        /// Seed of the conversion.
-        pub seed: Option<u64>,
+        /// The conversion's options.
+        pub job: JobOptions,
     }
 
     /// The rig's devices: each configured one's properties (`null` when not configured).
@@ -365,12 +360,17 @@ pub mod ops {
     }
 
     /// Follow signals of the station (one job when `id` is given, until its `Completed`; all jobs
-    /// otherwise, until interrupted). Each event is printed as a JSON line when `json` or stdout is not a
-    /// terminal, else as a progress bar. Returns the job's final properties (one job) or null.
+    /// otherwise, until interrupted), handing each event to `on_event` as JSON (`event`: `finished` when
+    /// the job had already ended, `changed` with the changed `properties`, `completed`, `job-finished`; with
+    /// the job's `path`). Returns the job's final properties (one job) or null.
     ///
     /// # Errors
     /// `daemon.*`.
-    pub async fn watch(conn: &Connection, id: Option<&str>, json: bool) -> Result<serde_json::Value> {
+    pub async fn watch(
+        conn: &Connection,
+        id: Option<&str>,
+        on_event: &mut (dyn FnMut(&serde_json::Value) + Send),
+    ) -> Result<serde_json::Value> {
         let path = id.map(job_path);
         let mut rule =
             zbus::MatchRule::builder().msg_type(zbus::message::Type::Signal).sender(BUS_NAME).map_err(bus_err)?;
@@ -378,19 +378,15 @@ pub mod ops {
             rule = rule.path(p.as_str()).map_err(bus_err)?;
         }
         let mut stream = zbus::MessageStream::for_match_rule(rule.build(), conn, Some(256)).await.map_err(bus_err)?;
-        let lines = json || !std::io::stdout().is_terminal();
         // Subscribed first, then read: a job that finishes in between is seen as finished here.
         let mut state = match &path {
             Some(p) => all_properties(conn, p.clone(), JOB_IFACE).await?,
             None => serde_json::Value::Null,
         };
         if path.is_some() && state["Result"].as_str().is_some_and(|r| !r.is_empty()) {
-            if lines {
-                println!("{}", serde_json::json!({"event": "finished", "path": path, "properties": state}));
-            }
+            on_event(&serde_json::json!({"event": "finished", "path": path, "properties": state}));
             return Ok(state);
         }
-        let mut out = std::io::stdout();
         while let Some(msg) = stream.next().await {
             let Ok(msg) = msg else { continue };
             let h = msg.header();
@@ -431,31 +427,7 @@ pub mod ops {
                 }
                 _ => continue,
             };
-            if lines {
-                let _ = writeln!(out, "{event}");
-                let _ = out.flush();
-            } else if let Some(pr) = event["properties"]["Progress"].as_f64() {
-                let n = (pr * 30.0).round() as usize;
-                let stage = event["properties"]["Stage"].as_str().unwrap_or("");
-                let _ = write!(
-                    out,
-                    "\r{} [{}{}] {:5.1}% {:<10}",
-                    p.rsplit('/').next().unwrap_or(""),
-                    "#".repeat(n),
-                    ".".repeat(30 - n.min(30)),
-                    pr * 100.0,
-                    stage
-                );
-                let _ = out.flush();
-            } else if event["event"] == "completed" || event["event"] == "job-finished" {
-                let _ = writeln!(
-                    out,
-                    "\n{} {} {}",
-                    p.rsplit('/').next().unwrap_or(""),
-                    event["result"],
-                    event["error_code"]
-                );
-            }
+            on_event(&event);
             if path.is_some() && event["event"] == "completed" {
                 let done = all_properties(conn, path.clone().unwrap_or_default(), JOB_IFACE).await.unwrap_or(state);
                 return Ok(done);

@@ -6,7 +6,10 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use serde::Deserialize;
+
 use sha2::{Digest, Sha256};
+
+use crate::devices::turntable::Homing;
 
 /// A configuration error: the key (dotted, e.g. `limits.memory_budget`) and why it was refused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -295,12 +298,14 @@ pub struct TurntableConfig {
     pub baud: u32,
     /// Motor steps per table revolution, as configured on the board (shown on D-Bus; 0: not given).
     pub steps_per_revolution: u32,
-    /// Top speed, degrees per second.
-    pub speed: f64,
-    /// The board's acceleration, degrees per second² (for the moves' deadlines).
-    pub accel: f64,
-    /// After a reset: run the homing cycle (`true`, `$H`) or unlock (`false`, `$X`).
-    pub home: bool,
+    /// Top speed, degrees per second; `None`: the board's (`$110`). More than the board allows is
+    /// `device.config` at connect.
+    pub speed: Option<f64>,
+    /// The acceleration expected, degrees per second²; `None`: the board's (`$120`). The deadlines use the
+    /// board's.
+    pub accel: Option<f64>,
+    /// After a reset: `auto` (as the board is set up), `home` (`$H`) or `unlock` (`$X`).
+    pub homing: Homing,
     #[serde(with = "secs")]
     /// Deadline of one reply.
     pub reply_timeout: Duration,
@@ -570,25 +575,31 @@ fn turntable_config(t: RawTurntable, dur: &DurOf, err: &ErrOf) -> Result<Turntab
     if !(1_200..=4_000_000).contains(&baud) {
         return Err(err(&k("baud"), format!("{baud} is outside 1200..=4000000")));
     }
-    let speed = t.speed.unwrap_or(60.0);
-    let accel = t.accel.unwrap_or(120.0);
-    for (key, v) in [("speed", speed), ("accel", accel)] {
-        if !(v.is_finite() && v > 0.0 && v <= 1e5) {
+    for (key, v) in [("speed", t.speed), ("accel", t.accel)] {
+        if let Some(v) = v
+            && !(v.is_finite() && v > 0.0 && v <= 1e5)
+        {
             return Err(err(&k(key), format!("{v} is not a positive rate up to 100000")));
         }
     }
-    let home = match t.homing.as_deref().unwrap_or("home") {
-        "home" => true,
-        "unlock" => false,
-        o => return Err(err(&k("homing"), format!("{o:?}: use \"home\" ($H) or \"unlock\" ($X)"))),
+    let homing = match t.homing.as_deref().unwrap_or("auto") {
+        "auto" => Homing::Auto,
+        "home" => Homing::Home,
+        "unlock" => Homing::Unlock,
+        o => {
+            return Err(err(
+                &k("homing"),
+                format!("{o:?}: use \"auto\" (as the board is set up), \"home\" ($H) or \"unlock\" ($X)"),
+            ));
+        }
     };
     Ok(TurntableConfig {
         port,
         baud,
         steps_per_revolution: t.steps_per_revolution.unwrap_or(0),
-        speed,
-        accel,
-        home,
+        speed: t.speed,
+        accel: t.accel,
+        homing,
         reply_timeout: dur(&k("reply_timeout"), &t.reply_timeout, "2s")?,
         banner_timeout: dur(&k("banner_timeout"), &t.banner_timeout, "5s")?,
         home_timeout: dur(&k("home_timeout"), &t.home_timeout, "60s")?,
@@ -676,6 +687,31 @@ fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, Confi
         replug_timeout: dur(&k("replug_timeout"), &t.replug_timeout, "60s")?,
         trigger_channel: t.trigger_channel.unwrap_or(0),
     })
+}
+
+/// The option keys a job takes: in a sidecar file, in `SubmitFile`'s and `StartScan`'s `a{sv}` and from the
+/// CLI, spelled here once.
+pub mod option_keys {
+    /// Control vertices of the quad net (integer).
+    pub const VERTICES: &str = "vertices";
+    /// RMS tolerance, a length (double).
+    pub const TOLERANCE: &str = "tolerance";
+    /// Seed of the randomised steps (integer).
+    pub const SEED: &str = "seed";
+    /// Publish a solid that misses a gate as `degraded` (boolean).
+    pub const ACCEPT_DEGRADED: &str = "accept_degraded";
+    /// A scan's views (integer).
+    pub const VIEWS: &str = "views";
+    /// Degrees between a scan's views (double).
+    pub const STEP_DEG: &str = "step_deg";
+    /// A scan's name (string).
+    pub const NAME: &str = "name";
+    /// An FEA spec for a scan's solid, an absolute path (string).
+    pub const FEA: &str = "fea";
+    /// Every job's options ([`super::JobOptions`]).
+    pub const JOB: [&str; 4] = [VERTICES, TOLERANCE, SEED, ACCEPT_DEGRADED];
+    /// A scan's own options, beside [`JOB`].
+    pub const SCAN: [&str; 4] = [VIEWS, STEP_DEG, NAME, FEA];
 }
 
 /// Per-job options: from a sidecar `NAME.job.toml` or the `a{sv}` of `SubmitFile`.

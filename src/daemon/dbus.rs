@@ -17,7 +17,7 @@ use zbus::object_server::SignalEmitter;
 use zbus::zvariant::{ObjectPath, OwnedObjectPath, OwnedValue, Value};
 use zbus::{Connection, interface};
 
-use super::config::JobOptions;
+use super::config::{JobOptions, option_keys};
 use super::journal::JobId;
 
 /// The bus name.
@@ -264,27 +264,28 @@ fn int(v: &Value<'_>) -> Option<u64> {
     }
 }
 
-/// Parse the `a{sv}` of `SubmitFile`: `vertices` (integer), `tolerance` (double), `seed` (integer),
-/// `accept_degraded` (boolean).
-fn parse_options(options: &HashMap<String, OwnedValue>) -> Result<JobOptions, StationError> {
+/// Parse the `a{sv}` of `SubmitFile` ([`option_keys::JOB`]): `vertices` (integer), `tolerance` (double),
+/// `seed` (integer), `accept_degraded` (boolean). An unknown key is refused, naming `known`.
+fn parse_options(options: &HashMap<String, OwnedValue>, known: &[&str]) -> Result<JobOptions, StationError> {
     let mut o = JobOptions::default();
     for (k, v) in options {
         let bad =
             || StationError::InvalidArgument(format!("option {k:?} has the wrong type ({})", v.value_signature()));
         match k.as_str() {
-            "vertices" => o.vertices = Some(int(v).ok_or_else(bad)? as usize),
-            "seed" => o.seed = Some(int(v).ok_or_else(bad)?),
-            "tolerance" => match &**v {
+            option_keys::VERTICES => o.vertices = Some(int(v).ok_or_else(bad)? as usize),
+            option_keys::SEED => o.seed = Some(int(v).ok_or_else(bad)?),
+            option_keys::TOLERANCE => match &**v {
                 Value::F64(x) => o.tolerance = Some(*x),
                 _ => return Err(bad()),
             },
-            "accept_degraded" => match &**v {
+            option_keys::ACCEPT_DEGRADED => match &**v {
                 Value::Bool(b) => o.accept_degraded = Some(*b),
                 _ => return Err(bad()),
             },
             _ => {
                 return Err(StationError::InvalidArgument(format!(
-                    "unknown option {k:?} (known: vertices, tolerance, seed, accept_degraded)"
+                    "unknown option {k:?} (known: {})",
+                    known.join(", ")
                 )));
             }
         }
@@ -310,13 +311,13 @@ fn parse_scan_options(
         };
         match k.as_str() {
             // Beyond u32: refused by the range check below.
-            "views" => views = Some(u32::try_from(int(v).ok_or_else(bad)?).unwrap_or(u32::MAX)),
-            "step_deg" => match &**v {
+            option_keys::VIEWS => views = Some(u32::try_from(int(v).ok_or_else(bad)?).unwrap_or(u32::MAX)),
+            option_keys::STEP_DEG => match &**v {
                 Value::F64(x) => step = Some(*x),
                 _ => return Err(bad()),
             },
-            "name" => name = text()?,
-            "fea" => {
+            option_keys::NAME => name = text()?,
+            option_keys::FEA => {
                 let p = PathBuf::from(text()?);
                 if !p.is_absolute() {
                     return Err(StationError::InvalidArgument(format!("fea: {} is not an absolute path", p.display())));
@@ -331,12 +332,8 @@ fn parse_scan_options(
     let mut request =
         crate::daemon::scan::ScanRequest::new(views, step, default_views).map_err(StationError::InvalidArgument)?;
     request.fea = fea;
-    let options = parse_options(&rest).map_err(|e| match e {
-        StationError::InvalidArgument(m) if m.starts_with("unknown option") => {
-            StationError::InvalidArgument(m.replace("(known: ", "(known: views, step_deg, name, fea, "))
-        }
-        o => o,
-    })?;
+    let known: Vec<&str> = option_keys::SCAN.into_iter().chain(option_keys::JOB).collect();
+    let options = parse_options(&rest, &known)?;
     Ok((request, name, options))
 }
 
@@ -363,7 +360,7 @@ pub mod manager_iface {
             if !path.is_absolute() {
                 return Err(StationError::InvalidArgument(format!("{} is not an absolute path", path.display())));
             }
-            let options = parse_options(&options)?;
+            let options = parse_options(&options, &option_keys::JOB)?;
             let source = format!("dbus:{}", hdr.sender().map(|s| s.to_string()).unwrap_or_default());
             let id = ask(&self.tx, |reply| Command::Submit { path, options, source, reply }).await??;
             Ok(job_path(&id))

@@ -3,7 +3,6 @@
 //! the whole truth after a restart; see [`super::station`] for the recovery rules.
 
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -11,6 +10,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use sha2::{Digest, Sha256};
 
 use super::config::JobOptions;
+use super::durable::write_durable;
 
 /// Schema of a record; bumped on incompatible change.
 pub const SCHEMA: u32 = 1;
@@ -207,24 +207,6 @@ pub struct Journal {
     dir: PathBuf,
 }
 
-/// Write `bytes` to `path` atomically and durably: [`crate::geometry::io::write_atomic`] (temp file, fsync,
-/// rename), then an fsync of the directory so the rename itself survives a power loss.
-///
-/// # Errors
-/// The I/O error.
-pub fn write_durable(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    crate::geometry::io::write_atomic(path, |w| w.write_all(bytes)).map_err(std::io::Error::other)?;
-    sync_dir(path.parent().unwrap_or(Path::new(".")))
-}
-
-/// fsync a directory (makes renames and creations in it durable).
-///
-/// # Errors
-/// The I/O error.
-pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
-    std::fs::File::open(dir)?.sync_all()
-}
-
 impl Journal {
     /// Open (creating) `STATE/jobs`.
     ///
@@ -242,7 +224,7 @@ impl Journal {
     /// The I/O error.
     pub fn save(&self, r: &JobRecord) -> std::io::Result<()> {
         let bytes = serde_json::to_vec_pretty(r).map_err(std::io::Error::other)?;
-        write_durable(&self.dir.join(format!("{}.json", r.id)), &bytes)
+        write_durable(&self.dir.join(format!("{}.json", r.id)), &bytes).map(|_| ())
     }
 
     /// Every readable record, oldest id first; unreadable ones are logged and skipped (left in place).

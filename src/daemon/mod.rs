@@ -15,6 +15,7 @@
 pub mod client;
 pub mod config;
 pub mod dbus;
+pub mod durable;
 pub mod journal;
 pub mod notify;
 pub mod rig;

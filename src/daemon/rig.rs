@@ -1,7 +1,7 @@
 //! The rig on D-Bus: `org.scanstation.Station1.Turntable` at [`TURNTABLE_PATH`] and
 //! `org.scanstation.Station1.Trigger` at [`TRIGGER_PATH`], exported only for the devices the config names.
 //!
-//! Thin, as the Manager and the jobs (after InputPlumber): the device actors ([`crate::devices::link`],
+//! Thin, as the Manager and the jobs (after InputPlumber): the device actors ([`crate::devices::turntable::actor`],
 //! [`crate::devices::trigger`]) own the ports and the state; an interface reads the actor's published state
 //! and sends it commands through its handle. A mirror task per device turns state changes into
 //! `PropertiesChanged`, faults into the `Fault` signal, and the device's health into the Manager's `State`
@@ -18,11 +18,11 @@ use zbus::{Connection, interface};
 
 use super::config::{TriggerConfig, TurntableConfig};
 use super::dbus::{Access, Command, StationError, authorize};
-use crate::devices::can::{BusState, StreamBus};
-use crate::devices::link::{DeviceFault, LinkSettings, TurntableHandle, TurntableState, spawn_turntable};
-use crate::devices::socketcan_bus::SocketCanBus;
+use crate::devices::trigger::socketcan::SocketCanBus;
+use crate::devices::trigger::transport::{BusState, StreamBus};
 use crate::devices::trigger::{TriggerHandle, TriggerSettings, TriggerState, spawn_trigger};
-use crate::devices::turntable::{Homing, TurntableSettings};
+use crate::devices::turntable::TurntableSettings;
+use crate::devices::turntable::actor::{DeviceFault, LinkSettings, TurntableHandle, TurntableState, spawn_turntable};
 use crate::error::Error;
 
 /// The turntable's object path.
@@ -136,6 +136,43 @@ pub mod ifaces {
             self.steps_per_revolution
         }
 
+        /// The board's homing (`$22`), as read at the last connect.
+        #[zbus(property)]
+        fn board_homing(&self) -> bool {
+            self.handle.state().board.is_some_and(|b| b.homing)
+        }
+
+        /// The board's top rate (`$110`), degrees per minute, as read at the last connect (0 before it).
+        #[zbus(property)]
+        fn board_max_rate(&self) -> f64 {
+            self.handle.state().board.map_or(0.0, |b| b.max_rate)
+        }
+
+        /// The board's acceleration (`$120`), degrees per second², as read at the last connect (0 before it).
+        #[zbus(property)]
+        fn board_acceleration(&self) -> f64 {
+            self.handle.state().board.map_or(0.0, |b| b.accel)
+        }
+
+        /// The board's steps per degree (`$100`), as read at the last connect (0 before it).
+        #[zbus(property)]
+        fn board_steps_per_degree(&self) -> f64 {
+            self.handle.state().board.map_or(0.0, |b| b.steps_per_degree)
+        }
+
+        /// The top speed moves run at, degrees per second: the config's, else the board's.
+        #[zbus(property)]
+        fn speed(&self) -> f64 {
+            self.handle.state().speed
+        }
+
+        /// How the zero is established on this board: `home` (`$H`) or `unlock` (`$X`, or nothing when not
+        /// locked); empty before the first connect.
+        #[zbus(property)]
+        fn homing(&self) -> String {
+            self.handle.state().homing
+        }
+
         /// A device fault: its stable code (`device.*`), a message, details (`device`).
         #[zbus(signal)]
         pub async fn fault(
@@ -209,7 +246,7 @@ pub fn link_settings(c: &TurntableConfig) -> LinkSettings {
         driver: TurntableSettings {
             speed: c.speed,
             accel: c.accel,
-            homing: if c.home { Homing::Home } else { Homing::Unlock },
+            homing: c.homing,
             reply_timeout: c.reply_timeout,
             banner_timeout: c.banner_timeout,
             home_timeout: c.home_timeout,
@@ -345,6 +382,18 @@ impl Mirrored for TurntableIface {
         }
         if new.angle != old.angle {
             let _ = self.angle_changed(em).await;
+        }
+        if new.board != old.board {
+            let _ = self.board_homing_changed(em).await;
+            let _ = self.board_max_rate_changed(em).await;
+            let _ = self.board_acceleration_changed(em).await;
+            let _ = self.board_steps_per_degree_changed(em).await;
+        }
+        if new.speed != old.speed {
+            let _ = self.speed_changed(em).await;
+        }
+        if new.homing != old.homing {
+            let _ = self.homing_changed(em).await;
         }
     }
     async fn emit_fault(em: &SignalEmitter<'_>, f: &DeviceFault) {

@@ -9,8 +9,7 @@ use std::path::{Path, PathBuf};
 use super::config::Config;
 use super::scan::{CaptureLog, ScanRequest, table_frame};
 use crate::error::{Error, ErrorCode};
-use crate::geometry::io::ReadOptions;
-use crate::pipeline::convert::ConvertReport;
+use crate::pipeline::Converted;
 
 /// The views' directory in the bundle.
 pub const VIEWS_DIR: &str = "views";
@@ -22,28 +21,57 @@ pub struct Extras {
     pub files: Vec<(&'static str, PathBuf)>,
     /// The manifest's `views` entry: the directory and each file's size and hash.
     pub views_manifest: Option<serde_json::Value>,
+    /// The top-level files' sizes and SHA-256, taken while writing them.
+    pub digests: std::collections::HashMap<PathBuf, crate::geometry::io::FileDigest>,
 }
 
 fn io_err(what: &str, p: &Path, e: impl std::fmt::Display) -> Error {
     Error::new(ErrorCode::ResourceOutput, format!("{what} {}: {e}", p.display()))
 }
 
-/// Add a scan's views, fusion report and FEA to the bundle being built in `part`. `scan_dir` is the job's
-/// scan directory; `report` the conversion's.
+/// Where a scan's bundle is built and what it is made of.
+pub struct ScanBundle<'a> {
+    /// The job's scan directory (`work/<id>/<name>.scan/`).
+    pub scan_dir: &'a Path,
+    /// The bundle being built (`outbox/.<stem>-<id>.part`).
+    pub part: &'a Path,
+    /// The bundle's file stem.
+    pub stem: &'a str,
+    /// What `StartScan` asked for.
+    pub scan: &'a ScanRequest,
+    /// The station's settings.
+    pub cfg: &'a Config,
+}
+
+/// Add a scan's views, fusion report and FEA to the bundle, from what the conversion held (`converted`: the
+/// solid mesh, the fused views) and the capture's log: no file the pipeline wrote is read back, and the view
+/// files are linked into the bundle (copied only across file systems), their hashes taken from the capture.
 ///
 /// # Errors
 /// `resource.output`; the FEA's errors (`fea.*`) when it was asked for and fails.
 pub fn add(
-    scan_dir: &Path,
-    part: &Path,
-    stem: &str,
-    report: &ConvertReport,
-    scan: &ScanRequest,
-    cfg: &Config,
+    b: &ScanBundle<'_>,
+    converted: &Converted,
+    log: &CaptureLog,
     progress: &(dyn Fn(f64, &str) + Sync),
 ) -> Result<Extras, Error> {
-    let mut extras = Extras::default();
-    // 1. views/: copies (the work directory stays whole until the job has ended, for a quarantine).
+    let mut extras = Extras { views_manifest: Some(link_views(b.scan_dir, b.part, log)?), ..Default::default() };
+    let (fusion_path, digest) = write_fusion_report(b, converted, log)?;
+    extras.digests.insert(fusion_path.clone(), digest);
+    extras.files.push(("fusion-report", fusion_path));
+    if let Some(spec) = &b.scan.fea {
+        for (kind, path, digest) in fea(b, converted, spec, progress)? {
+            extras.digests.insert(path.clone(), digest);
+            extras.files.push((kind, path));
+        }
+    }
+    Ok(extras)
+}
+
+/// `views/`: every file of the scan directory, hard-linked (the work directory stays whole until the job has
+/// ended, for a quarantine; a copy where a link cannot be made). The manifest's entry: each file's size and
+/// SHA-256 — a view's from the capture log, the small others (`capture.json`, `scanset.toml`) hashed here.
+fn link_views(scan_dir: &Path, part: &Path, log: &CaptureLog) -> Result<serde_json::Value, Error> {
     let views_dir = part.join(VIEWS_DIR);
     std::fs::create_dir_all(&views_dir).map_err(|e| io_err("cannot create", &views_dir, e))?;
     let mut names: Vec<PathBuf> = std::fs::read_dir(scan_dir)
@@ -55,33 +83,39 @@ pub fn add(
     names.sort();
     let mut listed = Vec::new();
     for p in &names {
-        let to = views_dir.join(p.file_name().unwrap_or_default());
-        std::fs::copy(p, &to).map_err(|e| io_err("cannot copy", p, e))?;
-        std::fs::File::open(&to).and_then(|f| f.sync_all()).map_err(|e| io_err("cannot fsync", &to, e))?;
-        listed.push(serde_json::json!({
-            "file": to.file_name().map(|n| n.to_string_lossy().into_owned()),
-            "bytes": std::fs::metadata(&to).map(|m| m.len()).unwrap_or(0),
-            "sha256": crate::pipeline::provenance::sha256_file(&to)?,
-        }));
-    }
-    super::journal::sync_dir(&views_dir).map_err(|e| io_err("cannot fsync", &views_dir, e))?;
-    extras.views_manifest = Some(serde_json::json!({ "dir": VIEWS_DIR, "files": listed }));
-
-    // 2. The fusion report.
-    let log = CaptureLog::load(scan_dir).unwrap_or_default();
-    let fusion = report.reconstruct.as_ref().and_then(|r| r.fusion.clone());
-    let read = ReadOptions { memory_budget: cfg.memory_budget, max_input_size: cfg.max_input_size };
-    let coverage = match &fusion {
-        Some(f) => {
-            let views = crate::geometry::io::scanset::read_scan_set(scan_dir, &read)?;
-            let solid = crate::geometry::io::read_mesh(&report.solid_mesh_file, &read)?.triangulate().0;
-            // Rejected views saw nothing the solid was built from.
-            let (kv, kp): (Vec<_>, Vec<_>) =
-                views.into_iter().zip(f.poses.iter().copied()).filter(|(v, _)| !f.rejected.contains(&v.name)).unzip();
-            Some(crate::pipeline::reconstruct::view_coverage(&solid, &kv, &kp))
+        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let to = views_dir.join(&name);
+        if std::fs::hard_link(p, &to).is_err() {
+            std::fs::copy(p, &to).map_err(|e| io_err("cannot copy", p, e))?;
+            std::fs::File::open(&to).and_then(|f| f.sync_all()).map_err(|e| io_err("cannot fsync", &to, e))?;
         }
-        None => None,
-    };
+        let known = log.views.iter().find(|v| v.file == name && !v.sha256.is_empty());
+        let (bytes, sha256) = match known {
+            Some(v) => (v.bytes, v.sha256.clone()),
+            None => {
+                (std::fs::metadata(&to).map(|m| m.len()).unwrap_or(0), crate::pipeline::provenance::sha256_file(&to)?)
+            }
+        };
+        listed.push(serde_json::json!({ "file": name, "bytes": bytes, "sha256": sha256 }));
+    }
+    super::durable::sync_dir(&views_dir).map_err(|e| io_err("cannot fsync", &views_dir, e))?;
+    Ok(serde_json::json!({ "dir": VIEWS_DIR, "files": listed }))
+}
+
+/// `<stem>.fusion.json`: the calibrated axis, each view's capture and fit, the capture's counts, the fusion's
+/// decision and the coverage of the solid by the views fusion kept (measured on the solid and views in
+/// memory).
+fn write_fusion_report(
+    b: &ScanBundle<'_>,
+    converted: &Converted,
+    log: &CaptureLog,
+) -> Result<(PathBuf, crate::geometry::io::FileDigest), Error> {
+    let report = &converted.report;
+    let fusion = report.reconstruct.as_ref().and_then(|r| r.fusion.clone());
+    let coverage = converted
+        .fused
+        .as_ref()
+        .map(|f| crate::pipeline::reconstruct::fused_coverage(&converted.solid_mesh.triangulate().0, f));
     let per_view: Vec<serde_json::Value> = log
         .views
         .iter()
@@ -114,7 +148,7 @@ pub fn add(
             "table_frame_from_scanner": table_frame(log.axis_point, log.axis_direction),
         },
         "planned_views": log.planned,
-        "step_deg": scan.step_deg,
+        "step_deg": b.scan.step_deg,
         "views": per_view,
         "skipped": log.skipped,
         "capture": {
@@ -131,36 +165,49 @@ pub fn add(
         "fused_points": fusion.as_ref().map(|f| f.points),
         "coverage": coverage,
     });
-    let fusion_path = part.join(format!("{stem}.fusion.json"));
-    super::journal::write_durable(
+    let fusion_path = b.part.join(format!("{}.fusion.json", b.stem));
+    let digest = super::durable::write_durable(
         &fusion_path,
         serde_json::to_string_pretty(&fusion_json).unwrap_or_default().as_bytes(),
     )
     .map_err(|e| io_err("cannot write", &fusion_path, e))?;
-    extras.files.push(("fusion-report", fusion_path));
+    Ok((fusion_path, digest))
+}
 
-    // 3. The FEA, when asked for (its spec's coordinates are the table frame's).
-    if let Some(spec) = &scan.fea {
-        let out = part.join(".fea");
-        std::fs::create_dir_all(&out).map_err(|e| io_err("cannot create", &out, e))?;
-        let step = &report.output_file;
-        let opts = crate::stages::fea::FeaOptions { memory_budget: cfg.memory_budget };
-        struct P<'a>(&'a (dyn Fn(f64, &str) + Sync));
-        impl crate::stages::Progress for P<'_> {
-            fn report(&self, fraction: f64, phase: &str) {
-                (self.0)(fraction, phase);
-            }
+/// The FEA the scan asked for (its spec's coordinates are the table frame's), solved on the solid mesh in
+/// memory: `<stem>.fea.json` and `<stem>.fea.vtu`.
+fn fea(
+    b: &ScanBundle<'_>,
+    converted: &Converted,
+    spec: &Path,
+    progress: &(dyn Fn(f64, &str) + Sync),
+) -> Result<Vec<(&'static str, PathBuf, crate::geometry::io::FileDigest)>, Error> {
+    let out = b.part.join(".fea");
+    std::fs::create_dir_all(&out).map_err(|e| io_err("cannot create", &out, e))?;
+    let report = &converted.report;
+    let opts = crate::pipeline::FeaOptions { memory_budget: b.cfg.memory_budget };
+    struct P<'a>(&'a (dyn Fn(f64, &str) + Sync));
+    impl crate::pipeline::Progress for P<'_> {
+        fn report(&self, fraction: f64, phase: &str) {
+            (self.0)(fraction, phase);
         }
-        crate::pipeline::fea::fea_file(step, spec, &out, &read, &opts, &P(progress))?;
-        for (kind, from, to) in [
-            ("fea-result", "result.json", format!("{stem}.fea.json")),
-            ("fea-surface", "surface.vtu", format!("{stem}.fea.vtu")),
-        ] {
-            let (from, to) = (out.join(from), part.join(to));
-            std::fs::rename(&from, &to).map_err(|e| io_err("cannot move", &from, e))?;
-            extras.files.push((kind, to));
-        }
-        let _ = std::fs::remove_dir_all(&out);
     }
-    Ok(extras)
+    let solid = (report.output_file.as_path(), report.solid_mesh_file.as_path(), &converted.solid_mesh);
+    let fea = crate::pipeline::fea::fea_solid(solid, spec, &out, &opts, &P(progress))?;
+    let mut files = Vec::new();
+    for (kind, from, to) in [
+        ("fea-result", "result.json", format!("{}.fea.json", b.stem)),
+        ("fea-surface", "surface.vtu", format!("{}.fea.vtu", b.stem)),
+    ] {
+        let (from, to) = (out.join(from), b.part.join(to));
+        std::fs::rename(&from, &to).map_err(|e| io_err("cannot move", &from, e))?;
+        let digest = fea.digests.iter().find(|(p, _)| *p == from).map(|(_, d)| d.clone());
+        let digest = match digest {
+            Some(d) => d,
+            None => return Err(Error::internal(format!("no digest of {}", from.display()))),
+        };
+        files.push((kind, to, digest));
+    }
+    let _ = std::fs::remove_dir_all(&out);
+    Ok(files)
 }

@@ -6,7 +6,8 @@ use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 
 use super::config::Config;
-use super::journal::{JobId, sync_dir};
+use super::durable::sync_dir;
+use super::journal::JobId;
 
 /// Sidecar suffix for per-job options (`scan.ply` + `scan.ply.job.toml` or `scan.job.toml`).
 pub const SIDECAR_SUFFIX: &str = ".job.toml";

@@ -12,14 +12,15 @@ use std::sync::{Arc, Mutex};
 use tokio::sync::mpsc;
 
 use super::config::Config;
-use super::journal::{JobId, JobRecord, now_usec, sync_dir, write_durable};
+use super::durable::{sync_dir, write_durable};
+use super::journal::{JobId, JobRecord, now_usec};
 use super::spool::{Spool, publish_dir};
 use crate::error::{Error, ErrorCode};
 use crate::geometry::io::ReadOptions;
 use crate::pipeline::GateOptions;
-use crate::pipeline::convert::{ConvertOptions, Resolution, convert_file};
+use crate::pipeline::convert::{ConvertOptions, Resolution, convert_held};
 use crate::pipeline::memory::StageMeter;
-use crate::stages::Progress;
+use crate::pipeline::{Progress, check_cancelled};
 
 /// The stages a file's job goes through, in order (`StageIndex` indexes this).
 pub const STAGES: [&str; 8] = ["read", "repair", "remesh", "surface", "brep", "step", "quality", "publish"];
@@ -117,6 +118,9 @@ pub struct JobRun {
     /// The stage the run starts in (the one a preset error is reported in): `read` for a file, `fuse` for a
     /// scan after its capture, the capture's stage when it failed there.
     pub stage: &'static str,
+    /// A scan's capture log as the capture handed it over (`None` for a file, and for a scan resumed after a
+    /// restart: its `capture.json` is read then).
+    pub capture: Option<super::scan::CaptureLog>,
 }
 
 struct Reporter<'a> {
@@ -224,12 +228,15 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
             accept_degraded: rec.options.accept_degraded.unwrap_or(cfg.gates.accept_degraded),
             ..cfg.gates
         },
+        // A scan's views stay in memory for its coverage.
+        keep_views: rec.scan.is_some(),
         ..Default::default()
     };
     let read = ReadOptions { memory_budget: cfg.memory_budget, max_input_size: cfg.max_input_size };
     let step = part.join(format!("{stem}.step"));
     // The STEP file, the solid mesh, the error map (its last phase is `quality`) and the report.
-    let report = convert_file(&input, &step, &read, &opts, rep)?;
+    let converted = convert_held(&input, &step, &read, &opts, rep)?;
+    let report = &converted.report;
 
     let report_path = part.join(format!("{stem}.report.json"));
     let report_json = serde_json::json!({
@@ -248,18 +255,27 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
             .map_err(|e| io_err("cannot write", &report_path, e))?;
         return Err(e);
     }
-    crate::stages::check_cancelled(rep)?;
-    // A scan's bundle also holds its views, the fusion report and, when asked, the FEA.
+    check_cancelled(rep)?;
+    // A scan's bundle also holds its views, the fusion report and, when asked, the FEA: from what the
+    // conversion held and the capture's log (handed over, or read after a restart).
     let mut extra = super::scan_bundle::Extras::default();
     if let Some(scan) = &rec.scan {
         let fea_span = (FEA_AT, PUBLISH_AT);
         let progress = |f: f64, phase: &str| rep.send(fea_span.0 + f * (fea_span.1 - fea_span.0), "fea", phase.into());
-        extra = super::scan_bundle::add(&input, &part, &stem, &report, scan, cfg, &progress)?;
-        crate::stages::check_cancelled(rep)?;
+        let log = match &job.capture {
+            Some(log) => log.clone(),
+            None => super::scan::CaptureLog::read(&input)?,
+        };
+        let bundle = super::scan_bundle::ScanBundle { scan_dir: &input, part: &part, stem: &stem, scan, cfg };
+        extra = super::scan_bundle::add(&bundle, &converted, &log, &progress)?;
+        check_cancelled(rep)?;
     }
     rep.send(PUBLISH_AT, "publish", "publish/report and manifest".into());
-    write_durable(&report_path, serde_json::to_string_pretty(&report_json).unwrap_or_default().as_bytes())
-        .map_err(|e| io_err("cannot write", &report_path, e))?;
+    let report_digest =
+        write_durable(&report_path, serde_json::to_string_pretty(&report_json).unwrap_or_default().as_bytes())
+            .map_err(|e| io_err("cannot write", &report_path, e))?;
+    let mut written = std::mem::take(&mut extra.digests);
+    written.insert(report_path.clone(), report_digest);
     let mut files = vec![
         ("step", step.clone()),
         ("solid-mesh", report.solid_mesh_file.clone()),
@@ -271,12 +287,23 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
     for (kind, p) in &files {
         let f = std::fs::File::open(p).map_err(|e| io_err("cannot reopen", p, e))?;
         f.sync_all().map_err(|e| io_err("cannot fsync", p, e))?;
+        // The digests of the files the conversion and this job wrote were taken as they were written.
+        let digest = match *kind {
+            "step" => Some(&converted.digests.step),
+            "solid-mesh" => Some(&converted.digests.solid_mesh),
+            "error-map" => Some(&converted.digests.error_map),
+            _ => written.get(p),
+        };
+        let (bytes, sha256) = match digest {
+            Some(d) => (d.bytes, d.sha256.clone()),
+            None => (f.metadata().map(|m| m.len()).unwrap_or(0), crate::pipeline::provenance::sha256_file(p)?),
+        };
         manifest_files.insert(
             kind.to_string(),
             serde_json::json!({
                 "file": p.file_name().map(|n| n.to_string_lossy().into_owned()),
-                "bytes": f.metadata().map(|m| m.len()).unwrap_or(0),
-                "sha256": crate::pipeline::provenance::sha256_file(p)?,
+                "bytes": bytes,
+                "sha256": sha256,
             }),
         );
     }

@@ -2,23 +2,20 @@
 //! simulators that behave like the real devices, faults included.
 //!
 //! Beside the pipeline and under the daemon: nothing here imports the stages, the pipeline or the daemon.
-//! The protocol modules ([`grbl`], [`grbl_sim`]) are plain functions over bytes and time; the driver
-//! ([`turntable`]) is async (tokio, tokio-serial) over any byte stream; [`sim_pty`] puts the simulated
-//! firmware behind a real pseudo-terminal so the driver meets termios, exclusive opens and unplugs as on
-//! hardware. On CAN, [`can`] holds the frames (SocketCAN's layout), the bus state and the transports,
-//! [`trigger_proto`] the protocol, [`trigger`] the driver, [`trigger_sim`] the simulated scanner node and
-//! [`socketcan_bus`] the SocketCAN backend.
+//! Each device is a folder of the same five parts: `protocol` (its messages, parsed without I/O), `driver`
+//! (talking to one connected device), `actor` (the task that owns the connection: commands, published state,
+//! faults), `sim` (the simulated device, pure) and `transport` (the lines it is reached over). The actors'
+//! supervision — reconnecting with backoff, refusing commands while away, one fault per outage — is written
+//! once, in [`supervise`]. [`turntable`]: Grbl 1.1 over a serial port (tokio-serial; a pty for the simulator);
+//! [`trigger`]: the scanner's node on CAN (SocketCAN, or a Unix socket for the simulator). [`rangecam`] is the
+//! simulated scanner's optics, [`rig_sim`] the whole simulated rig, and [`commands`] reads the simulators'
+//! command lines, bounded.
 
-pub mod can;
-pub mod grbl;
-pub mod grbl_sim;
-pub mod link;
+pub mod commands;
 pub mod rangecam;
-pub mod sim_pty;
-pub mod socketcan_bus;
+pub mod rig_sim;
+pub mod supervise;
 pub mod trigger;
-pub mod trigger_proto;
-pub mod trigger_sim;
 pub mod turntable;
 
 /// A device fault, as the `Fault` signal carries it.

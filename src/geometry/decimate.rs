@@ -561,6 +561,26 @@ impl State<'_> {
         out.dedup();
     }
 
+    /// Whether collapsing `u` into `v` at `at` folds or degenerates a face that survives it (its normal
+    /// turns by more than the angle whose cosine is `min_cos`, or its area vanishes).
+    fn folds(&self, u: u32, v: u32, at: V3, min_cos: f64) -> bool {
+        for &w in &[u, v] {
+            for &f in self.vertex_faces.get(w) {
+                let t = self.tris[f as usize];
+                if t.contains(&u) && t.contains(&v) {
+                    continue;
+                }
+                let old = self.normal(t, u32::MAX, [0.0; 3], u32::MAX);
+                let new = self.normal(t, u, at, v);
+                let (lo, ln) = (vec3::norm(old), vec3::norm(new));
+                if !(ln > 1e-12 * lo) || vec3::dot(old, new) < min_cos * lo * ln {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
     fn normal(&self, t: [u32; 3], moved: u32, to: V3, also: u32) -> V3 {
         let [a, b, c] = t.map(|i| if i == moved || i == also { to } else { self.p[i as usize] });
         vec3::cross(vec3::sub(b, a), vec3::sub(c, a))
@@ -577,18 +597,9 @@ pub enum Crossings {
     Ignore,
 }
 
-/// Decimate the closed oriented manifold (`p`, `tris`) to about `target` vertices, in place; `seed` fixes
-/// the random edge choices; `crossings` says whether collapses that would make the surface cross itself
-/// are refused. Cost: O(F) setup plus O(1) expected work per collapse.
-pub fn decimate(
-    p: &mut Vec<V3>,
-    tris: &mut Vec<[u32; 3]>,
-    target: usize,
-    seed: u64,
-    crossings: Crossings,
-) -> DecimateReport {
+/// Each vertex's quadric (the area-weighted plane quadrics of its faces) and its face list.
+fn vertex_quadrics(p: &[V3], tris: &[[u32; 3]]) -> (Vec<Quadric>, FaceLists) {
     let n = p.len();
-    let mut report = DecimateReport { target_vertices: target, vertices_before: n, ..Default::default() };
     let mut q = vec![[0.0; 10]; n];
     let mut vertex_faces = FaceLists::new(n);
     for (f, t) in tris.iter().enumerate() {
@@ -603,6 +614,22 @@ pub fn decimate(
             vertex_faces.push(v, f as u32);
         }
     }
+    (q, vertex_faces)
+}
+
+/// Decimate the closed oriented manifold (`p`, `tris`) to about `target` vertices, in place; `seed` fixes
+/// the random edge choices; `crossings` says whether collapses that would make the surface cross itself
+/// are refused. Cost: O(F) setup plus O(1) expected work per collapse.
+pub fn decimate(
+    p: &mut Vec<V3>,
+    tris: &mut Vec<[u32; 3]>,
+    target: usize,
+    seed: u64,
+    crossings: Crossings,
+) -> DecimateReport {
+    let n = p.len();
+    let mut report = DecimateReport { target_vertices: target, vertices_before: n, ..Default::default() };
+    let (q, vertex_faces) = vertex_quadrics(p, tris);
     let face_count = tris.len();
     if face_count == 0 {
         return report;
@@ -683,23 +710,7 @@ pub fn decimate(
             continue;
         }
         // Fold-over and degeneracy test on the faces that survive the collapse.
-        let mut ok = true;
-        'faces: for &w in &[u, v] {
-            for &f in s.vertex_faces.get(w) {
-                let t = s.tris[f as usize];
-                if t.contains(&u) && t.contains(&v) {
-                    continue;
-                }
-                let old = s.normal(t, u32::MAX, [0.0; 3], u32::MAX);
-                let new = s.normal(t, u, c.at, v);
-                let (lo, ln) = (vec3::norm(old), vec3::norm(new));
-                if !(ln > 1e-12 * lo) || vec3::dot(old, new) < min_cos * lo * ln {
-                    ok = false;
-                    break 'faces;
-                }
-            }
-        }
-        if !ok {
+        if s.folds(u, v, c.at, min_cos) {
             report.refused_fold += 1;
             stalled += 1;
             continue;

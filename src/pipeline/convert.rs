@@ -9,9 +9,10 @@ use super::memory::StageMeter;
 pub use super::open_input::OpenInputMeasure;
 use super::open_input::open_input_measure;
 use crate::error::{Error, ErrorCode, Result};
+use crate::geometry::io::FileDigest;
 use crate::geometry::io::{ReadOptions, ensure_not_input};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
-use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
+use crate::stages::brep::step::{LengthUnit, StepOptions};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
 use crate::stages::quality::{CompareOptions, DistanceReport, compare, write_error_map};
 use crate::stages::reconstruct::{ReconstructOptions, ReconstructReport};
@@ -103,6 +104,9 @@ pub struct ConvertOptions {
     pub gates: GateOptions,
     /// How a point-cloud input becomes a mesh first ([`crate::stages::reconstruct`]).
     pub reconstruct: ReconstructOptions,
+    /// Hand a scan set's views back with the solid ([`Converted::fused`]) instead of dropping them once
+    /// fused, for what the caller measures on them (their coverage of the solid) without reading them again.
+    pub keep_views: bool,
 }
 
 /// Handle loops shorter than this many quad spacings √(area / n) are topological noise to `convert`: the
@@ -139,6 +143,7 @@ impl Default for ConvertOptions {
             // No split: the remesh resamples the surface at its own density, so a finer reconstruction
             // would only make repair and remesh slower.
             reconstruct: ReconstructOptions { split: Some(0), ..ReconstructOptions::default() },
+            keep_views: false,
         }
     }
 }
@@ -289,7 +294,7 @@ fn solid_self_intersections(solid: &Solid) -> Result<(usize, Option<[f64; 3]>)> 
 /// spans sampled 8 × 8 at most, welded along the exactly shared edges) beside the STEP file as NAME.solid.ply,
 /// its header naming the STEP's sha256 (see [`super::fea`]). Removes the STEP file again when this fails, so
 /// the pair is written or neither.
-fn write_solid_mesh(step: &Path, tessellation: TriMesh) -> Result<(PathBuf, PolyMesh)> {
+fn write_solid_mesh(step: &Path, step_sha256: &str, tessellation: TriMesh) -> Result<(PathBuf, PolyMesh, FileDigest)> {
     let result = (|| {
         let t = tessellation;
         let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
@@ -298,15 +303,22 @@ fn write_solid_mesh(step: &Path, tessellation: TriMesh) -> Result<(PathBuf, Poly
         let positions = pts.iter().map(|q| q.map(|x| x as f32)).collect();
         let mesh = TriMesh::new(positions, tris)?;
         let path = super::provenance::solid_artifact_path(step);
-        let comment = format!("{}{}", super::provenance::SOLID_OF, super::provenance::sha256_file(step)?);
+        let comment = format!("{}{step_sha256}", super::provenance::SOLID_OF);
         let mesh = PolyMesh::from(mesh);
-        crate::geometry::io::write_ply(&path, &mesh, &Default::default(), &[&comment])?;
-        Ok((path, mesh))
+        let digest = crate::geometry::io::write_ply(&path, &mesh, &Default::default(), &[&comment])?;
+        Ok((path, mesh, digest))
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(step);
     }
     result
+}
+
+/// Write the STEP file of `solid` atomically; its size and SHA-256 taken while writing, so that nothing reads
+/// it back to hash it (the solid mesh's header and the bundle's manifest name it).
+fn write_step_digest(path: &Path, solid: &Solid, opts: &StepOptions) -> Result<FileDigest> {
+    let body = crate::stages::brep::step::to_step(solid, opts);
+    crate::geometry::io::write_atomic(path, |w| std::io::Write::write_all(w, body.as_bytes()))
 }
 
 /// Tessellation density for the solid's quality check: about `budget` triangles in all.
@@ -381,8 +393,7 @@ struct Chain<'a> {
 /// and [`ConvertReport::verdict`] gives the `quality.*` error: check it before publishing the files.
 ///
 /// # Errors
-/// Reader errors; `input.no-geometry` for a point cloud (reconstruction is not part of this chain yet);
-/// `repair.failed`; `remesh.*`; `surface.*`; `brep.invalid`; `resource.output` when the output cannot be
+/// Reader errors; `reconstruct.*` for a cloud or a scan set; `repair.failed`; `remesh.*`; `surface.*`; `brep.invalid`; `resource.output` when the output cannot be
 /// written or would overwrite the input; `input.bad-argument` for a bad resolution; `cancelled` when
 /// `progress` asks to stop (checked between stages, so nothing is written).
 ///
@@ -415,25 +426,51 @@ pub fn convert_file(
     opts: &ConvertOptions,
     progress: &dyn Progress,
 ) -> Result<ConvertReport> {
+    Ok(convert_held(input, output, read, opts, progress)?.report)
+}
+
+/// What [`convert_held`] hands back besides its files: the report, and what it held in memory so that the
+/// caller reads none of it back (a scan's bundle measures coverage on the solid and the views, and solves
+/// the FEA on the solid).
+pub struct Converted {
+    /// The report, as [`convert_file`] returns it.
+    pub report: ConvertReport,
+    /// The solid's watertight tessellation, as written beside the STEP file (`report.solid_mesh_file`).
+    pub solid_mesh: PolyMesh,
+    /// A scan set's fusion with its views, when [`ConvertOptions::keep_views`] asked for them.
+    pub fused: Option<super::reconstruct::Fused>,
+    /// The written files' sizes and SHA-256, taken while writing them.
+    pub digests: Digests,
+}
+
+/// The sizes and SHA-256 of the files [`convert_held`] wrote, taken while writing them.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Digests {
+    /// The STEP file.
+    pub step: FileDigest,
+    /// The solid mesh beside it.
+    pub solid_mesh: FileDigest,
+    /// The error map.
+    pub error_map: FileDigest,
+}
+
+/// [`convert_file`], handing back what the chain held ([`Converted`]).
+///
+/// # Errors
+/// As [`convert_file`].
+pub fn convert_held(
+    input: &Path,
+    output: &Path,
+    read: &ReadOptions,
+    opts: &ConvertOptions,
+    progress: &dyn Progress,
+) -> Result<Converted> {
     // Stages run again for another resolution (`--tolerance`) or another seed (a self-crossing solid);
     // the overall fraction must not go back when they do.
     let monotonic = Monotonic { parent: progress, last: std::sync::Mutex::new(0.0) };
     let progress: &dyn Progress = &monotonic;
     // 1. No output may overwrite the input or another output; the gates' bounds make sense.
-    opts.gates.validated()?;
-    ensure_not_input(output, &[input])?;
-    // The artifacts beside the STEP file must not land on the input either (`convert X.solid.ply -o X.step`).
-    let (solid_path, map_path) =
-        (super::provenance::solid_artifact_path(output), super::provenance::error_map_path(output));
-    ensure_not_input(&solid_path, &[input])?;
-    ensure_not_input(&map_path, &[input])?;
-    for p in [output, &solid_path, &map_path] {
-        crate::geometry::io::ensure_replaceable(p)?;
-    }
-    if let Some(q) = &opts.quads_output {
-        ensure_not_input(q, &[input, output, &solid_path, &map_path])?;
-        crate::geometry::io::ensure_replaceable(q)?;
-    }
+    check_outputs(input, output, opts)?;
     let t_total = Instant::now();
     let mut stages = Vec::new();
     let cmp_opts = CompareOptions {
@@ -446,7 +483,8 @@ pub fn convert_file(
     // 2. Read.
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.0, 0.02, "read");
-    let (input_geom, fusion) = read_input(input, read, opts)?;
+    let (input_geom, fused) = read_input(input, read, opts)?;
+    let (fusion, fused) = (fused.as_ref().map(|f| f.report.clone()), fused.filter(|_| opts.keep_views));
     stages.push(clock.stop("read", None));
     // 2b. A cloud is reconstructed into a closed mesh first; the points stay the reference.
     let (reconstructed, reconstruct_step) =
@@ -494,8 +532,8 @@ pub fn convert_file(
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.95, 0.98, "step");
     let name = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
-    write_step(output, &kept.solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
-    let (solid_mesh_file, solid_mesh) = write_solid_mesh(output, kept.tessellation)?;
+    let step = write_step_digest(output, &kept.solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
+    let (solid_mesh_file, solid_mesh, solid_digest) = write_solid_mesh(output, &step.sha256, kept.tessellation)?;
     // The crossings gate: the coarse check that chose the chain, and the fine tessellation written.
     let kept_crossings = kept.brep.self_intersections.max(mesh_self_intersections(&solid_mesh));
     if let Some(q) = &opts.quads_output {
@@ -509,8 +547,8 @@ pub fn convert_file(
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
     let cloud_scatter_pct = reconstruct_step.as_ref().map(|r| r.distance.reference_to_test.rms.pct_of_diagonal);
-    let (open_input, error_map_file, error_map_scale) =
-        measure_and_map(output, solid_mesh, &chain.input_geom, kept_input_to_solid_rms, &repair_report, diag)?;
+    let (open_input, error_map_file, (error_map_scale, map_digest)) =
+        measure_and_map(output, &solid_mesh, &chain.input_geom, kept_input_to_solid_rms, &repair_report, diag)?;
     stages.push(clock.stop("quality", None));
     progress.report(1.0, "quality/done");
 
@@ -531,7 +569,7 @@ pub fn convert_file(
         tolerance_pct,
     };
     let (status, gates) = judge_logged(&measured, &opts.gates);
-    Ok(ConvertReport {
+    let report = ConvertReport {
         input_file: input.to_path_buf(),
         output_file: output.to_path_buf(),
         solid_mesh_file,
@@ -554,7 +592,29 @@ pub fn convert_file(
         status,
         gates,
         total_seconds: t_total.elapsed().as_secs_f64(),
-    })
+    };
+    let digests = Digests { step, solid_mesh: solid_digest, error_map: map_digest };
+    Ok(Converted { report, solid_mesh, fused, digests })
+}
+
+/// Step 1 of [`convert_held`]: no output may overwrite the input or another output, nor replace what is not
+/// a regular file; the gates' bounds make sense.
+fn check_outputs(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<()> {
+    opts.gates.validated()?;
+    ensure_not_input(output, &[input])?;
+    // The artifacts beside the STEP file must not land on the input either (`convert X.solid.ply -o X.step`).
+    let (solid_path, map_path) =
+        (super::provenance::solid_artifact_path(output), super::provenance::error_map_path(output));
+    ensure_not_input(&solid_path, &[input])?;
+    ensure_not_input(&map_path, &[input])?;
+    for p in [output, &solid_path, &map_path] {
+        crate::geometry::io::ensure_replaceable(p)?;
+    }
+    if let Some(q) = &opts.quads_output {
+        ensure_not_input(q, &[input, output, &solid_path, &map_path])?;
+        crate::geometry::io::ensure_replaceable(q)?;
+    }
+    Ok(())
 }
 
 /// The gates on `m`, each missed one logged.
@@ -568,18 +628,18 @@ fn judge_logged(m: &Measured, opts: &GateOptions) -> (Status, Vec<super::gates::
 
 /// Step 6 of [`convert_file`]: an open input's measure of `solid_mesh` (see [`OpenInputMeasure`]), then the
 /// error map beside `output` (the solid mesh coloured by its distance to `input`, the invented region grey).
-/// Returns the measure, the error map's path and its colour-scale top.
+/// Returns the measure, the error map's path, and its colour-scale top and digest.
 fn measure_and_map(
     output: &Path,
-    solid_mesh: PolyMesh,
+    solid_mesh: &PolyMesh,
     input: &Geometry,
     input_to_solid_rms: f64,
     repair_report: &RepairReport,
     diag: f64,
-) -> Result<(Option<OpenInputMeasure>, PathBuf, f64)> {
-    let (open_input, invented) = open_input_measure(&solid_mesh, input, input_to_solid_rms, repair_report, diag);
+) -> Result<(Option<OpenInputMeasure>, PathBuf, (f64, FileDigest))> {
+    let (open_input, invented) = open_input_measure(solid_mesh, input, input_to_solid_rms, repair_report, diag);
     let error_map_file = super::provenance::error_map_path(output);
-    let scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh), input, invented.as_deref())?;
+    let scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh.clone()), input, invented.as_deref())?;
     Ok((open_input, error_map_file, scale))
 }
 
@@ -625,9 +685,9 @@ fn read_input(
     input: &Path,
     read: &ReadOptions,
     opts: &ConvertOptions,
-) -> Result<(Geometry, Option<crate::stages::reconstruct::fusion::FusionReport>)> {
+) -> Result<(Geometry, Option<super::reconstruct::Fused>)> {
     let read = ReadOptions { memory_budget: read.memory_budget.min(opts.memory_budget / CHAIN_MEMORY_FACTOR), ..*read };
-    super::reconstruct::read_input(input, &read, &opts.reconstruct.fusion).map_err(|e| {
+    super::reconstruct::read_input_views(input, &read, &opts.reconstruct.fusion).map_err(|e| {
         if e.code == ErrorCode::ResourceMemoryBudget {
             e.with_hint(format!(
                 "the conversion needs about {CHAIN_MEMORY_FACTOR}x the input mesh's memory; raise the memory budget or decimate the scan"

@@ -13,6 +13,7 @@ use super::memory::StageMeter;
 use super::provenance::{SOLID_OF, sha256_file, solid_artifact_path};
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{ReadOptions, ensure_not_input, read_mesh, write_atomic};
+use crate::geometry::mesh::PolyMesh;
 use crate::stages::Progress;
 use crate::stages::fea::{self, FeaOptions, FeaReport, FeaSpec};
 
@@ -38,6 +39,9 @@ pub struct FeaFileReport {
     #[serde(flatten)]
     /// The solve's report (flattened into this one).
     pub result: FeaReport,
+    /// Each output's size and SHA-256, taken while writing it (not serialised).
+    #[serde(skip)]
+    pub digests: Vec<(PathBuf, crate::geometry::io::FileDigest)>,
 }
 
 fn is_step(path: &Path) -> bool {
@@ -91,31 +95,70 @@ pub fn fea_file(
     let meter = StageMeter::start();
     let spec = FeaSpec::read(spec_file)?;
     let mesh_file = solid_mesh_for(input)?;
-    let vtu = output_dir.join("surface.vtu");
-    let json = output_dir.join("result.json");
+    let outs = outputs_of(output_dir, &[input, spec_file, &mesh_file])?;
+    let mesh = read_mesh(&mesh_file, read)?;
+    solve_and_write(meter, spec, (input, &mesh_file, &mesh), spec_file, outs, options, progress)
+}
+
+/// `surface.vtu` and `result.json` in `output_dir`, each checked to be neither one of `inputs` nor a file
+/// that must not be replaced.
+fn outputs_of(output_dir: &Path, inputs: &[&Path]) -> Result<[PathBuf; 3]> {
+    let (vtu, json) = (output_dir.join("surface.vtu"), output_dir.join("result.json"));
     for out in [&vtu, &json] {
-        ensure_not_input(out, &[input, spec_file, &mesh_file])?;
+        ensure_not_input(out, inputs)?;
         crate::geometry::io::ensure_replaceable(out)?;
     }
-    let mesh = read_mesh(&mesh_file, read)?;
+    Ok([output_dir.to_path_buf(), vtu, json])
+}
+
+/// [`fea_file`] on a solid already in memory: `solid` is (its STEP file, its solid mesh's file, that mesh as
+/// [`super::convert_held`] handed it back), so nothing is read back.
+///
+/// # Errors
+/// As [`fea_file`], without the solid's reader errors.
+pub fn fea_solid(
+    (input, mesh_file, mesh): (&Path, &Path, &PolyMesh),
+    spec_file: &Path,
+    output_dir: &Path,
+    options: &FeaOptions,
+    progress: &dyn Progress,
+) -> Result<FeaFileReport> {
+    let meter = StageMeter::start();
+    let spec = FeaSpec::read(spec_file)?;
+    let outs = outputs_of(output_dir, &[input, spec_file, mesh_file])?;
+    solve_and_write(meter, spec, (input, mesh_file, mesh), spec_file, outs, options, progress)
+}
+
+/// Solve `spec` on `mesh` and write `vtu`, then `json` (the report).
+fn solve_and_write(
+    meter: StageMeter,
+    spec: FeaSpec,
+    (input, mesh_file, mesh): (&Path, &Path, &PolyMesh),
+    spec_file: &Path,
+    [output_dir, vtu, json]: [PathBuf; 3],
+    options: &FeaOptions,
+    progress: &dyn Progress,
+) -> Result<FeaFileReport> {
     let (tri, _) = mesh.triangulate();
     let solution = fea::solve(&tri, &spec, options, progress).map_err(|e| e.in_file(input))?;
-    write_atomic(&vtu, |w| fea::vtu::write_vtu(w, &solution.surface, &solution.fields))?;
+    let vtu_digest = write_atomic(&vtu, |w| fea::vtu::write_vtu(w, &solution.surface, &solution.fields))?;
     let (seconds, peak_rss_mib) = meter.finish();
-    let report = FeaFileReport {
+    let mut report = FeaFileReport {
         input_file: input.to_path_buf(),
-        solid_mesh_file: mesh_file,
+        solid_mesh_file: mesh_file.to_path_buf(),
         spec_file: spec_file.to_path_buf(),
         spec,
-        output_dir: output_dir.to_path_buf(),
-        outputs: vec![vtu, json.clone()],
+        output_dir,
+        outputs: vec![vtu.clone(), json.clone()],
         peak_rss_mib,
         seconds,
         result: solution.report,
+        digests: Vec::new(),
     };
-    write_atomic(&json, |w| {
+    let json_digest = write_atomic(&json, |w| {
         serde_json::to_writer_pretty(&mut *w, &report).map_err(std::io::Error::other)?;
         w.write_all(b"\n")
     })?;
+    report.digests = vec![(vtu.clone(), vtu_digest), (json, json_digest)];
     Ok(report)
 }

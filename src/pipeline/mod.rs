@@ -1,8 +1,11 @@
 //! **Pipeline** — runs stages on files and assembles their reports and artifacts. This is the layer the
-//! CLI (and later the daemon) calls; it owns file handling, timing and the shape of the reports.
+//! CLI and the daemon call (the daemon reaches the stages only through it); it owns file handling, timing
+//! and the shape of the reports.
 //!
 //! Inspection ([`inspect_file`]), the quality comparison of two files ([`compare_files`]), single stages on
-//! files ([`repair_file`], [`remesh_file`]) and the whole chain to a STEP solid ([`convert_file`]).
+//! files ([`repair_file`], [`remesh_file`]), reconstruction of clouds and scan sets ([`reconstruct_file`]),
+//! the whole chain to a STEP solid ([`convert_file`], and [`convert_held`] handing back what it held), and
+//! the FEA on a solid ([`fea`]).
 
 pub mod convert;
 pub mod fea;
@@ -12,7 +15,12 @@ pub mod open_input;
 pub mod provenance;
 pub mod reconstruct;
 
-pub use convert::{ConvertOptions, ConvertReport, Resolution, convert_file, small_handle_loop};
+/// What the daemon needs of the stages, through the pipeline: the progress sink every long step reports to,
+/// its cancellation check, and the FEA's settings.
+pub use crate::stages::{Progress, check_cancelled, fea::FeaOptions};
+pub use convert::{
+    ConvertOptions, ConvertReport, Converted, Resolution, convert_file, convert_held, small_handle_loop,
+};
 pub use gates::{Gate, GateOptions, Status};
 pub use reconstruct::{ReconstructFileReport, reconstruct_file};
 
@@ -24,7 +32,6 @@ use crate::geometry::io::{ReadOptions, ensure_not_input, read_geometry};
 use crate::geometry::mesh::Geometry;
 use crate::geometry::topology::TopologyReport;
 use crate::geometry::vec3::Aabb;
-use crate::stages::Progress;
 use crate::stages::quality::{CompareOptions, DistanceReport, compare, write_error_map};
 
 /// Summary of a point cloud (the mesh counterpart is [`TopologyReport`]).
@@ -182,7 +189,7 @@ pub fn compare_files(
     let read_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let distance = compare(&a, &b, opts, progress)?;
-    let scale = error_map.map(|out| write_error_map(out, &a, &b, None)).transpose()?;
+    let scale = error_map.map(|out| write_error_map(out, &a, &b, None).map(|(top, _)| top)).transpose()?;
     Ok(CompareReport {
         test: InputSummary::of(test, &a),
         reference: InputSummary::of(reference, &b),
@@ -227,7 +234,11 @@ pub fn repair_file(
 }
 
 /// Write `mesh` as OBJ when `output` ends in `.obj` (polygons kept), else as binary PLY with `comment`.
-pub(crate) fn write_mesh(output: &Path, mesh: &crate::geometry::mesh::PolyMesh, comment: &str) -> Result<()> {
+pub(crate) fn write_mesh(
+    output: &Path,
+    mesh: &crate::geometry::mesh::PolyMesh,
+    comment: &str,
+) -> Result<crate::geometry::io::FileDigest> {
     if output.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj")) {
         crate::geometry::io::write_obj(output, mesh)
     } else {

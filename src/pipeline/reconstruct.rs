@@ -34,13 +34,57 @@ pub struct ReconstructFileReport {
 /// The readers' errors; those of [`read_scan_set`](crate::geometry::io::scanset::read_scan_set) and
 /// [`fuse`](crate::stages::reconstruct::fusion::fuse).
 pub fn read_input(path: &Path, read: &ReadOptions, fuse: &FuseOptions) -> Result<(Geometry, Option<FusionReport>)> {
+    let (geometry, fused) = read_input_views(path, read, fuse)?;
+    Ok((geometry, fused.map(|f| f.report)))
+}
+
+/// A scan set's fusion: its report and the views it fused (their points in their own frames; placed by the
+/// report's `poses`).
+pub struct Fused {
+    /// How the views were fused.
+    pub report: FusionReport,
+    /// The views as read.
+    pub views: Vec<crate::geometry::io::scanset::View>,
+}
+
+/// As [`read_input`], keeping a scan set's views (for what is measured on them later: their coverage of the
+/// solid), so that no view file is read twice.
+///
+/// # Errors
+/// As [`read_input`].
+pub fn read_input_views(path: &Path, read: &ReadOptions, fuse: &FuseOptions) -> Result<(Geometry, Option<Fused>)> {
     // A directory is read as a scan set (one without a manifest is refused by name).
     if crate::geometry::io::scanset::is_scan_set(path) || path.is_dir() {
         let views = crate::geometry::io::scanset::read_scan_set(path, read)?;
         let (cloud, report) = crate::stages::reconstruct::fusion::fuse(&views, fuse).map_err(|e| e.in_file(path))?;
-        return Ok((Geometry::Cloud(cloud), Some(report)));
+        return Ok((Geometry::Cloud(cloud), Some(Fused { report, views })));
     }
     Ok((read_geometry(path, read)?, None))
+}
+
+/// Check that the view file at `path` holds the `expect` points its scanner announced, reading it once; its
+/// size and SHA-256 from that read (for the bundle's manifest, so the file is not read again to hash it).
+///
+/// # Errors
+/// `input.io` when it is unreadable or holds another number of points (the message names both counts).
+pub fn check_view(path: &Path, expect: u32, read: &ReadOptions) -> Result<crate::geometry::io::FileDigest> {
+    let (geometry, digest) = crate::geometry::io::read_geometry_digest(path, read)
+        .map_err(|e| Error::new(ErrorCode::InputIo, format!("the view {} is unreadable: {e}", path.display())))?;
+    let count = geometry.positions().len();
+    if count != expect as usize {
+        return Err(Error::new(
+            ErrorCode::InputIo,
+            format!("the view {} holds {count} points, the scanner announced {expect}", path.display()),
+        ));
+    }
+    Ok(digest)
+}
+
+/// [`view_coverage`] of a converted scan's solid by the views fusion kept (a rejected view saw nothing the
+/// solid was built from).
+pub fn fused_coverage(solid: &TriMesh, fused: &Fused) -> ViewCoverage {
+    let f = &fused.report;
+    view_coverage(solid, fused.views.iter().zip(&f.poses).filter(|(v, _)| !f.rejected.contains(&v.name)))
 }
 
 /// Reference points a result is measured against at most: a larger cloud is measured against every k-th point
@@ -139,21 +183,20 @@ pub struct ViewCoverage {
 /// view's sampling is covered, a surface no view reached (a base on the table, a deep cavity) is not.
 pub const COVERAGE_SPACINGS: f64 = 3.0;
 
-/// Which share of `surface` the `views` (placed by `poses`, one per view) saw: area-weighted over the
+/// Which share of `surface` the views saw (each with its pose into the surface's frame): area-weighted over the
 /// surface's triangles, each seen when a view's point lies within [`COVERAGE_SPACINGS`] point spacings of
 /// its centroid (triangles much smaller than the spacing, as a solid's tessellation has, make this the area
 /// share). Cost: O(N) to index the N points, O(F) lookups.
-pub fn view_coverage(
+pub fn view_coverage<'a>(
     surface: &TriMesh,
-    views: &[crate::geometry::io::scanset::View],
-    poses: &[crate::geometry::pose::Pose],
+    placed_views: impl IntoIterator<Item = (&'a crate::geometry::io::scanset::View, &'a crate::geometry::pose::Pose)>,
 ) -> ViewCoverage {
     use crate::geometry::points::PointIndex;
     use crate::geometry::vec3::{add, scale, wide};
     let mut spacings = Vec::new();
     let mut all: Vec<[f32; 3]> = Vec::new();
     let mut out = Vec::new();
-    for (v, pose) in views.iter().zip(poses) {
+    for (v, pose) in placed_views {
         if v.points.len() < 2 {
             continue;
         }

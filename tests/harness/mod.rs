@@ -421,8 +421,6 @@ pub fn rig_config(dir: &Path) -> String {
         r#"[devices.turntable]
 port = "{}"
 steps_per_revolution = 3200
-speed = 600
-accel = 1200
 reply_timeout = "500ms"
 banner_timeout = "2s"
 home_timeout = "5s"

@@ -243,6 +243,12 @@ pub struct SubmitArgs {
     /// RMS tolerance (length) for this job instead of a vertex count (1e-12 to 1e12).
     #[arg(long, value_parser = ranges::length)]
     pub tolerance: Option<f64>,
+    /// Seed of the conversion's randomised steps.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Publish a solid that misses a quality gate anyway, as `degraded` (otherwise the job is quarantined).
+    #[arg(long)]
+    pub accept_degraded: bool,
     /// Follow the job until it finishes (exit status 1 when it fails).
     #[arg(long)]
     pub wait: bool,
@@ -276,6 +282,9 @@ pub struct ScanArgs {
     /// Seed of the conversion's randomised steps.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Publish a solid that misses a quality gate anyway, as `degraded` (otherwise the scan is quarantined).
+    #[arg(long)]
+    pub accept_degraded: bool,
     /// Follow the scan until it finishes (exit status 1 when it fails).
     #[arg(long)]
     pub wait: bool,
@@ -466,7 +475,7 @@ impl ConvertArgs {
 /// Writes `report` as pretty JSON to `path`, atomically.
 fn write_report(path: &Path, report: &ConvertReport) -> Result<(), Error> {
     let text = serde_json::to_string_pretty(report).map_err(|e| Error::internal(e.to_string()))?;
-    scanstation::geometry::io::write_atomic(path, |w| std::io::Write::write_all(w, text.as_bytes()))
+    scanstation::geometry::io::write_atomic(path, |w| std::io::Write::write_all(w, text.as_bytes())).map(|_| ())
 }
 
 impl CompareArgs {

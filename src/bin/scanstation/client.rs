@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use scanstation::Error;
 
 use crate::Command;
-use crate::args::{CancelArgs, JobsArgs, RigAction, RigArgs, StatusArgs, SubmitArgs, WatchArgs};
+use crate::args::{CancelArgs, JobsArgs, RigAction, RigArgs, StatusArgs, WatchArgs};
 use crate::print::{print_json, report_error};
 
 /// Runs a client command against the station's bus; exit status 1 when a followed job failed.
@@ -50,10 +50,11 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                 }
                 Ok(true)
             }
-            Command::Submit(SubmitArgs { file, vertices, tolerance, wait, session }) => {
-                let conn = ops::connect(*session).await?;
-                let path = ops::submit(&conn, file, *vertices, *tolerance).await?;
-                follow(&conn, &path, *wait, json).await
+            Command::Submit(a) => {
+                let conn = ops::connect(a.session).await?;
+                let job = job_options(a.vertices, a.tolerance, a.seed, a.accept_degraded);
+                let path = ops::submit(&conn, &a.file, &job).await?;
+                follow(&conn, &path, a.wait, json).await
             }
             Command::Scan(a) => {
                 let conn = ops::connect(a.session).await?;
@@ -62,9 +63,7 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                     step_deg: a.step_deg,
                     name: a.name.clone(),
                     fea: a.fea.clone(),
-                    vertices: a.vertices,
-                    tolerance: a.tolerance,
-                    seed: a.seed,
+                    job: job_options(a.vertices, a.tolerance, a.seed, a.accept_degraded),
                 };
                 let path = ops::scan(&conn, &o).await?;
                 follow(&conn, &path, a.wait, json).await
@@ -79,7 +78,7 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
             }
             Command::Watch(WatchArgs { id, session }) => {
                 let conn = ops::connect(*session).await?;
-                let done = ops::watch(&conn, id.as_deref(), json).await?;
+                let done = ops::watch(&conn, id.as_deref(), &mut event_printer(json)).await?;
                 Ok(id.is_none() || done["Result"] == "succeeded")
             }
             Command::Rig(RigArgs { action, session }) => {
@@ -162,9 +161,48 @@ async fn follow(conn: &zbus::Connection, path: &str, wait: bool, json: bool) -> 
         }
         return Ok(true);
     }
-    let done = scanstation::daemon::client::ops::watch(conn, Some(path), json).await?;
+    let done = scanstation::daemon::client::ops::watch(conn, Some(path), &mut event_printer(json)).await?;
     if !json {
         outln!("{} {}", done["Result"], done["ErrorCode"]);
     }
     Ok(done["Result"] == "succeeded")
+}
+
+/// A job's options from the command line (`accept_degraded` only when asked: the daemon's default otherwise).
+fn job_options(
+    vertices: Option<u32>,
+    tolerance: Option<f64>,
+    seed: Option<u64>,
+    accept_degraded: bool,
+) -> scanstation::daemon::config::JobOptions {
+    scanstation::daemon::config::JobOptions {
+        vertices: vertices.map(|v| v as usize),
+        tolerance,
+        seed,
+        accept_degraded: accept_degraded.then_some(true),
+    }
+}
+
+/// How `watch` shows the station's events: a JSON line each with `--json` or when stdout is not a terminal,
+/// else a progress bar per job and its result when it ends (a `finished` event, for a job that had already
+/// ended, prints nothing here: the caller prints the result).
+fn event_printer(json: bool) -> impl FnMut(&serde_json::Value) + Send {
+    use std::io::{IsTerminal, Write};
+    let lines = json || !std::io::stdout().is_terminal();
+    move |event: &serde_json::Value| {
+        let mut out = std::io::stdout();
+        let p = event["path"].as_str().unwrap_or("");
+        let id = p.rsplit('/').next().unwrap_or("");
+        if lines {
+            let _ = writeln!(out, "{event}");
+        } else if let Some(pr) = event["properties"]["Progress"].as_f64().filter(|_| event["event"] == "changed") {
+            let n = (pr * 30.0).round() as usize;
+            let stage = event["properties"]["Stage"].as_str().unwrap_or("");
+            let bar = format!("{}{}", "#".repeat(n.min(30)), ".".repeat(30 - n.min(30)));
+            let _ = write!(out, "\r{id} [{bar}] {:5.1}% {stage:<10}", pr * 100.0);
+        } else if event["event"] == "completed" || event["event"] == "job-finished" {
+            let _ = writeln!(out, "\n{id} {} {}", event["result"], event["error_code"]);
+        }
+        let _ = out.flush();
+    }
 }

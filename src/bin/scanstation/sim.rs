@@ -5,16 +5,16 @@
 //! for the turntable `unplug`, `replug`, `drop-reply`, `error N`, `alarm N`, `stall`, `quit`; for the trigger
 //! `silence MS`, `emcy CODE`, `drop-view [N]`, `busy [N]`, `garbage N`, `bus-off MS`, `quit`.
 
-use std::io::BufRead;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
 use clap::Args;
-use scanstation::devices::grbl_sim::{Fault, SimSettings};
-use scanstation::devices::sim_pty::{SimCommand, SimTurntable};
-use scanstation::devices::socketcan_bus::SocketCanBus;
-use scanstation::devices::trigger_sim::{ScannerFault, ScannerSettings, SimScanner};
+use scanstation::devices::commands::{CommandLine, MAX_COMMAND_BYTES, for_each_line};
+use scanstation::devices::rig_sim;
+use scanstation::devices::trigger::sim::{ScannerFault, ScannerSettings, SimScanner};
+use scanstation::devices::turntable::sim::SimSettings;
+use scanstation::devices::turntable::transport::{SimCommand, SimTurntable};
 
 /// Arguments of `scanstation sim turntable`.
 #[derive(Args)]
@@ -28,18 +28,24 @@ pub struct SimTurntableArgs {
     /// The banner after a reset (a wrong one exercises the driver's firmware check).
     #[arg(long, default_value = "Grbl 1.1h ['$' for help]")]
     pub banner: String,
-    /// Homing disabled: the board starts unlocked (Grbl's $22=0).
+    /// Homing enabled (Grbl's `$22=1`): the board starts locked until `$H` or `$X`. Off by default, as on a
+    /// factory-fresh board.
     #[arg(long)]
-    pub no_homing: bool,
-    /// Top speed, degrees per second (simulated time).
-    #[arg(long, default_value_t = 90.0)]
-    pub max_speed: f64,
-    /// Acceleration, degrees per second² (simulated time).
-    #[arg(long, default_value_t = 180.0)]
+    pub homing: bool,
+    /// Top rate, degrees per minute (Grbl's `$110`, simulated time); Grbl 1.1's factory default is 500.
+    #[arg(long, default_value_t = 500.0, value_parser = positive)]
+    pub max_rate: f64,
+    /// Acceleration, degrees per second² (Grbl's `$120`, simulated time); the factory default is 10.
+    #[arg(long, default_value_t = 10.0, value_parser = positive)]
     pub accel: f64,
     /// A Unix socket taking fault commands, one per line (as on stdin).
     #[arg(long)]
     pub control: Option<PathBuf>,
+}
+
+fn positive(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if v.is_finite() && v > 0.0 && v <= 1e6 { Ok(v) } else { Err("a positive number up to 1e6".into()) }
 }
 
 fn time_scale(s: &str) -> Result<f64, String> {
@@ -63,17 +69,13 @@ fn command_lines(
         let send = send.clone();
         std::thread::spawn(move || {
             for conn in l.incoming().flatten() {
-                for line in std::io::BufReader::new(conn).lines().map_while(Result::ok) {
-                    send(line);
-                }
+                for_each_line(conn, |l| forward(l, &send));
             }
         });
     }
     let stdin_ends = control.is_none();
     std::thread::spawn(move || {
-        for line in std::io::stdin().lock().lines().map_while(Result::ok) {
-            send(line);
-        }
+        for_each_line(std::io::stdin().lock(), |l| forward(l, &send));
         if stdin_ends {
             send("quit".into());
         }
@@ -81,34 +83,23 @@ fn command_lines(
     Ok(())
 }
 
-/// A command line: `unplug`, `replug`, `drop-reply`, `error N`, `alarm N`, `stall`, `quit`.
-fn parse_command(line: &str) -> Result<SimCommand, String> {
-    let mut words = line.split_whitespace();
-    let word = words.next().unwrap_or("");
-    let code =
-        |w: Option<&str>| w.and_then(|n| n.parse::<u32>().ok()).ok_or_else(|| format!("{word}: a number is needed"));
-    Ok(match word {
-        "unplug" => SimCommand::Unplug,
-        "replug" => SimCommand::Replug,
-        "drop-reply" => SimCommand::Fault(Fault::DropReply),
-        "error" => SimCommand::Fault(Fault::Error(code(words.next())?)),
-        "alarm" => SimCommand::Fault(Fault::Alarm(code(words.next())?)),
-        "stall" => SimCommand::Fault(Fault::Stall),
-        "quit" => SimCommand::Stop,
-        _ => {
-            return Err(format!(
-                "unknown command {word:?} (unplug, replug, drop-reply, error N, alarm N, stall, quit)"
-            ));
+/// Pass a command line on (`false` once the receiver is gone); an overlong one is reported and dropped.
+fn forward(line: CommandLine, send: &impl Fn(String) -> bool) -> bool {
+    match line {
+        CommandLine::Line(l) => send(l),
+        CommandLine::TooLong(n) => {
+            eprintln!("sim: a command line of {n} bytes or more was dropped (at most {MAX_COMMAND_BYTES})");
+            true
         }
-    })
+    }
 }
 
 /// Run the simulator until `quit`, end of stdin with no control socket, or a signal.
 pub fn run(a: &SimTurntableArgs) -> ExitCode {
     let settings = SimSettings {
         banner: a.banner.clone(),
-        homing: !a.no_homing,
-        max_speed: a.max_speed,
+        homing: a.homing,
+        max_speed: a.max_rate / 60.0,
         accel: a.accel,
         ..Default::default()
     };
@@ -128,7 +119,7 @@ pub fn run(a: &SimTurntableArgs) -> ExitCode {
         if line.trim().is_empty() {
             continue;
         }
-        match parse_command(&line) {
+        match rig_sim::turntable_command(&line) {
             Ok(SimCommand::Stop) => break,
             Ok(c) => {
                 eprintln!("sim: {}", line.trim());
@@ -164,47 +155,10 @@ pub struct SimTriggerArgs {
     pub control: Option<PathBuf>,
 }
 
-/// A trigger-node command line: `silence MS`, `emcy CODE`, `drop-view [N]`, `busy [N]`, `garbage N`,
-/// `bus-off MS`, `quit`.
-fn parse_trigger_command(line: &str) -> Result<ScannerFault, String> {
-    let mut words = line.split_whitespace();
-    let word = words.next().unwrap_or("");
-    let arg = words.next();
-    let number = |default: Option<u64>| -> Result<u64, String> {
-        match arg {
-            Some(w) => {
-                let w = w.trim_start_matches("0x");
-                let radix = if arg.is_some_and(|a| a.starts_with("0x")) { 16 } else { 10 };
-                u64::from_str_radix(w, radix).map_err(|_| format!("{word}: {:?} is not a number", arg.unwrap_or("")))
-            }
-            None => default.ok_or_else(|| format!("{word}: a number is needed")),
-        }
-    };
-    let ms = |n: u64| Duration::from_millis(n);
-    Ok(match word {
-        "silence" => ScannerFault::Silence(ms(number(None)?)),
-        "emcy" => ScannerFault::Emergency(number(None)?.min(0xFFFF) as u16),
-        "drop-view" => ScannerFault::DropViews(number(Some(1))?.min(u64::from(u32::MAX)) as u32),
-        "busy" => ScannerFault::Busy(number(Some(1))?.min(u64::from(u32::MAX)) as u32),
-        "garbage" => ScannerFault::Garbage(number(None)?.min(10_000) as u32),
-        "bus-off" => ScannerFault::BusOff(ms(number(None)?)),
-        "quit" => ScannerFault::Quit,
-        _ => {
-            return Err(format!(
-                "unknown command {word:?} (silence MS, emcy CODE, drop-view [N], busy [N], garbage N, bus-off MS, quit)"
-            ));
-        }
-    })
-}
-
 /// Start the simulated scanner node on `bus` (`unix:PATH` or a CAN interface), on the current runtime;
 /// `Err` (exit status 3, reported) when it cannot.
 fn start_node(bus: &str, settings: ScannerSettings) -> Result<SimScanner, ExitCode> {
-    let node = match bus.strip_prefix("unix:") {
-        Some(path) => SimScanner::listen_unix(std::path::Path::new(path), settings),
-        None => SocketCanBus::open(bus).map(|b| SimScanner::spawn(b, settings)),
-    };
-    node.map_err(|e| {
+    rig_sim::start_node(bus, settings).map_err(|e| {
         eprintln!("scanstation: error: cannot start the simulated scanner node on {bus}: {e}");
         ExitCode::from(3)
     })
@@ -240,7 +194,7 @@ pub fn run_trigger(a: &SimTriggerArgs) -> ExitCode {
             if line.trim().is_empty() {
                 continue;
             }
-            match parse_trigger_command(&line) {
+            match rig_sim::scanner_command(&line) {
                 Ok(ScannerFault::Quit) => break,
                 Ok(f) => {
                     eprintln!("sim: {}", line.trim());
@@ -320,12 +274,11 @@ fn resolution(s: &str) -> Result<(u32, u32), String> {
     Ok((p(w)?, p(h)?))
 }
 
-/// Run the simulated rig (turntable, scanner node, range camera) until `quit`, end of stdin with no control
-/// socket, or a signal.
+/// Run the simulated rig (turntable, scanner node, range camera; assembled by [`rig_sim::RigSim`]) until
+/// `quit`, end of stdin with no control socket, or a signal.
 pub fn run_rig(a: &SimRigArgs) -> ExitCode {
-    use scanstation::devices::rangecam::{CameraSettings, RangeCamera, Up};
-    use scanstation::devices::trigger_sim::ViewSource;
-    use scanstation::geometry::io::{ReadOptions, read_mesh, write_ply, write_ply_cloud};
+    use scanstation::devices::rangecam::{CameraSettings, Up};
+    use scanstation::geometry::io::{ReadOptions, read_mesh, write_ply};
     let fail = |what: String| {
         eprintln!("scanstation: error: {what}");
         ExitCode::from(3)
@@ -334,7 +287,7 @@ pub fn run_rig(a: &SimRigArgs) -> ExitCode {
         Ok(m) => m.triangulate().0,
         Err(e) => return fail(format!("cannot read the object: {e}")),
     };
-    let settings = CameraSettings {
+    let camera = CameraSettings {
         width: a.resolution.0,
         height: a.resolution.1,
         noise_rel: a.noise,
@@ -344,67 +297,42 @@ pub fn run_rig(a: &SimRigArgs) -> ExitCode {
         seed: a.seed,
         ..Default::default()
     };
-    let up = if a.up == "z" { Up::Z } else { Up::Y };
-    let camera = match RangeCamera::new(&mesh, up, settings) {
-        Ok(c) => std::sync::Arc::new(c),
-        Err(e) => return fail(format!("the range camera: {e}")),
-    };
-    if let Err(e) = std::fs::create_dir_all(&a.capture) {
-        return fail(format!("cannot create {}: {e}", a.capture.display()));
-    }
-    let (point, direction) = camera.axis();
-    if let Some(path) = &a.calibration {
-        let text = format!(
-            "# The simulated rig's turntable axis in the scanner's frame (scanstation sim rig).\n[scan]\naxis_point = [{}, {}, {}]\naxis_direction = [{}, {}, {}]\n",
-            point[0], point[1], point[2], direction[0], direction[1], direction[2]
-        );
-        if let Err(e) = std::fs::write(path, text) {
-            return fail(format!("cannot write {}: {e}", path.display()));
-        }
-    }
-    if let Some(path) = &a.truth {
-        let truth = scanstation::geometry::mesh::PolyMesh::from(camera.truth());
-        if let Err(e) = write_ply(path, &truth, &Default::default(), &["the simulated rig's object in the table frame"])
-        {
-            return fail(format!("cannot write {}: {e}", path.display()));
-        }
-    }
-    let table = match SimTurntable::spawn(SimSettings::default(), &a.link, a.time_scale) {
-        Ok(s) => s,
-        Err(e) => return fail(format!("cannot start the simulated turntable at {}: {e}", a.link.display())),
-    };
-    let angle = table.angle_source();
-    let (cam, dir) = (camera.clone(), a.capture.clone());
-    let views = ViewSource(std::sync::Arc::new(move |seq: u16| {
-        let at = angle();
-        let points = cam.capture(at);
-        let cloud = scanstation::geometry::mesh::PointCloud { positions: points, normals: None, colors: None };
-        let path = dir.join(format!("view-{seq:05}.ply"));
-        let note = format!("simulated range image at table angle {at:.4} deg");
-        match write_ply_cloud(&path, &cloud, &Default::default(), &[&note]) {
-            Ok(()) => Some(cloud.positions.len() as u32),
-            Err(e) => {
-                eprintln!("sim: cannot write {}: {e}", path.display());
-                None
-            }
-        }
-    }));
-    let settings = ScannerSettings {
+    let node = ScannerSettings {
         node: a.node,
         heartbeat: Duration::from_millis(a.heartbeat_ms),
         exposure: Duration::from_millis(a.exposure_ms),
         points: 0,
-        views: Some(views),
+        views: None,
+    };
+    let settings = rig_sim::RigSimSettings {
+        object: (mesh, if a.up == "z" { Up::Z } else { Up::Y }),
+        camera,
+        table: (a.link.clone(), a.time_scale),
+        node: (a.bus.clone(), node),
+        capture: a.capture.clone(),
     };
     let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build() {
         Ok(rt) => rt,
         Err(e) => return fail(format!("no async runtime: {e}")),
     };
     rt.block_on(async {
-        let node = match start_node(&a.bus, settings) {
-            Ok(n) => n,
-            Err(code) => return code,
+        let rig = match rig_sim::RigSim::start(settings) {
+            Ok(r) => r,
+            Err(e) => return fail(e),
         };
+        if let Some(path) = &a.calibration
+            && let Err(e) = std::fs::write(path, rig.calibration_toml())
+        {
+            return fail(format!("cannot write {}: {e}", path.display()));
+        }
+        if let Some(path) = &a.truth {
+            let truth = scanstation::geometry::mesh::PolyMesh::from(rig.camera.truth());
+            let note = ["the simulated rig's object in the table frame"];
+            if let Err(e) = write_ply(path, &truth, &Default::default(), &note) {
+                return fail(format!("cannot write {}: {e}", path.display()));
+            }
+        }
+        let (point, direction) = rig.camera.axis();
         eprintln!(
             "simulated rig: turntable at {}, scanner node {:#04x} on {}, views into {}; axis point {:?} direction {:?}",
             a.link.display(),
@@ -422,23 +350,13 @@ pub fn run_rig(a: &SimRigArgs) -> ExitCode {
             if line.trim().is_empty() {
                 continue;
             }
-            match (parse_command(&line), parse_trigger_command(&line)) {
-                (Ok(SimCommand::Stop), _) | (_, Ok(ScannerFault::Quit)) => break,
-                (Ok(c), _) => {
-                    eprintln!("sim: {}", line.trim());
-                    table.send(c);
-                }
-                (_, Ok(f)) => {
-                    eprintln!("sim: {}", line.trim());
-                    node.inject(f).await;
-                }
-                (Err(_), Err(_)) => eprintln!(
-                    "sim: unknown command {:?} (turntable: unplug, replug, drop-reply, error N, alarm N, stall; scanner: silence MS, emcy CODE, drop-view [N], busy [N], garbage N, bus-off MS; quit)",
-                    line.trim()
-                ),
+            match rig.command(&line).await {
+                Ok(false) => break,
+                Ok(true) => eprintln!("sim: {}", line.trim()),
+                Err(e) => eprintln!("sim: {e}"),
             }
         }
-        node.inject(ScannerFault::Quit).await;
+        rig.quit().await;
         ExitCode::SUCCESS
     })
 }

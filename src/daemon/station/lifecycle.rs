@@ -81,6 +81,7 @@ impl Station {
                 heartbeat: self.heartbeat.clone(),
                 events: self.worker_tx.clone(),
                 stage: stages_of(&job.rec)[0],
+                capture: None,
             };
             self.heartbeat.store(now_usec(), Ordering::Relaxed);
             let span = tracing::info_span!("job", job_id = %id);

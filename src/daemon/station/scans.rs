@@ -7,7 +7,8 @@ use std::sync::atomic::Ordering;
 use super::*;
 use crate::daemon::config::JobOptions;
 use crate::daemon::dbus::StationError;
-use crate::daemon::journal::{JobId, JobRecord, now_usec, sync_dir};
+use crate::daemon::durable::sync_dir;
+use crate::daemon::journal::{JobId, JobRecord, now_usec};
 use crate::daemon::scan::{self, CaptureJob, ScanRequest};
 use crate::daemon::worker::{CAPTURE_END, HOME_END, JobRun, SCAN_STAGES};
 
@@ -112,6 +113,7 @@ impl Station {
                 Ok(log) => {
                     tracing::info!(views = log.views.len(), skipped = log.skipped.len(), "capture done");
                     run.stage = "fuse";
+                    run.capture = Some(log);
                 }
                 Err(e) => {
                     tracing::warn!(error = %e, "capture ended");

@@ -10,7 +10,7 @@
 
 use std::path::Path;
 
-use super::scanset::{MAX_VIEWS, View};
+use super::view::{MAX_VIEWS, View};
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::ReadOptions;
 use crate::geometry::pose::Pose;

@@ -12,6 +12,7 @@ mod ply;
 pub mod scanset;
 mod stl;
 mod text;
+mod view;
 mod write;
 mod xyz;
 
@@ -20,7 +21,8 @@ use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
 pub use write::{
-    VertexAttributes, ensure_not_input, ensure_replaceable, write_atomic, write_obj, write_ply, write_ply_cloud,
+    HashingFile, VertexAttributes, ensure_not_input, ensure_replaceable, write_atomic, write_obj, write_ply,
+    write_ply_cloud,
 };
 
 use crate::error::{Error, ErrorCode, Location, Result};
@@ -78,14 +80,28 @@ pub const GZIP_RATIO_GRACE: u64 = 64 << 20;
 struct Counted<R> {
     inner: R,
     count: std::rc::Rc<std::cell::Cell<u64>>,
+    /// The raw bytes' digest, when the caller asked for one ([`read_geometry_digest`]).
+    hash: Option<std::rc::Rc<std::cell::RefCell<sha2::Sha256>>>,
 }
 
 impl<R: Read> Read for Counted<R> {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
         let n = self.inner.read(buf)?;
         self.count.set(self.count.get() + n as u64);
+        if let Some(h) = &self.hash {
+            sha2::Digest::update(&mut *h.borrow_mut(), &buf[..n]);
+        }
         Ok(n)
     }
+}
+
+/// A file's size and SHA-256, as [`read_geometry_digest`] measures them while reading it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FileDigest {
+    /// Bytes in the file.
+    pub bytes: u64,
+    /// Its SHA-256, lower-case hex.
+    pub sha256: String,
 }
 
 /// A gzip decoder that stops with an error once the output passes `max_input_size`, or passes
@@ -213,7 +229,21 @@ fn sniff_format(head: &[u8]) -> Option<Format> {
 /// Stable codes `input.*` for bad data (naming the file and line/byte), `resource.memory` when the
 /// declared data exceeds `options.memory_budget`. Cost: one pass over the file; memory ≈ the returned data.
 pub fn read_geometry(path: &Path, options: &ReadOptions) -> Result<Geometry> {
-    read_inner(path, options).map_err(|e| e.in_file(path))
+    read_inner(path, options, None).map_err(|e| e.in_file(path))
+}
+
+/// [`read_geometry`], with the file's size and SHA-256 taken from the same read (the bytes after the data,
+/// if any, are read for the digest too): a file is read once where it must be both parsed and hashed.
+///
+/// # Errors
+/// As [`read_geometry`].
+pub fn read_geometry_digest(path: &Path, options: &ReadOptions) -> Result<(Geometry, FileDigest)> {
+    let hash = std::rc::Rc::new(std::cell::RefCell::new(<sha2::Sha256 as sha2::Digest>::new()));
+    let geometry = read_inner(path, options, Some(hash.clone())).map_err(|e| e.in_file(path))?;
+    let hash = std::rc::Rc::try_unwrap(hash).map_err(|_| Error::internal("the digest is still shared"))?;
+    let sha256: String = sha2::Digest::finalize(hash.into_inner()).iter().map(|b| format!("{b:02x}")).collect();
+    let bytes = std::fs::metadata(path).map_err(|e| Error::new(ErrorCode::InputIo, e.to_string()).in_file(path))?.len();
+    Ok((geometry, FileDigest { bytes, sha256 }))
 }
 
 /// Read a file that must be a mesh (have faces).
@@ -240,7 +270,12 @@ pub fn read_mesh(path: &Path, options: &ReadOptions) -> Result<PolyMesh> {
     }
 }
 
-fn read_inner(path: &Path, options: &ReadOptions) -> Result<Geometry> {
+fn read_inner(
+    path: &Path,
+    options: &ReadOptions,
+    hash: Option<std::rc::Rc<std::cell::RefCell<sha2::Sha256>>>,
+) -> Result<Geometry> {
+    let hashing = hash.is_some();
     let file = File::open(path).map_err(|e| {
         let code = if e.kind() == std::io::ErrorKind::NotFound { ErrorCode::InputNotFound } else { ErrorCode::InputIo };
         Error::new(code, format!("cannot open: {e}"))
@@ -260,7 +295,7 @@ fn read_inner(path: &Path, options: &ReadOptions) -> Result<Geometry> {
         ));
     }
     let compressed = std::rc::Rc::new(std::cell::Cell::new(0u64));
-    let mut raw = BufReader::with_capacity(1 << 16, Counted { inner: file, count: compressed.clone() });
+    let mut raw = BufReader::with_capacity(1 << 16, Counted { inner: file, count: compressed.clone(), hash });
     let gz = raw.fill_buf().map_err(io_err)?.starts_with(&[0x1f, 0x8b]);
     let (mut reader, max_bytes): (Box<dyn BufRead>, u64) = if gz {
         let dec = flate2::bufread::MultiGzDecoder::new(raw);
@@ -283,6 +318,11 @@ fn read_inner(path: &Path, options: &ReadOptions) -> Result<Geometry> {
         Format::Off => off::read(&mut input),
         Format::Xyz => xyz::read(&mut input),
     }?;
+    if hashing {
+        // The digest covers the whole file: read what the parser left.
+        std::io::copy(&mut input.reader, &mut std::io::sink()).map_err(io_err)?;
+    }
+    drop(input);
     if geometry.positions().is_empty() {
         return Err(Error::new(ErrorCode::InputNoGeometry, "the file holds no vertices"));
     }

@@ -27,59 +27,15 @@ use std::path::{Path, PathBuf};
 use crate::error::{Error, ErrorCode, Location, Result};
 use crate::geometry::io::{ReadOptions, read_geometry};
 use crate::geometry::pose::Pose;
-use crate::geometry::vec3::{V3, norm, scale, sub};
+use crate::geometry::vec3::V3;
+
+pub use super::view::{MAX_VIEWS, View, placed};
 
 /// The manifest's file name inside a scan-set directory.
 pub const MANIFEST: &str = "scanset.toml";
 
-/// One view of a scan set.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct View {
-    /// The view's name (its file name as listed).
-    pub name: String,
-    /// Its file.
-    pub file: PathBuf,
-    /// Its pose: view frame → common frame.
-    pub pose: Pose,
-    /// Its points in its own frame.
-    #[serde(skip)]
-    pub points: Vec<[f32; 3]>,
-    /// Its points' count.
-    pub point_count: usize,
-    /// Where the scanner stood in the view's frame, when known (E57: the origin); `None`: far along +z
-    /// (the scanner looks down −z, Stanford's convention and the station's).
-    pub scanner: Option<V3>,
-}
-
-impl View {
-    /// The view's points in the common frame.
-    pub fn placed(&self) -> Vec<[f32; 3]> {
-        placed(&self.points, &self.pose)
-    }
-
-    /// The unit direction from the view's point `p` (its own frame) toward its scanner, in its own frame.
-    pub fn toward_scanner(&self, p: V3) -> V3 {
-        match self.scanner {
-            None => [0.0, 0.0, 1.0],
-            Some(s) => {
-                let d = sub(s, p);
-                let n = norm(d);
-                if n > 0.0 { scale(d, 1.0 / n) } else { [0.0, 0.0, 1.0] }
-            }
-        }
-    }
-}
-
-/// `points` moved by `pose`.
-pub fn placed(points: &[[f32; 3]], pose: &Pose) -> Vec<[f32; 3]> {
-    points.iter().map(|p| pose.apply(p.map(f64::from)).map(|c| c as f32)).collect()
-}
-
 /// Largest `.conf` or manifest file, bytes.
 pub const MAX_CONF_BYTES: u64 = 1 << 20;
-
-/// Most views in one scan set (a turntable scan at 1° steps has 360).
-pub const MAX_VIEWS: usize = 4096;
 
 /// Whether `path` names a scan set: an E57 file, a `.conf` file, a manifest, or a directory holding either.
 pub fn is_scan_set(path: &Path) -> bool {
@@ -304,7 +260,7 @@ pub fn write_manifest(path: &Path, views: &[(String, Pose)]) -> Result<()> {
         }
         s += "  [0.0, 0.0, 0.0, 1.0],\n]\n";
     }
-    super::write::write_atomic(path, |w| std::io::Write::write_all(w, s.as_bytes()))
+    super::write::write_atomic(path, |w| std::io::Write::write_all(w, s.as_bytes())).map(|_| ())
 }
 
 fn toml_string(s: &str) -> String {

@@ -8,6 +8,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+use super::FileDigest;
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::mesh::{PointCloud, PolyMesh};
 
@@ -72,14 +73,39 @@ pub fn ensure_replaceable(path: &Path) -> Result<()> {
     }
 }
 
+/// A file being written, its SHA-256 and size taken from the bytes as they pass (so that nothing reads a
+/// written file back to hash it).
+pub struct HashingFile {
+    file: File,
+    hash: sha2::Sha256,
+    bytes: u64,
+}
+
+impl Write for HashingFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.file.write(buf)?;
+        sha2::Digest::update(&mut self.hash, &buf[..n]);
+        self.bytes += n as u64;
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.file.flush()
+    }
+}
+
 /// Write through a temporary file in the same directory (created if missing), fsync, then rename onto `path`.
+/// Returns the file's size and SHA-256, taken while writing.
 ///
 /// # Errors
 /// `resource.output` when writing or renaming fails (the temporary file is removed), or when `path` is a
 /// device, a FIFO, a socket or a directory (the rename would replace it with a regular file: run as root,
 /// `-o /dev/null` would replace the system's `/dev/null`); `input.bad-argument` for a path without a file
 /// name.
-pub fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
+pub fn write_atomic(
+    path: &Path,
+    body: impl FnOnce(&mut BufWriter<HashingFile>) -> std::io::Result<()>,
+) -> Result<FileDigest> {
     ensure_replaceable(path)?;
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name =
@@ -90,17 +116,19 @@ pub fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> std:
     let tmp: PathBuf = dir.join(tmp_name);
     let result = (|| {
         std::fs::create_dir_all(dir)?;
-        let mut w = BufWriter::with_capacity(1 << 16, File::create(&tmp)?);
+        let file = HashingFile { file: File::create(&tmp)?, hash: <sha2::Sha256 as sha2::Digest>::new(), bytes: 0 };
+        let mut w = BufWriter::with_capacity(1 << 16, file);
         body(&mut w)?;
         let f = w.into_inner().map_err(|e| e.into_error())?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
+        f.file.sync_all()?;
+        std::fs::rename(&tmp, path)?;
+        let sha256 = sha2::Digest::finalize(f.hash).iter().map(|b| format!("{b:02x}")).collect();
+        Ok(FileDigest { bytes: f.bytes, sha256 })
     })();
-    if let Err(e) = result {
+    result.map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
-        return Err(out_err(path, e));
-    }
-    Ok(())
+        out_err(path, e)
+    })
 }
 
 fn check_len(what: &str, len: usize, n: usize) -> Result<()> {
@@ -178,7 +206,7 @@ fn check_attrs(attrs: &VertexAttributes, n: usize) -> Result<()> {
 ///
 /// # Errors
 /// `input.bad-argument` (attribute length mismatch, face of more than 255 vertices), `resource.output`.
-pub fn write_ply(path: &Path, mesh: &PolyMesh, attrs: &VertexAttributes, comments: &[&str]) -> Result<()> {
+pub fn write_ply(path: &Path, mesh: &PolyMesh, attrs: &VertexAttributes, comments: &[&str]) -> Result<FileDigest> {
     let n = mesh.positions.len();
     check_attrs(attrs, n)?;
     if mesh.faces().any(|f| f.len() > 255) {
@@ -201,7 +229,12 @@ pub fn write_ply(path: &Path, mesh: &PolyMesh, attrs: &VertexAttributes, comment
 ///
 /// # Errors
 /// As [`write_ply`].
-pub fn write_ply_cloud(path: &Path, cloud: &PointCloud, attrs: &VertexAttributes, comments: &[&str]) -> Result<()> {
+pub fn write_ply_cloud(
+    path: &Path,
+    cloud: &PointCloud,
+    attrs: &VertexAttributes,
+    comments: &[&str],
+) -> Result<FileDigest> {
     let attrs = VertexAttributes {
         normals: attrs.normals.or(cloud.normals.as_deref()),
         colors: attrs.colors.or(cloud.colors.as_deref()),
@@ -219,7 +252,7 @@ pub fn write_ply_cloud(path: &Path, cloud: &PointCloud, attrs: &VertexAttributes
 ///
 /// # Errors
 /// `resource.output`.
-pub fn write_obj(path: &Path, mesh: &PolyMesh) -> Result<()> {
+pub fn write_obj(path: &Path, mesh: &PolyMesh) -> Result<FileDigest> {
     write_atomic(path, |w| {
         writeln!(w, "# written by scanstation {}", env!("CARGO_PKG_VERSION"))?;
         writeln!(w, "# {} vertices, {} faces", mesh.positions.len(), mesh.face_count())?;

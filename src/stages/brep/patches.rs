@@ -424,30 +424,8 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
                 }
                 return Ok(());
             }
-            let n = g.bu.len() - 1;
-            let (r, tq) = (g.nets[1], g.nets[n]);
-            let (s0, s3) = (side(0), side(3));
-            let mut c = [[0.0; 3]; 16];
-            c[..4].copy_from_slice(&s0.span(0));
-            let last = s3.knots.len() - 2;
-            for (slot, q) in [12, 8, 4, 0].into_iter().zip(s3.span(last)) {
-                c[slot] = q;
-            }
-            // The inner sides are the exact neighbours' (R at u = 2⁻ᴸ, T at v = 2⁻ᴸ), and the corner joins them C¹:
-            // its second column from u = 1 and second row from v = 1 mirror theirs (c[2] and c[8] already do,
-            // through the edge curves).
-            for k in 1..4 {
-                c[4 * k + 3] = r[4 * k];
-                c[12 + k] = tq[k];
-            }
-            c[15] = r[12];
-            let ext = |a: V3, b: V3| vec3::sub(vec3::scale(a, 2.0), b);
-            c[6] = ext(r[4], r[5]);
-            c[9] = ext(tq[1], tq[5]);
-            c[10] = vec3::scale(vec3::add(ext(r[8], r[9]), ext(tq[2], tq[6])), 0.5);
             let ev = ev_tables[f].as_ref().ok_or_else(|| Error::internal("missing table"))?;
-            fit_corner(surface, f, ev, p1, &mut c, g.bu[1]);
-            g.nets[0] = c;
+            g.nets[0] = ev_corner(surface, f, ev, p1, g, &side(0), &side(3));
             Ok(())
         })?;
         let patches = Patches {
@@ -473,6 +451,42 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
         }
     }
 }
+/// The corner cell of extraordinary face `f` (its net `g`, split into exact cells): the sides on the face's
+/// boundary from the edge curves `s0` (v = 0) and `s3` (u = 0), the inner sides from the exact neighbours,
+/// and the inner points fitted ([`fit_corner`]) so that the corner joins them C¹.
+fn ev_corner(
+    surface: &LimitSurface,
+    f: usize,
+    ev: &EvPatch,
+    p1: &[V3],
+    g: &FaceNet,
+    s0: &EdgeCurve,
+    s3: &EdgeCurve,
+) -> [V3; 16] {
+    let n = g.bu.len() - 1;
+    let (r, tq) = (g.nets[1], g.nets[n]);
+    let mut c = [[0.0; 3]; 16];
+    c[..4].copy_from_slice(&s0.span(0));
+    let last = s3.knots.len() - 2;
+    for (slot, q) in [12, 8, 4, 0].into_iter().zip(s3.span(last)) {
+        c[slot] = q;
+    }
+    // The inner sides are the exact neighbours' (R at u = 2⁻ᴸ, T at v = 2⁻ᴸ), and the corner joins them C¹:
+    // its second column from u = 1 and second row from v = 1 mirror theirs (c[2] and c[8] already do,
+    // through the edge curves).
+    for k in 1..4 {
+        c[4 * k + 3] = r[4 * k];
+        c[12 + k] = tq[k];
+    }
+    c[15] = r[12];
+    let ext = |a: V3, b: V3| vec3::sub(vec3::scale(a, 2.0), b);
+    c[6] = ext(r[4], r[5]);
+    c[9] = ext(tq[1], tq[5]);
+    c[10] = vec3::scale(vec3::add(ext(r[8], r[9]), ext(tq[2], tq[6])), 0.5);
+    fit_corner(surface, f, ev, p1, &mut c, g.bu[1]);
+    c
+}
+
 /// A curve from consecutive spans (each starting where the last ended) over `knots`.
 fn concat(spans: impl IntoIterator<Item = [V3; 4]>, knots: Vec<f64>) -> EdgeCurve {
     let mut points: Vec<V3> = Vec::new();

@@ -290,5 +290,5 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
 /// `resource.output` when the file cannot be written or renamed.
 pub fn write_step(path: &Path, solid: &Solid, opts: &StepOptions) -> Result<()> {
     let body = to_step(solid, opts);
-    write_atomic(path, |w| w.write_all(body.as_bytes()))
+    write_atomic(path, |w| w.write_all(body.as_bytes())).map(|_| ())
 }

@@ -345,21 +345,7 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
     seconds.insert("domain", t0.elapsed().as_secs_f64());
 
     // Select supports and loads by location.
-    let pick = |region: &spec::Region| -> Vec<SurfacePoint> {
-        points.iter().filter(|sp| region.contains(sp.p)).copied().collect()
-    };
-    let supports: Vec<(String, Vec<SurfacePoint>)> =
-        spec.supports.iter().enumerate().map(|(i, s)| (s.label(i), pick(&s.region()))).collect();
-    let loads: Vec<(String, Vec<SurfacePoint>)> =
-        spec.loads.iter().enumerate().map(|(i, l)| (l.label(i), pick(&l.region()))).collect();
-    for (name, pts) in supports.iter().chain(&loads) {
-        if pts.is_empty() {
-            return Err(Error::new(ErrorCode::FeaEmptySelection, format!("{name} selects no part of the surface"))
-                .with_hint("check the region against the solid's bounding box (same units)"));
-        }
-    }
-    check_supports_hold(&supports)?;
-    check_loads_free(&loads, spec)?;
+    let (supports, loads) = select_regions(spec, &points)?;
 
     // Assemble.
     let t1 = Instant::now();
@@ -393,22 +379,7 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
         }
     };
     let nitsche = res.support_method == spec::SupportMethod::Nitsche;
-    let mut load_reports = Vec::new();
-    let mut total_load = scale(body, domain.volume());
-    for (l, (name, pts)) in spec.loads.iter().zip(&loads) {
-        let area: f64 = pts.iter().map(|sp| sp.w).sum();
-        let force = if let Some(f) = l.force {
-            let t = scale(f, 1.0 / area);
-            sys.add_traction(&grid, pts, |_| t);
-            f
-        } else {
-            let p = l.pressure.unwrap_or(0.0);
-            sys.add_traction(&grid, pts, |sp| scale(sp.n, -p));
-            pts.iter().fold([0.0; 3], |acc, sp| add(acc, scale(sp.n, -p * sp.w)))
-        };
-        total_load = add(total_load, force);
-        load_reports.push(SelectionReport { name: name.clone(), area, points: pts.len(), force });
-    }
+    let (load_reports, total_load) = apply_loads(&mut sys, &grid, spec, &loads, scale(body, domain.volume()));
     seconds.insert("assemble", t1.elapsed().as_secs_f64());
 
     // Solve.
@@ -420,44 +391,9 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
     // Results.
     let t3 = Instant::now();
     progress.report(0.9, "results");
-    let eval = |p: V3| -> (V3, [[f64; 3]; 3]) {
-        let (c, t) = grid.locate(p);
-        let f = sys.dofs.cell_functions(c);
-        let (n, g) = basis::shape(t, h);
-        let mut disp = [0.0; 3];
-        let mut grad = [[0.0; 3]; 3];
-        for a in 0..27 {
-            let r = sys.dofs.rank[f[a]];
-            if r == u32::MAX {
-                continue;
-            }
-            let r = r as usize;
-            for i in 0..3 {
-                let ui = u[3 * r + i];
-                disp[i] += ui * n[a];
-                for j in 0..3 {
-                    grad[i][j] += ui * g[a][j];
-                }
-            }
-        }
-        (disp, grad)
-    };
-    let mut reaction = [0.0; 3];
-    let mut support_reports = Vec::new();
-    // The force each support exerts: ∫ (σ(u)·n − β u) with Nitsche, −∫ β u with a penalty.
-    for ((name, pts), betas) in supports.iter().zip(&betas) {
-        let mut area = 0.0;
-        for (sp, &beta) in pts.iter().zip(betas) {
-            let (d, g) = eval(sp.p);
-            reaction = sub(reaction, scale(d, beta * sp.w));
-            if nitsche {
-                let s = stress(&g, lambda, mu);
-                reaction = add(reaction, scale(stress_traction(&s, sp.n), sp.w));
-            }
-            area += sp.w;
-        }
-        support_reports.push(SelectionReport { name: name.clone(), area, points: pts.len(), force: [0.0; 3] });
-    }
+    let field = Field { grid: &grid, sys: &sys, u: &u, h };
+    let eval = |p: V3| field.at(p);
+    let (reaction, support_reports) = field.reactions(&supports, &betas, nitsche, lambda, mu);
     let imbalance = norm(add(reaction, total_load)) / norm(total_load).max(1e-300);
     let per_vertex: Vec<(V3, f64, [f64; 3])> = mesh
         .positions
@@ -468,31 +404,8 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
             (d, von_mises(&s), principal(&s))
         })
         .collect();
-    // The largest `key` over the vertices that `keep` admits.
-    type Key<'k> = &'k dyn Fn(&(V3, f64, [f64; 3])) -> f64;
-    let extreme_where = |keep: &dyn Fn(usize) -> bool, key: Key| -> Extreme {
-        let (i, v) = per_vertex
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| keep(*i))
-            .map(|(i, x)| (i, key(x)))
-            .fold((0, f64::NEG_INFINITY), |b, x| if x.1 > b.1 { x } else { b });
-        Extreme { value: v, at: wide(mesh.positions[i]) }
-    };
-    let extreme = |key: Key| extreme_where(&|_| true, key);
-    let max_displacement = extreme(&|x| norm(x.0));
-    let max_von_mises = extreme(&|x| x.1);
     let exclusion_distance = 2.0 * h;
-    let support_cloud: Vec<[f32; 3]> =
-        supports.iter().flat_map(|s| s.1.iter().map(|sp| sp.p.map(|x| x as f32))).collect();
-    let support_bvh = crate::geometry::bvh::PointBvh::new(&support_cloud);
-    let far: Vec<bool> =
-        mesh.positions.par_iter().map(|&p| support_bvh.distance(wide(p)) > exclusion_distance).collect();
-    let mut max_von_mises_away_from_supports = extreme_where(&|i| far[i], &|x| x.1);
-    max_von_mises_away_from_supports.value = max_von_mises_away_from_supports.value.max(0.0);
-    let max_principal_stress = extreme(&|x| x.2[0]);
-    let mut min_principal_stress = extreme(&|x| -x.2[2]);
-    min_principal_stress.value = -min_principal_stress.value;
+    let x = SurfaceExtremes::of(&mesh, &per_vertex, &supports, exclusion_distance);
     let probes = spec
         .probes
         .iter()
@@ -529,12 +442,12 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
         total_load,
         reaction,
         imbalance,
-        max_displacement,
-        max_von_mises,
-        max_von_mises_away_from_supports,
+        max_displacement: x.max_displacement,
+        max_von_mises: x.max_von_mises,
+        max_von_mises_away_from_supports: x.max_von_mises_away_from_supports,
         exclusion_distance,
-        max_principal_stress,
-        min_principal_stress,
+        max_principal_stress: x.max_principal_stress,
+        min_principal_stress: x.min_principal_stress,
         probes,
         seconds,
     };
@@ -546,7 +459,165 @@ pub fn solve(mesh: &TriMesh, spec: &FeaSpec, options: &FeaOptions, progress: &dy
     Ok(FeaSolution { report, surface: mesh, fields })
 }
 
-/// Supports must hold every rigid motion: their points together must not lie on one line.
+/// The supports' and loads' surface points, each selection named; every selection must take part of the
+/// surface, the supports must hold every rigid motion and no load may sit on a support.
+fn select_regions(spec: &FeaSpec, points: &[SurfacePoint]) -> Result<(Selections, Selections)> {
+    let pick = |region: &spec::Region| -> Vec<SurfacePoint> {
+        points.iter().filter(|sp| region.contains(sp.p)).copied().collect()
+    };
+    let supports: Selections = spec.supports.iter().enumerate().map(|(i, s)| (s.label(i), pick(&s.region()))).collect();
+    let loads: Selections = spec.loads.iter().enumerate().map(|(i, l)| (l.label(i), pick(&l.region()))).collect();
+    for (name, pts) in supports.iter().chain(&loads) {
+        if pts.is_empty() {
+            return Err(Error::new(ErrorCode::FeaEmptySelection, format!("{name} selects no part of the surface"))
+                .with_hint("check the region against the solid's bounding box (same units)"));
+        }
+    }
+    check_supports_hold(&supports)?;
+    check_loads_free(&loads, spec)?;
+    Ok((supports, loads))
+}
+
+/// The solved displacement field: the B-spline functions' coefficients `u` over `grid` (cell size `h`).
+struct Field<'a> {
+    grid: &'a Grid,
+    sys: &'a system::System,
+    u: &'a [f64],
+    h: f64,
+}
+
+impl Field<'_> {
+    /// The displacement at `p` and its gradient (∂uᵢ/∂xⱼ).
+    fn at(&self, p: V3) -> (V3, [[f64; 3]; 3]) {
+        let (c, t) = self.grid.locate(p);
+        let f = self.sys.dofs.cell_functions(c);
+        let (n, g) = basis::shape(t, self.h);
+        let mut disp = [0.0; 3];
+        let mut grad = [[0.0; 3]; 3];
+        for a in 0..27 {
+            let r = self.sys.dofs.rank[f[a]];
+            if r == u32::MAX {
+                continue;
+            }
+            let r = r as usize;
+            for i in 0..3 {
+                let ui = self.u[3 * r + i];
+                disp[i] += ui * n[a];
+                for j in 0..3 {
+                    grad[i][j] += ui * g[a][j];
+                }
+            }
+        }
+        (disp, grad)
+    }
+
+    /// The total reaction of the supports and each support's report: the force each exerts is
+    /// ∫ (σ(u)·n − β u) with Nitsche, −∫ β u with a penalty (`betas`: β per support point).
+    fn reactions(
+        &self,
+        supports: &Selections,
+        betas: &[Vec<f64>],
+        nitsche: bool,
+        lambda: f64,
+        mu: f64,
+    ) -> (V3, Vec<SelectionReport>) {
+        let mut reaction = [0.0; 3];
+        let mut support_reports = Vec::new();
+        for ((name, pts), betas) in supports.iter().zip(betas) {
+            let mut area = 0.0;
+            for (sp, &beta) in pts.iter().zip(betas) {
+                let (d, g) = self.at(sp.p);
+                reaction = sub(reaction, scale(d, beta * sp.w));
+                if nitsche {
+                    let s = stress(&g, lambda, mu);
+                    reaction = add(reaction, scale(stress_traction(&s, sp.n), sp.w));
+                }
+                area += sp.w;
+            }
+            support_reports.push(SelectionReport { name: name.clone(), area, points: pts.len(), force: [0.0; 3] });
+        }
+        (reaction, support_reports)
+    }
+}
+
+/// Named selections of surface points.
+type Selections = Vec<(String, Vec<SurfacePoint>)>;
+
+/// Add each load's traction to `sys` (a force spread evenly over its selection's area, or a pressure along
+/// the inward normal); returns the loads' reports and the total load, starting from `body_total` (gravity).
+fn apply_loads(
+    sys: &mut system::System,
+    grid: &Grid,
+    spec: &FeaSpec,
+    loads: &Selections,
+    body_total: V3,
+) -> (Vec<SelectionReport>, V3) {
+    let mut load_reports = Vec::new();
+    let mut total_load = body_total;
+    for (l, (name, pts)) in spec.loads.iter().zip(loads) {
+        let area: f64 = pts.iter().map(|sp| sp.w).sum();
+        let force = if let Some(f) = l.force {
+            let t = scale(f, 1.0 / area);
+            sys.add_traction(grid, pts, |_| t);
+            f
+        } else {
+            let p = l.pressure.unwrap_or(0.0);
+            sys.add_traction(grid, pts, |sp| scale(sp.n, -p));
+            pts.iter().fold([0.0; 3], |acc, sp| add(acc, scale(sp.n, -p * sp.w)))
+        };
+        total_load = add(total_load, force);
+        load_reports.push(SelectionReport { name: name.clone(), area, points: pts.len(), force });
+    }
+    (load_reports, total_load)
+}
+
+/// The extremes of the surface fields over the solid's vertices.
+struct SurfaceExtremes {
+    max_displacement: Extreme,
+    max_von_mises: Extreme,
+    max_von_mises_away_from_supports: Extreme,
+    max_principal_stress: Extreme,
+    min_principal_stress: Extreme,
+}
+
+impl SurfaceExtremes {
+    /// From `per_vertex` (displacement, von Mises, principal stresses) over `mesh`'s vertices; "away from
+    /// supports" leaves out vertices within `exclusion_distance` of a support point.
+    fn of(mesh: &TriMesh, per_vertex: &[(V3, f64, [f64; 3])], supports: &Selections, exclusion_distance: f64) -> Self {
+        // The largest `key` over the vertices that `keep` admits.
+        type Key<'k> = &'k dyn Fn(&(V3, f64, [f64; 3])) -> f64;
+        let extreme_where = |keep: &dyn Fn(usize) -> bool, key: Key| -> Extreme {
+            let (i, v) = per_vertex
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| keep(*i))
+                .map(|(i, x)| (i, key(x)))
+                .fold((0, f64::NEG_INFINITY), |b, x| if x.1 > b.1 { x } else { b });
+            Extreme { value: v, at: wide(mesh.positions[i]) }
+        };
+        let extreme = |key: Key| extreme_where(&|_| true, key);
+        let max_displacement = extreme(&|x| norm(x.0));
+        let max_von_mises = extreme(&|x| x.1);
+        let support_cloud: Vec<[f32; 3]> =
+            supports.iter().flat_map(|s| s.1.iter().map(|sp| sp.p.map(|x| x as f32))).collect();
+        let support_bvh = crate::geometry::bvh::PointBvh::new(&support_cloud);
+        let far: Vec<bool> =
+            mesh.positions.par_iter().map(|&p| support_bvh.distance(wide(p)) > exclusion_distance).collect();
+        let mut max_von_mises_away_from_supports = extreme_where(&|i| far[i], &|x| x.1);
+        max_von_mises_away_from_supports.value = max_von_mises_away_from_supports.value.max(0.0);
+        let max_principal_stress = extreme(&|x| x.2[0]);
+        let mut min_principal_stress = extreme(&|x| -x.2[2]);
+        min_principal_stress.value = -min_principal_stress.value;
+        SurfaceExtremes {
+            max_displacement,
+            max_von_mises,
+            max_von_mises_away_from_supports,
+            max_principal_stress,
+            min_principal_stress,
+        }
+    }
+}
+
 /// Bytes per B-spline function on the iterative path, the least the solve can take: 63 coupled functions ×
 /// a 3×3 block of f64 with its index (system.rs's cost note, 63 · 72 B), the right-hand side and the PCG
 /// vectors (6 · 3 · 8 B), and the function's cell maps (about 200 B).
@@ -669,6 +740,7 @@ fn check_loads_free(loads: &[(String, Vec<SurfacePoint>)], spec: &FeaSpec) -> Re
     Ok(())
 }
 
+/// Supports must hold every rigid motion: their points together must not lie on one line.
 fn check_supports_hold(supports: &[(String, Vec<SurfacePoint>)]) -> Result<()> {
     let pts: Vec<V3> = supports.iter().flat_map(|s| s.1.iter().map(|sp| sp.p)).collect();
     let n = pts.len() as f64;

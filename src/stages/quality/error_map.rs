@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::geometry::io::{VertexAttributes, write_ply, write_ply_cloud};
+use crate::geometry::io::{FileDigest, VertexAttributes, write_ply, write_ply_cloud};
 use crate::geometry::mesh::Geometry;
 use crate::geometry::stats::percentile;
 use crate::stages::quality::vertex_distances;
@@ -27,11 +27,16 @@ pub const INVENTED_GREY: [u8; 3] = [160, 160, 160];
 /// Write `test` as a binary PLY with per-vertex `distance` (to `reference`, in input units) and a colour
 /// ramp from 0 (blue) to the 99th percentile of the vertex distances (red; larger values clamp to red).
 /// Vertices marked in `invented` (surface no scan saw) are neutral grey (`INVENTED_GREY`) instead, and left out of the
-/// percentile; the file's comment says so. Returns the colour-scale top.
+/// percentile; the file's comment says so. Returns the colour-scale top and the file's digest.
 ///
 /// # Errors
 /// As [`vertex_distances`]; `resource.output` when the file cannot be written.
-pub fn write_error_map(path: &Path, test: &Geometry, reference: &Geometry, invented: Option<&[bool]>) -> Result<f64> {
+pub fn write_error_map(
+    path: &Path,
+    test: &Geometry,
+    reference: &Geometry,
+    invented: Option<&[bool]>,
+) -> Result<(f64, FileDigest)> {
     let d = vertex_distances(test, reference)?;
     let is_invented = |i: usize| invented.is_some_and(|m| m.get(i).copied().unwrap_or(false));
     let mut tmp: Vec<f64> = (0..d.len()).filter(|&i| !is_invented(i)).map(|i| d[i]).collect();
@@ -45,7 +50,7 @@ pub fn write_error_map(path: &Path, test: &Geometry, reference: &Geometry, inven
         comment.push_str(&format!("; grey: invented surface (caps and fills no scan saw), {marked} vertices"));
     }
     let attrs = VertexAttributes { colors: Some(&colors), scalar: Some(("distance", &scalar)), normals: None };
-    match test {
+    let digest = match test {
         Geometry::Mesh(m) => write_ply(path, m, &attrs, &[&comment])?,
         Geometry::Cloud(c) => {
             let bare = crate::geometry::mesh::PointCloud {
@@ -55,6 +60,6 @@ pub fn write_error_map(path: &Path, test: &Geometry, reference: &Geometry, inven
             };
             write_ply_cloud(path, &bare, &attrs, &[&comment])?
         }
-    }
-    Ok(top)
+    };
+    Ok((top, digest))
 }

@@ -32,8 +32,7 @@ use crate::geometry::points::PointIndex;
 use crate::geometry::pose::Pose;
 use crate::geometry::vec3::{V3, add, dot, norm, scale, sub, wide};
 
-/// Overlap reach, in mean point spacings of the view.
-pub const OVERLAP_SPACINGS: f64 = 3.0;
+pub use register::OVERLAP_SPACINGS;
 
 /// Neighbours for a view's normals.
 const VIEW_NEIGHBOURS: usize = 12;
@@ -196,6 +195,76 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
     v.get(v.len() / 2).copied()
 }
 
+/// Each view in its own frame: its point index, mean spacing, normal spread (noise), normals turned toward
+/// its scanner, and per-point confidence.
+struct ViewPrep<'a> {
+    indexes: Vec<PointIndex<'a>>,
+    spacings: Vec<f64>,
+    spreads: Vec<f64>,
+    normals: Vec<Vec<V3>>,
+    confidence: Vec<Vec<f32>>,
+}
+
+impl<'a> ViewPrep<'a> {
+    /// # Errors
+    /// `reconstruct.too-few-points` for a view with no more than [`VIEW_NEIGHBOURS`] points.
+    fn of(views: &'a [View]) -> Result<Self> {
+        let mut normals: Vec<Vec<V3>> = Vec::with_capacity(views.len());
+        let mut spacings = Vec::with_capacity(views.len());
+        let mut spreads = Vec::with_capacity(views.len());
+        let mut confidence: Vec<Vec<f32>> = Vec::with_capacity(views.len());
+        let indexes: Vec<PointIndex> =
+            views.iter().map(|v| PointIndex::new(&v.points, super::INDEX_POINTS_PER_CELL)).collect();
+        for (v, idx) in views.iter().zip(&indexes) {
+            if v.points.len() <= VIEW_NEIGHBOURS {
+                return Err(Error::new(
+                    ErrorCode::ReconstructTooFewPoints,
+                    format!("view {} has {} points", v.name, v.points.len()),
+                ));
+            }
+            let nb = Neighbours::new(idx, &v.points, VIEW_NEIGHBOURS);
+            spacings.push(nb.mean_nearest(&v.points));
+            let (n, spread) = pca_normals_and_spread(&v.points, &nb);
+            let toward = |i: usize| v.toward_scanner(wide(v.points[i]));
+            normals.push(
+                n.into_iter()
+                    .enumerate()
+                    .map(|(i, n)| if dot(n, toward(i)) < 0.0 { n.map(|c| -c) } else { n })
+                    .collect(),
+            );
+            spreads.push(spread);
+            confidence.push(confidences(v, &nb, normals.last().unwrap()));
+        }
+        Ok(ViewPrep { indexes, spacings, spreads, normals, confidence })
+    }
+}
+
+/// The views disagree when three or more barely overlap (their poses cannot be checked) or more than half
+/// of them were rejected.
+///
+/// # Errors
+/// `reconstruct.views-disagree`, naming the rejected views.
+fn check_views_agree(views: usize, med_overlap: f64, rejected: &[String]) -> Result<()> {
+    if views >= 3 && med_overlap < MIN_OVERLAP {
+        return Err(Error::new(
+            ErrorCode::ReconstructViewsDisagree,
+            format!(
+                "the {} views barely overlap (median overlap share {:.3}): their poses cannot be checked",
+                views, med_overlap
+            ),
+        )
+        .with_hint("check the scan set's poses (or the turntable axis calibration)"));
+    }
+    if 2 * rejected.len() > views {
+        return Err(Error::new(
+            ErrorCode::ReconstructViewsDisagree,
+            format!("{} of {} views do not fit the others: {}", rejected.len(), views, rejected.join(", ")),
+        )
+        .with_hint("check the scan set's poses (or the turntable axis calibration)"));
+    }
+    Ok(())
+}
+
 /// Fuse `views` into one cloud with normals facing each view's scanner (see the module docs).
 ///
 /// # Errors
@@ -203,29 +272,7 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
 /// than half the views do not fit (named).
 pub fn fuse(views: &[View], opts: &FuseOptions) -> Result<(PointCloud, FusionReport)> {
     // 1. Each view in its own frame: index, spacing, normals toward its scanner (+z).
-    let mut normals: Vec<Vec<V3>> = Vec::with_capacity(views.len());
-    let mut spacings = Vec::with_capacity(views.len());
-    let mut spreads = Vec::with_capacity(views.len());
-    let mut confidence: Vec<Vec<f32>> = Vec::with_capacity(views.len());
-    let indexes: Vec<PointIndex> =
-        views.iter().map(|v| PointIndex::new(&v.points, super::INDEX_POINTS_PER_CELL)).collect();
-    for (v, idx) in views.iter().zip(&indexes) {
-        if v.points.len() <= VIEW_NEIGHBOURS {
-            return Err(Error::new(
-                ErrorCode::ReconstructTooFewPoints,
-                format!("view {} has {} points", v.name, v.points.len()),
-            ));
-        }
-        let nb = Neighbours::new(idx, &v.points, VIEW_NEIGHBOURS);
-        spacings.push(nb.mean_nearest(&v.points));
-        let (n, spread) = pca_normals_and_spread(&v.points, &nb);
-        let toward = |i: usize| v.toward_scanner(wide(v.points[i]));
-        normals.push(
-            n.into_iter().enumerate().map(|(i, n)| if dot(n, toward(i)) < 0.0 { n.map(|c| -c) } else { n }).collect(),
-        );
-        spreads.push(spread);
-        confidence.push(confidences(v, &nb, normals.last().unwrap()));
-    }
+    let ViewPrep { indexes, spacings, spreads, normals, confidence } = ViewPrep::of(views)?;
     let clouds: Vec<ViewCloud> = (0..views.len())
         .map(|k| ViewCloud {
             points: &views[k].points,
@@ -317,24 +364,7 @@ pub fn fuse(views: &[View], opts: &FuseOptions) -> Result<(PointCloud, FusionRep
             status,
         });
     }
-    if views.len() >= 3 && med_overlap < MIN_OVERLAP {
-        return Err(Error::new(
-            ErrorCode::ReconstructViewsDisagree,
-            format!(
-                "the {} views barely overlap (median overlap share {:.3}): their poses cannot be checked",
-                views.len(),
-                med_overlap
-            ),
-        )
-        .with_hint("check the scan set's poses (or the turntable axis calibration)"));
-    }
-    if 2 * rejected.len() > views.len() {
-        return Err(Error::new(
-            ErrorCode::ReconstructViewsDisagree,
-            format!("{} of {} views do not fit the others: {}", rejected.len(), views.len(), rejected.join(", ")),
-        )
-        .with_hint("check the scan set's poses (or the turntable axis calibration)"));
-    }
+    check_views_agree(views.len(), med_overlap, &rejected)?;
     for name in &rejected {
         tracing::warn!(view = %name, "a view does not fit the others and is left out");
     }

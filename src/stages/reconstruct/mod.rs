@@ -104,6 +104,24 @@ struct MemoryPlan {
 
 impl MemoryPlan {
     /// `resource.memory`: the budget cannot hold the plan; `why` adds what was tried.
+    /// The cloud thinned to the plan's most points, when the plan has a most (cells of [`THIN_CELL`] finest
+    /// grid cells, merged wider until the count fits).
+    ///
+    /// # Errors
+    /// `resource.memory-budget` when merging cells of up to the widest tried does not reach the count.
+    fn thin(
+        &self,
+        cloud: &PointCloud,
+        bbox: &Aabb,
+        opts: &ReconstructOptions,
+    ) -> Result<Option<(PointCloud, thin::Thinning)>> {
+        let Some(max) = self.max_points else { return Ok(None) };
+        let cell = poisson::finest_grid(bbox, self.resolution).h * THIN_CELL;
+        let widest = cell * (1u64 << (thin::MAX_ATTEMPTS - 1)) as f64;
+        let why = format!(", {max} at most, not reached by merging cells of up to {widest:.3e}");
+        Ok(Some(thin::thin(cloud, cell, max).ok_or_else(|| self.too_small(opts, &why))?))
+    }
+
     fn too_small(&self, opts: &ReconstructOptions, why: &str) -> Error {
         Error::new(
             ErrorCode::ResourceMemoryBudget,
@@ -288,15 +306,7 @@ pub fn reconstruct(
     let input_bytes = cloud.heap_bytes();
     let plan = plan_memory(cloud, &bbox, opts)?;
     let res = plan.resolution;
-    let thinned = match plan.max_points {
-        Some(max) => {
-            let cell = poisson::finest_grid(&bbox, res).h * THIN_CELL;
-            let widest = cell * (1u64 << (thin::MAX_ATTEMPTS - 1)) as f64;
-            let why = format!(", {max} at most, not reached by merging cells of up to {widest:.3e}");
-            Some(thin::thin(cloud, cell, max).ok_or_else(|| plan.too_small(opts, &why))?)
-        }
-        None => None,
-    };
+    let thinned = plan.thin(cloud, &bbox, opts)?;
     let (cloud, thinning) = match &thinned {
         Some((c, t)) => (c, Some(t.clone())),
         None => (cloud, None),
@@ -374,24 +384,9 @@ pub fn reconstruct(
     let wanted = opts.split.unwrap_or(usize::from(dense));
     let mut splits = 0;
     for _ in 0..wanted {
-        // The split mesh (4× the triangles, the midpoints, their table) beside the points, within the budget.
-        let need = refine::split_bytes(&mesh);
         let held = input_bytes + points.len() as u64 * BYTES_PER_POINT + PROCESS_BYTES;
-        let room = opts.memory_budget.saturating_sub(held);
-        if need > room {
-            if auto {
-                break;
-            }
-            return Err(Error::new(
-                ErrorCode::ResourceMemoryBudget,
-                format!(
-                    "splitting {} triangles needs about {} MiB; the budget leaves {} MiB beside the points",
-                    mesh.triangles.len(),
-                    need >> 20,
-                    room >> 20
-                ),
-            )
-            .with_hint("raise the memory budget or split less (--split)"));
+        if !split_fits(&mesh, held, opts.memory_budget, auto)? {
+            break;
         }
         let (split, first) = refine::midpoint_split(&mesh);
         mesh = split;
@@ -423,6 +418,32 @@ pub fn reconstruct(
         seconds,
     };
     Ok((mesh, report))
+}
+
+/// Whether splitting `mesh` (4× the triangles, the midpoints, their table) fits the budget beside the
+/// `held` bytes of the points.
+///
+/// # Errors
+/// `resource.memory-budget` when it does not fit and the split was asked for (not `auto`).
+fn split_fits(mesh: &TriMesh, held: u64, budget: u64, auto: bool) -> Result<bool> {
+    let need = refine::split_bytes(mesh);
+    let room = budget.saturating_sub(held);
+    if need <= room {
+        return Ok(true);
+    }
+    if auto {
+        return Ok(false);
+    }
+    Err(Error::new(
+        ErrorCode::ResourceMemoryBudget,
+        format!(
+            "splitting {} triangles needs about {} MiB; the budget leaves {} MiB beside the points",
+            mesh.triangles.len(),
+            need >> 20,
+            room >> 20
+        ),
+    )
+    .with_hint("raise the memory budget or split less (--split)"))
 }
 
 /// Share of `mesh`'s area whose triangle centroids lie farther than `reach` from every indexed point.

@@ -15,7 +15,7 @@
 //!   plane sliding in itself) are left alone: the step is solved in the eigenbasis of the normal matrix and
 //!   only along eigenvalues above [`CONSTRAINED_SHARE`] of the largest.
 //!
-//! The reach shrinks from [`INITIAL_REACH_SPACINGS`] to [`super::fusion::OVERLAP_SPACINGS`] mean spacings
+//! The reach shrinks from [`INITIAL_REACH_SPACINGS`] to [`OVERLAP_SPACINGS`] mean spacings
 //! (×0.7 per sweep), so coarse poses find their overlap and fine ones do not pair across nearby sheets.
 //! Deterministic: points are sampled by a fixed stride and sums are taken in order.
 
@@ -25,6 +25,10 @@ use rayon::prelude::*;
 use crate::geometry::points::PointIndex;
 use crate::geometry::pose::{Pose, axis_angle};
 use crate::geometry::vec3::{Aabb, V3, add, cross, dot, norm, norm2, scale, sub, wide};
+
+/// Overlap reach, in mean point spacings of the view (what fusion counts as overlap, and where the
+/// registration's reach ends).
+pub const OVERLAP_SPACINGS: f64 = 3.0;
 
 /// Correspondences must have normals within this angle (degrees): the two views' normals both face their
 /// scanners, so on a shared surface they agree; across a thin wall they do not.
@@ -172,7 +176,7 @@ pub fn fits(views: &[ViewCloud], poses: &[Pose], reach_spacings: f64) -> Vec<Fit
 pub fn refine(views: &[ViewCloud], poses: &mut [Pose], movable: &[bool]) -> Refinement {
     let mut last = f64::INFINITY;
     for sweep in 0..MAX_SWEEPS {
-        let reach_spacings = (INITIAL_REACH_SPACINGS * 0.7f64.powi(sweep as i32)).max(super::fusion::OVERLAP_SPACINGS);
+        let reach_spacings = (INITIAL_REACH_SPACINGS * 0.7f64.powi(sweep as i32)).max(OVERLAP_SPACINGS);
         let mut worst: f64 = 0.0;
         // Only the view that just moved changes its box.
         let mut boxes = boxes(views, poses);
@@ -183,7 +187,7 @@ pub fn refine(views: &[ViewCloud], poses: &mut [Pose], movable: &[bool]) -> Refi
         }
         last = worst;
         tracing::debug!(sweep, reach_spacings, worst_motion_spacings = worst, "registration sweep");
-        let settled = reach_spacings <= super::fusion::OVERLAP_SPACINGS;
+        let settled = reach_spacings <= OVERLAP_SPACINGS;
         if settled && worst < STILL_SPACINGS {
             return Refinement { sweeps: sweep + 1, converged: true, last_motion_spacings: worst };
         }

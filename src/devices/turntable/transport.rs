@@ -1,11 +1,15 @@
-//! The simulated turntable on a real pseudo-terminal: [`GrblSim`] behind the master side of a pty, its slave
+//! The lines a turntable is reached over: a serial port ([`open_serial`]: a board, or a pty), and the
+//! simulated turntable on a real pseudo-terminal.
+//!
+//! The pty: [`GrblSim`] behind the master side of a pty, its slave
 //! side reached through a stable symbolic link (as `/dev/serial/by-id/…` names a real board), so the driver
 //! opens it exactly as it opens hardware (termios, exclusive open, EOF and EIO on unplug).
 //!
 //! [`SimTurntable::spawn`] runs the firmware in its own thread; its handle injects faults, unplugs (the pty is
 //! closed: the driver's reads fail with EIO, and the link disappears) and replugs (a new pty behind the same
-//! link, the board freshly powered on). Time runs `time_scale` times faster than the wall clock, so tests can
-//! make a 90° move take milliseconds.
+//! link, the board freshly powered on, its EEPROM kept). Time runs `time_scale` times faster than the wall
+//! clock, so tests can make a 90° move take milliseconds: the board is that much faster ([`SimSettings::faster`])
+//! and its `$$` says so, as a real board's would.
 
 use std::io;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
@@ -13,7 +17,24 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use super::grbl_sim::{Fault, GrblSim, SimSettings};
+use super::sim::{Fault, GrblSim, SimSettings};
+use crate::error::{Error, ErrorCode, Result};
+
+/// Open a serial port (a board, or a pty) for the driver: exclusive (TIOCEXCL), 8N1, no flow control.
+///
+/// # Errors
+/// `device.unplugged` when the port does not exist or cannot be opened.
+pub fn open_serial(path: &Path, baud: u32) -> Result<tokio_serial::SerialStream> {
+    use tokio_serial::SerialPortBuilderExt;
+    let name = path.to_string_lossy();
+    let mut port = tokio_serial::new(name.as_ref(), baud)
+        .open_native_async()
+        .map_err(|e| Error::new(ErrorCode::DeviceUnplugged, format!("cannot open the turntable's port {name}: {e}")))?;
+    port.set_exclusive(true).map_err(|e| {
+        Error::new(ErrorCode::DeviceUnplugged, format!("cannot take the turntable's port {name} exclusively: {e}"))
+    })?;
+    Ok(port)
+}
 
 /// A command to the running simulator.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -121,10 +142,12 @@ impl SimTurntable {
         let scale = if time_scale > 0.0 { time_scale } else { 1.0 };
         let angle = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0f64.to_bits()));
         let angle_out = angle.clone();
+        // The board as the wall clock sees it: `scale` times faster, so that its `$$` holds in wall time.
+        let settings = settings.faster(scale);
         let thread = std::thread::Builder::new().name("sim-turntable".into()).spawn(move || {
             let start = Instant::now();
-            let now = || start.elapsed().as_secs_f64() * scale;
-            let mut sim = GrblSim::new(settings.clone());
+            let now = || start.elapsed().as_secs_f64();
+            let mut sim = GrblSim::new(settings);
             if let Some(p) = &pty {
                 write_all(&p.master, &sim.power_on());
             }
@@ -138,7 +161,7 @@ impl SimTurntable {
                     Ok(SimCommand::Replug) => {
                         if pty.is_none() {
                             pty = open_pty(&link_owned).ok();
-                            sim = GrblSim::new(settings.clone());
+                            sim = GrblSim::new(sim.eeprom().clone());
                             if let Some(p) = &pty {
                                 write_all(&p.master, &sim.power_on());
                             }

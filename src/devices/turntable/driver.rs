@@ -2,45 +2,63 @@
 //! `AsyncRead + AsyncWrite` for tests).
 //!
 //! [`Turntable::connect`] soft-resets the board, waits for the banner and checks the version
-//! (`device.wrong-firmware`), then unlocks or homes as configured. [`Turntable::move_to`] sends one absolute
+//! (`device.wrong-firmware`), reads the board's settings (`$$`: homing, steps, top rate, acceleration) and
+//! reconciles the configuration with them ([`Motion::reconcile`]: the board is the truth; a config asking for
+//! more than it allows is `device.config`), then homes, unlocks or does nothing as the board needs
+//! ([`Homing::Auto`]). [`Turntable::move_to`] sends one absolute
 //! move (`G90 G1 X… F…`), waits for its `ok`, then polls `?` until the board reports `Idle` and checks the
 //! reported position against the target (`device.position`). Every wait has a deadline: a reply's is
 //! [`TurntableSettings::reply_timeout`], a move's is derived from its distance, speed and acceleration, a
 //! homing cycle's is [`TurntableSettings::home_timeout`] (`device.timeout`). End of file or EIO on the line is
-//! `device.unplugged`; the caller drops the driver and reopens the port ([`open_serial`]) with backoff, and a
+//! `device.unplugged`; the caller drops the driver and reopens the port ([`super::transport::open_serial`]) with backoff, and a
 //! new driver re-homes before its first move. `error:n` is `device.refused`, `ALARM:n` `device.alarm`. Lines
 //! that parse as nothing are counted ([`Turntable::garbage_lines`]) and logged, never acted on.
 
-use std::path::Path;
 use std::time::Duration;
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::time::Instant;
 
-use super::grbl::{
-    MAX_REPLY_BYTES, MachineState, Reply, SOFT_RESET, STATUS_QUERY, StatusReport, alarm_text, error_text, move_line,
-    move_seconds, version_supported,
+use super::protocol::{
+    BoardSettings, MAX_REPLY_BYTES, MachineState, Reply, SOFT_RESET, STATUS_QUERY, StatusReport, alarm_text,
+    error_text, move_line, move_seconds, version_supported,
 };
 use crate::error::{Error, ErrorCode, Result};
 
-/// What to do when the board is locked after a reset (`[MSG:'$H'|'$X' to unlock]`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+/// How the table's zero is established after a reset.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Homing {
-    /// Run the homing cycle (`$H`): the table's zero is its home switch.
+    /// As the board is set up: `$H` where it has homing (`$22=1`), `$X` where it is locked without it, nothing
+    /// otherwise (the zero is where the board stands).
+    #[default]
+    Auto,
+    /// Run the homing cycle (`$H`): the table's zero is its home switch. The board must have homing.
     Home,
-    /// Unlock (`$X`) and take the position the board reports.
+    /// Unlock (`$X`) when locked and take the position the board reports.
     Unlock,
+}
+
+impl Homing {
+    /// The config's word for it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Homing::Auto => "auto",
+            Homing::Home => "home",
+            Homing::Unlock => "unlock",
+        }
+    }
 }
 
 /// The driver's settings (`[devices.turntable]` in the daemon's config).
 #[derive(Clone, Debug, PartialEq)]
 pub struct TurntableSettings {
-    /// Top speed of a move, degrees per second (sent as `F`, per minute).
-    pub speed: f64,
-    /// The board's acceleration (Grbl's `$120`), degrees per second²: only for the moves' deadlines.
-    pub accel: f64,
-    /// Homing or unlocking after a reset.
+    /// Top speed of a move, degrees per second (sent as `F`, per minute); `None`: the board's (`$110`).
+    pub speed: Option<f64>,
+    /// The acceleration the config expects, degrees per second²; `None`: the board's (`$120`). The moves'
+    /// deadlines always use the board's.
+    pub accel: Option<f64>,
+    /// How the zero is established after a reset.
     pub homing: Homing,
     /// Deadline of one reply (`ok`, a status report).
     pub reply_timeout: Duration,
@@ -57,9 +75,9 @@ pub struct TurntableSettings {
 impl Default for TurntableSettings {
     fn default() -> Self {
         TurntableSettings {
-            speed: 60.0,
-            accel: 120.0,
-            homing: Homing::Home,
+            speed: None,
+            accel: None,
+            homing: Homing::Auto,
             reply_timeout: Duration::from_secs(2),
             banner_timeout: Duration::from_secs(5),
             home_timeout: Duration::from_secs(60),
@@ -69,11 +87,75 @@ impl Default for TurntableSettings {
     }
 }
 
-impl TurntableSettings {
-    /// The deadline of a move of `distance` degrees: twice its trapezoid's time, plus one reply timeout.
-    pub fn move_timeout(&self, distance: f64) -> Duration {
+/// How the table moves: the configuration reconciled with the board's own settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Motion {
+    /// Top speed of a move, degrees per second (the config's, else the board's).
+    pub speed: f64,
+    /// The board's acceleration, degrees per second².
+    pub accel: f64,
+    /// How the zero is established (never [`Homing::Auto`]).
+    pub homing: Homing,
+    /// Where the config and the board disagree without harm, one line each naming both values.
+    pub warnings: Vec<String>,
+}
+
+impl Motion {
+    /// Reconcile `settings` with what the board reports: the board is the truth. A config speed below the
+    /// board's top rate is used (a warning); one above it, or an acceleration above the board's, or
+    /// `homing = "home"` on a board without homing, is an error. A lower configured acceleration is a
+    /// warning; the deadlines use the board's.
+    ///
+    /// # Errors
+    /// `device.config`, naming the config key and the board's setting.
+    pub fn reconcile(settings: &TurntableSettings, board: &BoardSettings) -> Result<Motion> {
+        let mut warnings = Vec::new();
+        let top = board.max_speed();
+        let bad = |m: String| Err(Error::new(ErrorCode::DeviceConfig, m));
+        let speed = match settings.speed {
+            None => top,
+            Some(s) if s > top * (1.0 + 1e-9) => {
+                return bad(format!(
+                    "speed = {s} °/s is more than the board allows: $110 = {} °/min ({top:.3} °/s)",
+                    board.max_rate
+                ));
+            }
+            Some(s) => {
+                if s < top * (1.0 - 1e-9) {
+                    warnings.push(format!(
+                        "speed = {s} °/s is below the board's $110 = {} °/min ({top:.3} °/s): moves run at {s} °/s",
+                        board.max_rate
+                    ));
+                }
+                s
+            }
+        };
+        if let Some(a) = settings.accel {
+            if a > board.accel * (1.0 + 1e-9) {
+                return bad(format!("accel = {a} °/s² is more than the board's $120 = {} °/s²", board.accel));
+            }
+            if a < board.accel * (1.0 - 1e-9) {
+                warnings.push(format!(
+                    "accel = {a} °/s² differs from the board's $120 = {} °/s²: the deadlines use the board's",
+                    board.accel
+                ));
+            }
+        }
+        let homing = match (settings.homing, board.homing) {
+            (Homing::Home, false) => {
+                return bad("homing = \"home\" but the board has homing disabled ($22 = 0): set $22=1 on the board, or use homing = \"auto\"".into());
+            }
+            (Homing::Auto | Homing::Home, true) => Homing::Home,
+            (Homing::Auto | Homing::Unlock, _) => Homing::Unlock,
+        };
+        Ok(Motion { speed, accel: board.accel, homing, warnings })
+    }
+
+    /// The deadline of a move of `distance` degrees: twice its trapezoid's time at the board's acceleration,
+    /// plus `reply_timeout`.
+    pub fn move_timeout(&self, distance: f64, reply_timeout: Duration) -> Duration {
         let t = move_seconds(distance, self.speed, self.accel);
-        Duration::from_secs_f64(2.0 * t) + self.reply_timeout
+        Duration::from_secs_f64(2.0 * t) + reply_timeout
     }
 }
 
@@ -88,27 +170,13 @@ pub struct MoveReport {
     pub seconds: f64,
 }
 
-/// Open a serial port (a board, or a pty) for the driver: exclusive (TIOCEXCL), 8N1, no flow control.
-///
-/// # Errors
-/// `device.unplugged` when the port does not exist or cannot be opened.
-pub fn open_serial(path: &Path, baud: u32) -> Result<tokio_serial::SerialStream> {
-    use tokio_serial::SerialPortBuilderExt;
-    let name = path.to_string_lossy();
-    let mut port = tokio_serial::new(name.as_ref(), baud)
-        .open_native_async()
-        .map_err(|e| Error::new(ErrorCode::DeviceUnplugged, format!("cannot open the turntable's port {name}: {e}")))?;
-    port.set_exclusive(true).map_err(|e| {
-        Error::new(ErrorCode::DeviceUnplugged, format!("cannot take the turntable's port {name} exclusively: {e}"))
-    })?;
-    Ok(port)
-}
-
 /// A connected turntable.
 pub struct Turntable<S> {
     io: S,
     buf: Vec<u8>,
     settings: TurntableSettings,
+    board: BoardSettings,
+    motion: Motion,
     firmware: String,
     homed: bool,
     angle: f64,
@@ -117,16 +185,19 @@ pub struct Turntable<S> {
 }
 
 impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
-    /// Reset the board behind `io`, check its firmware, and unlock or home it as `settings` say. `name`
-    /// names the device in errors and logs (its port).
+    /// Reset the board behind `io`, check its firmware, read its settings, and home or unlock it as it
+    /// needs. `name` names the device in errors and logs (its port).
     ///
     /// # Errors
     /// `device.wrong-firmware`, `device.timeout` (no banner, no reply), `device.unplugged`, `device.alarm`,
-    /// `device.refused`.
+    /// `device.refused`; `device.config` when the config asks for more than the board allows.
     pub async fn connect(io: S, settings: TurntableSettings, name: &str) -> Result<Self> {
+        let factory = BoardSettings::from_settings(&super::protocol::FACTORY_SETTINGS).expect("factory settings");
         let mut t = Turntable {
             io,
             buf: Vec::new(),
+            motion: Motion { speed: 0.0, accel: 0.0, homing: Homing::Unlock, warnings: Vec::new() },
+            board: factory,
             settings,
             firmware: String::new(),
             homed: false,
@@ -150,15 +221,52 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
             ));
         }
         t.firmware = format!("Grbl {version}");
-        // 2. Locked (homing enabled, or an alarm before the reset)? Home or unlock.
+        // 2. The board's settings, and the config reconciled with them.
+        t.board = t.read_board().await?;
+        t.motion = Motion::reconcile(&t.settings, &t.board).map_err(|e| t.err(e.code, e.message))?;
+        for w in &t.motion.warnings {
+            tracing::warn!(device = %t.name, "{w}");
+        }
+        // 3. Locked (homing enabled, or an alarm before the reset)? Home or unlock.
         let status = t.status().await?;
         t.angle = status.x;
         if status.state == MachineState::Alarm {
             t.unlock_or_home().await?;
         } else {
-            t.homed = t.settings.homing == Homing::Unlock;
+            t.homed = t.motion.homing == Homing::Unlock;
         }
         Ok(t)
+    }
+
+    /// Read the board's settings (`$$`: `$n=v` lines, then `ok`).
+    async fn read_board(&mut self) -> Result<BoardSettings> {
+        self.write(b"$$\n").await?;
+        let deadline = Instant::now() + self.settings.reply_timeout;
+        let mut pairs = Vec::new();
+        loop {
+            match self.read_reply(deadline, "the board's settings ($$)").await? {
+                Reply::Setting(n, v) => pairs.push((n, v)),
+                Reply::Ok => break,
+                Reply::Error(n) => {
+                    return Err(
+                        self.err(ErrorCode::DeviceRefused, format!("$$ was refused: error:{n}, {}", error_text(n)))
+                    );
+                }
+                Reply::Alarm(n) => return Err(self.alarm(n)),
+                _ => {}
+            }
+        }
+        BoardSettings::from_settings(&pairs).map_err(|m| self.err(ErrorCode::DeviceWrongFirmware, format!("$$: {m}")))
+    }
+
+    /// The board's settings as read at connect.
+    pub fn board(&self) -> &BoardSettings {
+        &self.board
+    }
+
+    /// How the table moves (the config reconciled with the board).
+    pub fn motion(&self) -> &Motion {
+        &self.motion
     }
 
     /// The firmware's name and version (`Grbl 1.1h`).
@@ -181,13 +289,13 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
         self.garbage
     }
 
-    /// Run the homing cycle (`$H`), or unlock (`$X`), as configured.
+    /// Run the homing cycle (`$H`), or unlock (`$X`), as the board and config need ([`Motion::homing`]).
     ///
     /// # Errors
     /// As [`Turntable::connect`].
     pub async fn unlock_or_home(&mut self) -> Result<()> {
-        match self.settings.homing {
-            Homing::Home => {
+        match self.motion.homing {
+            Homing::Home | Homing::Auto => {
                 self.command("$H\n", self.settings.home_timeout, "the homing cycle").await?;
                 self.angle = 0.0;
             }
@@ -214,9 +322,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
             self.unlock_or_home().await?;
         }
         let start = Instant::now();
-        let allowed = self.settings.move_timeout(degrees - self.angle);
+        let allowed = self.motion.move_timeout(degrees - self.angle, self.settings.reply_timeout);
         let deadline = start + allowed;
-        self.command(&move_line(degrees, self.settings.speed * 60.0), self.settings.reply_timeout, "the move").await?;
+        self.command(&move_line(degrees, self.motion.speed * 60.0), self.settings.reply_timeout, "the move").await?;
         loop {
             tokio::time::sleep(self.settings.poll_interval).await;
             let s = self.status().await?;

@@ -1,5 +1,5 @@
 //! A simulated structured-light scanner node on CAN: it sends its heartbeat, acknowledges triggers at once and
-//! reports "view ready" after the exposure, as [`super::trigger_proto`] says, over any [`CanBus`]. Faults are
+//! reports "view ready" after the exposure, as [`super::protocol`] says, over any [`CanBus`]. Faults are
 //! injected through a channel ([`ScannerFault`]): silence (a lost heartbeat, then a reboot), an emergency, a
 //! lost view, garbage frames, busy answers, a bus-off report.
 
@@ -8,8 +8,8 @@ use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
-use super::can::{CanBus, ERR_BUSOFF, ERR_RESTARTED, Frame, is_enobufs};
-use super::trigger_proto::{AckStatus, Decoded, Message, NmtState, decode};
+use super::protocol::{AckStatus, Decoded, Message, NmtState, decode};
+use super::transport::{CanBus, ERR_BUSOFF, ERR_RESTARTED, Frame, is_enobufs};
 
 /// The simulated node's settings.
 #[derive(Clone, Debug, PartialEq)]
@@ -304,7 +304,7 @@ impl SimScanner {
                     },
                 };
                 let Ok((stream, _)) = conn else { continue };
-                let bus = super::can::StreamBus::new(stream);
+                let bus = super::transport::StreamBus::new(stream);
                 if run_scanner(bus, &settings, &mut rx, &stx).await == ScannerEnd::Quit {
                     return;
                 }

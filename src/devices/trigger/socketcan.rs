@@ -3,14 +3,14 @@
 //! out as the kernel's `struct can_frame` ([`Frame`]'s layout).
 //!
 //! `ENOBUFS` from a full transmit queue or a bus-off controller comes back as the error it is, for the
-//! driver's backoff ([`super::trigger`]); a vanished interface (a USB adapter pulled) fails reads with
+//! driver's backoff ([`super::actor`]); a vanished interface (a USB adapter pulled) fails reads with
 //! `ENETDOWN`/`ENODEV`, and the driver reconnects.
 
 use std::io;
 
 use socketcan::SocketOptions;
 
-use super::can::{CanBus, Frame};
+use super::transport::{CanBus, Frame};
 
 /// A `CAN_RAW` socket bound to one interface.
 pub struct SocketCanBus {
@@ -61,8 +61,8 @@ mod tests {
         for f in [
             Frame::standard(0x710, &[5]).unwrap(),
             Frame::standard(0x290, &[1, 0, 0x40, 0xE2, 1, 0]).unwrap(),
-            Frame::error(super::super::can::ERR_BUSOFF, 0),
-            Frame { id: super::super::can::EFF_FLAG | 0x1234_5678, len: 2, data: [9, 8, 0, 0, 0, 0, 0, 0] },
+            Frame::error(super::super::transport::ERR_BUSOFF, 0),
+            Frame { id: super::super::transport::EFF_FLAG | 0x1234_5678, len: 2, data: [9, 8, 0, 0, 0, 0, 0, 0] },
         ] {
             assert_eq!(from_socketcan(&to_socketcan(&f)), f);
         }

@@ -11,9 +11,11 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use tokio::sync::{broadcast, mpsc, oneshot, watch};
+use tokio::sync::oneshot;
 
-use super::turntable::{MoveReport, Turntable, TurntableSettings, open_serial};
+use super::driver::{MoveReport, Turntable, TurntableSettings};
+use super::transport::open_serial;
+use crate::devices::supervise::{self, Backoff, Ended, Ends, Handle, Outage};
 use crate::error::{Error, ErrorCode, Result};
 
 /// Where the turntable is and how to reach it (`[devices.turntable]`).
@@ -71,48 +73,46 @@ pub struct TurntableState {
     pub last_fault: Option<DeviceFault>,
     /// Connections made so far.
     pub connections: u64,
+    /// The board's settings as read at the last connect (`$$`), `None` before the first.
+    pub board: Option<super::protocol::BoardSettings>,
+    /// The top speed moves run at, degrees per second (the config's, else the board's), 0 before the first
+    /// connect.
+    pub speed: f64,
+    /// How the zero is established on this board (`home` or `unlock`), empty before the first connect.
+    pub homing: String,
 }
 
-pub use super::DeviceFault;
+pub use crate::devices::DeviceFault;
 
-enum Command {
+/// A command to the turntable's actor.
+pub enum Command {
+    /// Home (or unlock).
     Home(oneshot::Sender<Result<()>>),
+    /// Turn to the angle, degrees.
     MoveTo(f64, oneshot::Sender<Result<MoveReport>>),
+    /// Stop where the table is.
     Stop(oneshot::Sender<Result<()>>),
 }
 
-/// A handle on the turntable actor; dropping every handle ends it.
+/// A handle on the turntable actor; dropping every handle ends it. Its state, watch and faults are the
+/// shared [`Handle`]'s.
 #[derive(Clone)]
-pub struct TurntableHandle {
-    commands: mpsc::Sender<Command>,
-    state: watch::Receiver<TurntableState>,
-    faults: broadcast::Sender<DeviceFault>,
+pub struct TurntableHandle(Handle<Command, TurntableState>);
+
+impl std::ops::Deref for TurntableHandle {
+    type Target = Handle<Command, TurntableState>;
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
 }
 
 impl TurntableHandle {
-    /// The state now.
-    pub fn state(&self) -> TurntableState {
-        self.state.borrow().clone()
-    }
-
-    /// A receiver of every state change.
-    pub fn watch(&self) -> watch::Receiver<TurntableState> {
-        self.state.clone()
-    }
-
-    /// A receiver of the faults from now on.
-    pub fn faults(&self) -> broadcast::Receiver<DeviceFault> {
-        self.faults.subscribe()
-    }
-
     /// Home (or unlock, as configured).
     ///
     /// # Errors
     /// `device.*` as [`Turntable::unlock_or_home`]; `device.unplugged` while disconnected.
     pub async fn home(&self) -> Result<()> {
-        let (tx, rx) = oneshot::channel();
-        self.send(Command::Home(tx)).await?;
-        rx.await.unwrap_or_else(|_| Err(gone()))
+        self.0.ask(Command::Home).await
     }
 
     /// Turn to `degrees`.
@@ -120,9 +120,7 @@ impl TurntableHandle {
     /// # Errors
     /// As [`Turntable::move_to`]; `device.unplugged` while disconnected.
     pub async fn move_to(&self, degrees: f64) -> Result<MoveReport> {
-        let (tx, rx) = oneshot::channel();
-        self.send(Command::MoveTo(degrees, tx)).await?;
-        rx.await.unwrap_or_else(|_| Err(gone()))
+        self.0.ask(|tx| Command::MoveTo(degrees, tx)).await
     }
 
     /// Stop where the table is (after the command before it).
@@ -130,54 +128,33 @@ impl TurntableHandle {
     /// # Errors
     /// `device.unplugged` while disconnected.
     pub async fn stop(&self) -> Result<()> {
-        let (tx, rx) = oneshot::channel();
-        self.send(Command::Stop(tx)).await?;
-        rx.await.unwrap_or_else(|_| Err(gone()))
+        self.0.ask(Command::Stop).await
     }
-
-    async fn send(&self, c: Command) -> Result<()> {
-        self.commands.send(c).await.map_err(|_| gone())
-    }
-}
-
-fn gone() -> Error {
-    Error::new(ErrorCode::DeviceUnplugged, "the turntable's task has ended")
 }
 
 /// Start the turntable actor on the current tokio runtime.
 pub fn spawn_turntable(settings: LinkSettings) -> TurntableHandle {
-    let (ctx, crx) = mpsc::channel(16);
     let state = TurntableState { port: settings.port.display().to_string(), ..Default::default() };
-    let (stx, srx) = watch::channel(state);
-    let (ftx, _) = broadcast::channel(64);
-    let actor = Actor { settings, commands: crx, state: stx, faults: ftx.clone(), garbage_base: 0 };
+    let (handle, ends) = Handle::new("turntable", state);
+    let actor = Actor { settings, ends, garbage_base: 0 };
     tokio::spawn(actor.run());
-    TurntableHandle { commands: ctx, state: srx, faults: ftx }
+    TurntableHandle(handle)
 }
 
 struct Actor {
     settings: LinkSettings,
-    commands: mpsc::Receiver<Command>,
-    state: watch::Sender<TurntableState>,
-    faults: broadcast::Sender<DeviceFault>,
+    /// Its ends of the handles' channels: commands in, state and faults out.
+    ends: Ends<Command, TurntableState>,
     /// Garbage lines of the connections before this one.
     garbage_base: u64,
 }
 
-/// Why a connected phase ended.
-enum Ended {
-    /// Every handle was dropped.
-    Closed,
-    /// The line failed; reconnect.
-    Lost,
-}
-
 impl Actor {
     async fn run(mut self) {
-        let mut wait = self.settings.reconnect_min;
-        let mut reported = false;
+        let mut backoff = Backoff::new(self.settings.reconnect_min, self.settings.reconnect_max);
+        let mut outage = Outage::default();
         loop {
-            // 1. Connect, answering commands with `device.unplugged` while the port is away.
+            // 1. Connect, answering commands with `device.unplugged` (or the board's refusal) while away.
             let name = self.settings.port.display().to_string();
             let opened = match open_serial(&self.settings.port, self.settings.baud) {
                 Ok(io) => Turntable::connect(io, self.settings.driver.clone(), &name).await,
@@ -186,33 +163,40 @@ impl Actor {
             let tt = match opened {
                 Ok(tt) => tt,
                 Err(e) => {
-                    // One fault per outage; the retries are logged quietly.
-                    if !reported || e.code != ErrorCode::DeviceUnplugged {
+                    if outage.report(&e) {
                         self.fault(&e);
-                        reported = true;
                     } else {
                         tracing::debug!(device = "turntable", error = %e, "still unreachable");
                     }
-                    if self.idle(wait).await {
+                    let blocked = (e.code == ErrorCode::DeviceConfig).then_some(e);
+                    let port = self.settings.port.clone();
+                    if supervise::idle(&mut self.ends.commands, backoff.next_wait(), |c| {
+                        refuse(c, &port, blocked.as_ref())
+                    })
+                    .await
+                    {
                         return;
                     }
-                    wait = (wait * 2).min(self.settings.reconnect_max);
                     continue;
                 }
             };
-            wait = self.settings.reconnect_min;
-            self.garbage_base = self.state.borrow().garbage_lines;
+            backoff.reset();
+            outage.connected();
+            self.garbage_base = self.ends.state.borrow().garbage_lines;
             tracing::info!(device = "turntable", port = %name, firmware = tt.firmware(), "connected");
-            self.state.send_modify(|s| {
+            self.ends.state.send_modify(|s| {
                 s.connected = true;
                 s.firmware = tt.firmware().to_string();
+                s.board = Some(*tt.board());
+                s.speed = tt.motion().speed;
+                s.homing = tt.motion().homing.as_str().to_string();
                 s.homed = tt.homed();
                 s.angle = tt.angle();
                 s.connections += 1;
             });
             // 2. Serve commands until the line fails.
             let ended = self.serve(tt).await;
-            self.state.send_modify(|s| {
+            self.ends.state.send_modify(|s| {
                 s.connected = false;
                 s.homed = false;
                 s.moving = false;
@@ -221,21 +205,7 @@ impl Actor {
                 return;
             }
             // The loss was the outage's fault; failed reopening tries are not faults of their own.
-            reported = true;
-        }
-    }
-
-    /// While disconnected: refuse commands for `wait`; `true` when every handle is gone.
-    async fn idle(&mut self, wait: Duration) -> bool {
-        let until = tokio::time::Instant::now() + wait;
-        loop {
-            tokio::select! {
-                c = self.commands.recv() => match c {
-                    None => return true,
-                    Some(c) => refuse(c, &self.settings.port),
-                },
-                _ = tokio::time::sleep_until(until) => return false,
-            }
+            outage.lost();
         }
     }
 
@@ -245,7 +215,7 @@ impl Actor {
     {
         loop {
             let command = tokio::select! {
-                c = self.commands.recv() => c,
+                c = self.ends.commands.recv() => c,
                 _ = tokio::time::sleep(self.settings.idle_poll) => {
                     let r = tt.status().await.map(|_| ());
                     if let Some(ended) = self.after(&mut tt, r.as_ref().err()).await {
@@ -265,9 +235,9 @@ impl Actor {
                     e
                 }
                 Command::MoveTo(deg, reply) => {
-                    self.state.send_modify(|s| s.moving = true);
+                    self.ends.state.send_modify(|s| s.moving = true);
                     let r = tt.move_to(deg).await;
-                    self.state.send_modify(|s| s.moving = false);
+                    self.ends.state.send_modify(|s| s.moving = false);
                     self.publish(&tt);
                     let e = r.as_ref().err().cloned();
                     let _ = reply.send(r);
@@ -315,7 +285,7 @@ impl Actor {
 
     /// The driver's homed flag, angle and garbage count into the published state.
     fn publish<S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin>(&self, tt: &Turntable<S>) {
-        self.state.send_modify(|s| {
+        self.ends.state.send_modify(|s| {
             s.homed = tt.homed();
             s.angle = tt.angle();
             s.garbage_lines = self.garbage_base + tt.garbage_lines();
@@ -325,16 +295,21 @@ impl Actor {
     fn fault(&self, e: &Error) {
         tracing::warn!(device = "turntable", code = %e.code, error = %e.message, "device fault");
         let fault = DeviceFault { device: "turntable", code: e.code, message: e.message.clone() };
-        self.state.send_modify(|s| {
+        self.ends.state.send_modify(|s| {
             s.faults += 1;
             s.last_fault = Some(fault.clone());
         });
-        let _ = self.faults.send(fault);
+        let _ = self.ends.faults.send(fault);
     }
 }
 
-fn refuse(c: Command, port: &std::path::Path) {
-    let e = || Error::new(ErrorCode::DeviceUnplugged, format!("the turntable ({}) is not connected", port.display()));
+/// Answer `c` while disconnected: `device.unplugged`, or the reason the board cannot be used (`why`: a
+/// `device.config` mismatch found at connect).
+fn refuse(c: Command, port: &std::path::Path, why: Option<&Error>) {
+    let e = || match why {
+        Some(w) => w.clone(),
+        None => Error::new(ErrorCode::DeviceUnplugged, format!("the turntable ({}) is not connected", port.display())),
+    };
     match c {
         Command::Home(r) | Command::Stop(r) => {
             let _ = r.send(Err(e()));

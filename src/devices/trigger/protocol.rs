@@ -12,7 +12,7 @@
 //! Frames with other identifiers belong to other nodes and are ignored; a frame with one of these identifiers
 //! for our node but the wrong length, an extended or remote identifier is **garbage**: counted, never trusted.
 
-use super::can::Frame;
+use super::transport::Frame;
 
 /// Function code of the heartbeat (NMT error control).
 pub const HEARTBEAT: u16 = 0x700;
@@ -269,7 +269,7 @@ mod tests {
         fn messages_round_trip_through_frames_and_the_wire(m in message()) {
             let f = m.encode();
             prop_assert!(f.id <= 0x7FF);
-            let back = crate::devices::can::Frame::from_wire(&f.to_wire()).unwrap();
+            let back = crate::devices::trigger::transport::Frame::from_wire(&f.to_wire()).unwrap();
             prop_assert_eq!(decode(&back, m.node()), Decoded::Message(m));
             // Another node's listener ignores it.
             let other = if m.node() == 127 { 1 } else { m.node() + 1 };
@@ -298,8 +298,8 @@ mod tests {
         assert_eq!(v.payload(), &[0x02, 0x01, 0x0D, 0x0C, 0x0B, 0x0A]);
         // An extended frame on our identifier, and an error frame.
         let mut e = v;
-        e.id |= crate::devices::can::EFF_FLAG;
+        e.id |= crate::devices::trigger::transport::EFF_FLAG;
         assert!(matches!(decode(&e, n), Decoded::Garbage(_)));
-        assert_eq!(decode(&crate::devices::can::Frame::error(0x40, 0), n), Decoded::Other);
+        assert_eq!(decode(&crate::devices::trigger::transport::Frame::error(0x40, 0), n), Decoded::Other);
     }
 }

@@ -1,6 +1,6 @@
 //! The scanner's trigger on CAN as a long-lived device: an actor task that owns the bus connection, watches
 //! the scanner node's heartbeat and the controller's error frames, fires triggers one at a time and waits for
-//! their acknowledgement and "view ready" (protocol: [`super::trigger_proto`]).
+//! their acknowledgement and "view ready" (protocol: [`super::protocol`]).
 //!
 //! - **Heartbeat:** the node is *lost* when [`TriggerSettings::lost_after`] periods pass without one (or
 //!   it never appears after connecting): `device.lost`, once per loss. It is back with its next heartbeat.
@@ -24,12 +24,13 @@ use std::future::Future;
 use std::io;
 use std::time::Duration;
 
-use tokio::sync::{broadcast, mpsc, oneshot, watch};
+use tokio::sync::oneshot;
 use tokio::time::Instant;
 
-use super::DeviceFault;
-use super::can::{BusState, CanBus, Frame, is_enobufs};
-use super::trigger_proto::{AckStatus, Decoded, Message, NmtState, decode};
+use super::protocol::{AckStatus, Decoded, Message, NmtState, decode};
+use super::transport::{BusState, CanBus, Frame, is_enobufs};
+use crate::devices::DeviceFault;
+use crate::devices::supervise::{self, Backoff, Ended, Ends, Handle, Outage};
 use crate::error::{Error, ErrorCode, Result};
 
 /// How the trigger is reached and timed (`[devices.trigger]`).
@@ -133,34 +134,25 @@ pub struct FireReport {
     pub points: u32,
 }
 
-enum Command {
+/// A command to the trigger's actor.
+pub enum Command {
+    /// Fire the channel and wait for the view.
     Fire(u8, oneshot::Sender<Result<FireReport>>),
 }
 
-/// A handle on the trigger actor; dropping every handle ends it.
+/// A handle on the trigger actor; dropping every handle ends it. Its state, watch and faults are the shared
+/// [`Handle`]'s.
 #[derive(Clone)]
-pub struct TriggerHandle {
-    commands: mpsc::Sender<Command>,
-    state: watch::Receiver<TriggerState>,
-    faults: broadcast::Sender<DeviceFault>,
+pub struct TriggerHandle(Handle<Command, TriggerState>);
+
+impl std::ops::Deref for TriggerHandle {
+    type Target = Handle<Command, TriggerState>;
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
 }
 
 impl TriggerHandle {
-    /// The state now.
-    pub fn state(&self) -> TriggerState {
-        self.state.borrow().clone()
-    }
-
-    /// A receiver of every state change.
-    pub fn watch(&self) -> watch::Receiver<TriggerState> {
-        self.state.clone()
-    }
-
-    /// A receiver of the faults from now on.
-    pub fn faults(&self) -> broadcast::Receiver<DeviceFault> {
-        self.faults.subscribe()
-    }
-
     /// Fire `channel` and wait for the view.
     ///
     /// # Errors
@@ -168,14 +160,8 @@ impl TriggerHandle {
     /// (busy, not ready or not operational), `device.timeout` (no acknowledgement or no view in time),
     /// `device.emergency` (an EMCY while waiting).
     pub async fn fire(&self, channel: u8) -> Result<FireReport> {
-        let (tx, rx) = oneshot::channel();
-        self.commands.send(Command::Fire(channel, tx)).await.map_err(|_| gone())?;
-        rx.await.unwrap_or_else(|_| Err(gone()))
+        self.0.ask(|tx| Command::Fire(channel, tx)).await
     }
-}
-
-fn gone() -> Error {
-    Error::new(ErrorCode::DeviceUnplugged, "the trigger's task has ended")
 }
 
 /// Start the trigger actor on the current tokio runtime; `connect` opens the transport (again after a loss).
@@ -185,25 +171,22 @@ where
     F: FnMut() -> Fut + Send + 'static,
     Fut: Future<Output = io::Result<B>> + Send + 'static,
 {
-    let (ctx, crx) = mpsc::channel(16);
     let state = TriggerState {
         interface: settings.interface.clone(),
         node: settings.node,
         bus_state: BusState::Down,
         ..Default::default()
     };
-    let (stx, srx) = watch::channel(state);
-    let (ftx, _) = broadcast::channel(64);
-    let actor = Actor { settings, commands: crx, state: stx, faults: ftx.clone(), seq: 0 };
+    let (handle, ends) = Handle::new("trigger", state);
+    let actor = Actor { settings, ends, seq: 0 };
     tokio::spawn(actor.run(connect));
-    TriggerHandle { commands: ctx, state: srx, faults: ftx }
+    TriggerHandle(handle)
 }
 
 struct Actor {
     settings: TriggerSettings,
-    commands: mpsc::Receiver<Command>,
-    state: watch::Sender<TriggerState>,
-    faults: broadcast::Sender<DeviceFault>,
+    /// Its ends of the handles' channels: commands in, state and faults out.
+    ends: Ends<Command, TriggerState>,
     seq: u16,
 }
 
@@ -216,12 +199,6 @@ struct Pending {
     sent_usec: u64,
     acked: Option<Instant>,
     deadline: Instant,
-}
-
-/// Why a connected phase ended.
-enum Ended {
-    Closed,
-    Lost,
 }
 
 /// What the connected loop tracks besides the state.
@@ -244,33 +221,41 @@ impl Actor {
         F: FnMut() -> Fut,
         Fut: Future<Output = io::Result<B>>,
     {
-        let mut wait = self.settings.reconnect_min;
-        let mut reported = false;
+        let mut backoff = Backoff::new(self.settings.reconnect_min, self.settings.reconnect_max);
+        let mut outage = Outage::default();
         loop {
             let bus = match connect().await {
                 Ok(b) => b,
                 Err(e) => {
-                    if !reported {
-                        self.fault(ErrorCode::DeviceUnplugged, format!("{}: {e}", self.settings.interface));
-                        reported = true;
+                    let e = Error::new(ErrorCode::DeviceUnplugged, format!("{}: {e}", self.settings.interface));
+                    if outage.report(&e) {
+                        self.fault(e.code, e.message);
                     } else {
                         tracing::debug!(device = "trigger", error = %e, "still unreachable");
                     }
-                    if self.idle(wait).await {
+                    let interface = self.settings.interface.clone();
+                    let refuse = |Command::Fire(_, reply): Command| {
+                        let e = Error::new(
+                            ErrorCode::DeviceUnplugged,
+                            format!("the trigger's interface ({interface}) is not there"),
+                        );
+                        let _ = reply.send(Err(e));
+                    };
+                    if supervise::idle(&mut self.ends.commands, backoff.next_wait(), refuse).await {
                         return;
                     }
-                    wait = (wait * 2).min(self.settings.reconnect_max);
                     continue;
                 }
             };
-            wait = self.settings.reconnect_min;
+            backoff.reset();
+            outage.connected();
             tracing::info!(device = "trigger", interface = %self.settings.interface, node = self.settings.node, "connected");
-            self.state.send_modify(|s| {
+            self.ends.state.send_modify(|s| {
                 s.bus_state = BusState::ErrorActive;
                 s.connections += 1;
             });
             let ended = self.serve(bus).await;
-            self.state.send_modify(|s| {
+            self.ends.state.send_modify(|s| {
                 s.bus_state = BusState::Down;
                 s.node_alive = false;
             });
@@ -278,24 +263,7 @@ impl Actor {
                 return;
             }
             // The loss was the outage's fault; failed reopening tries are not faults of their own.
-            reported = true;
-        }
-    }
-
-    /// While disconnected: refuse commands for `wait`; `true` when every handle is gone.
-    async fn idle(&mut self, wait: Duration) -> bool {
-        let until = Instant::now() + wait;
-        loop {
-            tokio::select! {
-                c = self.commands.recv() => match c {
-                    None => return true,
-                    Some(Command::Fire(_, reply)) => {
-                        let e = Error::new(ErrorCode::DeviceUnplugged, format!("the trigger's interface ({}) is not there", self.settings.interface));
-                        let _ = reply.send(Err(e));
-                    }
-                },
-                _ = tokio::time::sleep_until(until) => return false,
-            }
+            outage.lost();
         }
     }
 
@@ -306,7 +274,7 @@ impl Actor {
             let heartbeat_due = w.since + lost_span;
             let pending_due = w.pending.as_ref().map_or(heartbeat_due, |p| p.deadline);
             tokio::select! {
-                c = self.commands.recv(), if w.pending.is_none() => match c {
+                c = self.ends.commands.recv(), if w.pending.is_none() => match c {
                     None => return Ended::Closed,
                     Some(Command::Fire(channel, reply)) => {
                         if let Err(lost) = self.start_fire(&mut bus, &mut w, channel, reply).await {
@@ -325,13 +293,13 @@ impl Actor {
                 },
                 _ = tokio::time::sleep_until(heartbeat_due), if !w.lost_reported => {
                     w.lost_reported = true;
-                    let seen = self.state.borrow().node_state.is_some();
+                    let seen = self.ends.state.borrow().node_state.is_some();
                     let msg = if seen {
                         format!("node {} sent no heartbeat for {} ms", self.settings.node, lost_span.as_millis())
                     } else {
                         format!("node {} sent no heartbeat within {} ms of connecting", self.settings.node, lost_span.as_millis())
                     };
-                    self.state.send_modify(|s| s.node_alive = false);
+                    self.ends.state.send_modify(|s| s.node_alive = false);
                     self.fail_pending(&mut w, ErrorCode::DeviceLost, &msg);
                     self.fault(ErrorCode::DeviceLost, msg);
                 },
@@ -356,7 +324,7 @@ impl Actor {
         channel: u8,
         reply: oneshot::Sender<Result<FireReport>>,
     ) -> std::result::Result<(), Ended> {
-        let s = self.state.borrow().clone();
+        let s = self.ends.state.borrow().clone();
         let refuse = |code, msg: String| Err(Error::new(code, msg));
         let check: Result<()> = if s.bus_state == BusState::BusOff {
             refuse(ErrorCode::DeviceBusOff, format!("{} is bus-off", self.settings.interface))
@@ -404,14 +372,14 @@ impl Actor {
         loop {
             match bus.send(frame).await {
                 Ok(()) => {
-                    self.state.send_modify(|s| s.frames_sent += 1);
+                    self.ends.state.send_modify(|s| s.frames_sent += 1);
                     return Ok(());
                 }
                 Err(e) if is_enobufs(&e) => {
-                    self.state.send_modify(|s| s.send_retries += 1);
+                    self.ends.state.send_modify(|s| s.send_retries += 1);
                     if Instant::now() + pause > give_up {
-                        self.state.send_modify(|s| s.errors += 1);
-                        let st = self.state.borrow().bus_state;
+                        self.ends.state.send_modify(|s| s.errors += 1);
+                        let st = self.ends.state.borrow().bus_state;
                         let (code, why) = match st {
                             BusState::BusOff | BusState::ErrorPassive => (ErrorCode::DeviceBusOff, st.as_str()),
                             _ => (ErrorCode::DeviceTimeout, "the transmit queue stayed full"),
@@ -429,7 +397,7 @@ impl Actor {
                     pause = (pause * 2).min(Duration::from_millis(64));
                 }
                 Err(e) => {
-                    self.state.send_modify(|s| s.errors += 1);
+                    self.ends.state.send_modify(|s| s.errors += 1);
                     return Err(Error::new(ErrorCode::DeviceUnplugged, format!("{}: {e}", self.settings.interface)));
                 }
             }
@@ -437,10 +405,10 @@ impl Actor {
     }
 
     fn on_frame(&mut self, f: &Frame, w: &mut Watch) {
-        self.state.send_modify(|s| s.frames_received += 1);
-        let before = self.state.borrow().bus_state;
+        self.ends.state.send_modify(|s| s.frames_received += 1);
+        let before = self.ends.state.borrow().bus_state;
         if let Some(after) = before.after(f) {
-            self.state.send_modify(|s| {
+            self.ends.state.send_modify(|s| {
                 s.errors += 1;
                 s.bus_state = after;
             });
@@ -459,8 +427,8 @@ impl Actor {
             Decoded::Other => {}
             Decoded::Garbage(why) => {
                 let n = {
-                    self.state.send_modify(|s| s.garbage_frames += 1);
-                    self.state.borrow().garbage_frames
+                    self.ends.state.send_modify(|s| s.garbage_frames += 1);
+                    self.ends.state.borrow().garbage_frames
                 };
                 // The first few in full, then one line per 100.
                 if n <= 5 || n % 100 == 0 {
@@ -469,12 +437,12 @@ impl Actor {
             }
             Decoded::Message(Message::Heartbeat { state, .. }) => {
                 w.since = Instant::now();
-                let was_alive = self.state.borrow().node_alive;
+                let was_alive = self.ends.state.borrow().node_alive;
                 if !was_alive {
                     tracing::info!(device = "trigger", node, ?state, "node heard");
                 }
                 w.lost_reported = false;
-                self.state.send_modify(|s| {
+                self.ends.state.send_modify(|s| {
                     s.node_alive = true;
                     s.node_state = Some(state);
                 });
@@ -507,7 +475,7 @@ impl Actor {
                         view_ms: ms(now),
                         points,
                     };
-                    self.state.send_modify(|s| s.views += 1);
+                    self.ends.state.send_modify(|s| s.views += 1);
                     let _ = p.reply.send(Ok(report));
                 }
                 other => {
@@ -537,10 +505,10 @@ impl Actor {
     fn fault(&self, code: ErrorCode, message: String) {
         tracing::warn!(device = "trigger", code = %code, error = %message, "device fault");
         let fault = DeviceFault { device: "trigger", code, message };
-        self.state.send_modify(|s| {
+        self.ends.state.send_modify(|s| {
             s.faults += 1;
             s.last_fault = Some(fault.clone());
         });
-        let _ = self.faults.send(fault);
+        let _ = self.ends.faults.send(fault);
     }
 }

@@ -1,5 +1,5 @@
 //! Grbl 1.1's serial protocol, as the turntable's firmware speaks it: what the host sends and what comes
-//! back, parsed without I/O (the driver in [`super::turntable`] and the simulator in [`super::grbl_sim`] both
+//! back, parsed without I/O (the driver in [`super::driver`] and the simulator in [`super::sim`] both
 //! use it).
 //!
 //! The turntable is Grbl's axis X, in degrees. The host sends one line at a time (at most
@@ -111,7 +111,9 @@ pub enum Reply {
     Feedback(String),
     /// A status report.
     Status(StatusReport),
-    /// `$n=v` settings lines and other text the driver does not act on.
+    /// `$n=v`: one of the board's settings (the answer to `$$`), its number and value.
+    Setting(u32, f64),
+    /// Other text the driver does not act on (`$N0=` startup blocks, `$I` build info).
     Other(String),
 }
 
@@ -145,6 +147,12 @@ impl Reply {
         if line.starts_with('<') || line.starts_with('[') {
             return None;
         }
+        if let Some((n, v)) = line.strip_prefix('$').and_then(|l| l.split_once('='))
+            && let (Ok(n), Ok(v)) = (n.parse::<u32>(), v.parse::<f64>())
+            && v.is_finite()
+        {
+            return Some(Reply::Setting(n, v));
+        }
         Some(Reply::Other(line.to_string()))
     }
 }
@@ -162,6 +170,86 @@ fn parse_status(inner: &str) -> Option<StatusReport> {
         }
     }
     Some(StatusReport { state, x: x?, feed })
+}
+
+/// Grbl 1.1h's factory settings (`$$` of a board with a fresh EEPROM: `defaults.h`, `DEFAULTS_GENERIC`):
+/// homing disabled (`$22=0`), 250 steps per unit (`$100`), 500 units/min top rate (`$110`), 10 units/s²
+/// acceleration (`$120`), 200 units of travel (`$130`); the table's unit is the degree.
+pub const FACTORY_SETTINGS: [(u32, f64); 34] = [
+    (0, 10.0),
+    (1, 25.0),
+    (2, 0.0),
+    (3, 0.0),
+    (4, 0.0),
+    (5, 0.0),
+    (6, 0.0),
+    (10, 1.0),
+    (11, 0.010),
+    (12, 0.002),
+    (13, 0.0),
+    (20, 0.0),
+    (21, 0.0),
+    (22, 0.0),
+    (23, 0.0),
+    (24, 25.0),
+    (25, 500.0),
+    (26, 250.0),
+    (27, 1.0),
+    (30, 1000.0),
+    (31, 0.0),
+    (32, 0.0),
+    (100, 250.0),
+    (101, 250.0),
+    (102, 250.0),
+    (110, 500.0),
+    (111, 500.0),
+    (112, 500.0),
+    (120, 10.0),
+    (121, 10.0),
+    (122, 10.0),
+    (130, 200.0),
+    (131, 200.0),
+    (132, 200.0),
+];
+
+/// What the driver reads from the board's settings (`$$`) for axis X, the table, in degrees.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct BoardSettings {
+    /// Homing enabled (`$22`): the board locks after a reset until `$H` (or `$X`).
+    pub homing: bool,
+    /// Steps per degree (`$100`).
+    pub steps_per_degree: f64,
+    /// Top rate, degrees per minute (`$110`): a move's `F` above it is clamped to it.
+    pub max_rate: f64,
+    /// Acceleration, degrees per second² (`$120`).
+    pub accel: f64,
+}
+
+impl BoardSettings {
+    /// The X axis' settings from `$n=v` pairs.
+    ///
+    /// # Errors
+    /// A message naming the first of `$22`, `$100`, `$110`, `$120` that is missing or not positive (`$22`: 0
+    /// or 1).
+    pub fn from_settings(settings: &[(u32, f64)]) -> std::result::Result<BoardSettings, String> {
+        let get = |n: u32| settings.iter().rev().find(|(k, _)| *k == n).map(|&(_, v)| v);
+        let positive = |n: u32| match get(n) {
+            Some(v) if v > 0.0 => Ok(v),
+            Some(v) => Err(format!("${n}={v} is not positive")),
+            None => Err(format!("the board's settings have no ${n}")),
+        };
+        let homing = match get(22) {
+            Some(v) if v == 0.0 || v == 1.0 => v == 1.0,
+            Some(v) => return Err(format!("$22={v} is neither 0 nor 1")),
+            None => return Err("the board's settings have no $22".into()),
+        };
+        Ok(BoardSettings { homing, steps_per_degree: positive(100)?, max_rate: positive(110)?, accel: positive(120)? })
+    }
+
+    /// The top speed, degrees per second.
+    pub fn max_speed(&self) -> f64 {
+        self.max_rate / 60.0
+    }
 }
 
 /// Whether a banner's version (`1.1h`) is one the driver speaks to.
@@ -254,7 +342,24 @@ mod tests {
         assert_eq!(s, Some(Reply::Status(StatusReport { state: MachineState::Run, x: 12.345, feed: Some(720.0) })));
         let s = Reply::parse("<Hold:0|WPos:-1.5,0,0|Bf:15,128|FS:0,0>");
         assert_eq!(s, Some(Reply::Status(StatusReport { state: MachineState::Hold, x: -1.5, feed: Some(0.0) })));
-        assert_eq!(Reply::parse("$100=250.000"), Some(Reply::Other("$100=250.000".into())));
+        assert_eq!(Reply::parse("$100=250.000"), Some(Reply::Setting(100, 250.0)));
+        assert_eq!(Reply::parse("$N0="), Some(Reply::Other("$N0=".into())));
+        assert_eq!(Reply::parse("$110=inf"), Some(Reply::Other("$110=inf".into())));
+    }
+
+    /// A factory-fresh board: homing off, 500 °/min (8.3 °/s), 10 °/s²; a board without `$110` is named.
+    #[test]
+    fn board_settings_from_the_factory_defaults() {
+        let b = BoardSettings::from_settings(&FACTORY_SETTINGS).unwrap();
+        assert_eq!(b, BoardSettings { homing: false, steps_per_degree: 250.0, max_rate: 500.0, accel: 10.0 });
+        assert!((b.max_speed() - 500.0 / 60.0).abs() < 1e-12);
+        let without: Vec<(u32, f64)> = FACTORY_SETTINGS.iter().copied().filter(|s| s.0 != 110).collect();
+        assert_eq!(BoardSettings::from_settings(&without).unwrap_err(), "the board's settings have no $110");
+        let mut homing = FACTORY_SETTINGS.to_vec();
+        homing.push((22, 1.0));
+        assert!(BoardSettings::from_settings(&homing).unwrap().homing, "the last value of a setting counts");
+        homing.push((22, 2.0));
+        assert!(BoardSettings::from_settings(&homing).unwrap_err().contains("$22=2"));
     }
 
     /// Line noise (the bytes of a replug, a baud mismatch) is garbage, never a reply.

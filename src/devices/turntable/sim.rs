@@ -1,24 +1,27 @@
 //! A simulated Grbl 1.1 turntable: the firmware's replies to the bytes a host sends, with motion timed by
 //! acceleration and top speed, and injectable faults. Pure: the caller feeds bytes and the simulated time,
-//! and writes what comes back to a serial line (a pty in [`super::sim_pty`], a pipe in unit tests).
+//! and writes what comes back to a serial line (a pty in [`super::transport`], a pipe in unit tests).
 //!
 //! What it does, as Grbl does:
 //! - a soft reset (Ctrl-X) stops everything and prints the banner; with homing enabled the machine starts in
 //!   `Alarm` and says `[MSG:'$H'|'$X' to unlock]`; a reset during a move is `ALARM:3` (position lost);
-//! - `$H` homes (taking `home_seconds`, `ok` when done, X = 0), `$X` unlocks, `$I` names the build;
+//! - `$H` homes (taking `home_seconds`, `ok` when done, X = 0; `error:5` when homing is disabled), `$X`
+//!   unlocks, `$I` names the build, `$$` lists the settings and `$n=v` changes one (kept across a replug, as
+//!   the EEPROM keeps it);
 //! - `G90 G1 X… F…` is answered `ok` at once (buffered) and then moves along a trapezoid; `G0` moves at the
 //!   top speed; motion while in `Alarm` is `error:9`; an unknown command `error:20`, a bad number `error:2`,
 //!   a line over 80 bytes `error:11`;
 //! - `?` answers a status report at once, `!` holds (the table stops where it is), `~` resumes.
 //!
 //! Faults ([`Fault`]): a dropped reply, `error:n` for the next line, `ALARM:n` now, a stalled move (the
-//! table stops but the state stays `Run`). Unplugging is the serial line's business ([`super::sim_pty`]).
+//! table stops but the state stays `Run`). Unplugging is the serial line's business ([`super::transport`]).
 
 use std::collections::VecDeque;
 
-use super::grbl::{FEED_HOLD, MachineState, SOFT_RESET, STATUS_QUERY, position_at};
+use super::protocol::{FACTORY_SETTINGS, FEED_HOLD, MachineState, SOFT_RESET, STATUS_QUERY, position_at};
 
-/// How the simulated firmware behaves.
+/// How the simulated firmware behaves. The default is a factory-fresh Grbl 1.1h
+/// ([`FACTORY_SETTINGS`]): homing disabled, 500 °/min top rate, 10 °/s².
 #[derive(Clone, Debug)]
 pub struct SimSettings {
     /// The banner after a reset (a wrong one tests the driver's firmware check).
@@ -31,17 +34,69 @@ pub struct SimSettings {
     pub accel: f64,
     /// Seconds a homing cycle takes.
     pub home_seconds: f64,
+    /// The other settings `$$` lists (`$n=v`), as the EEPROM holds them.
+    pub others: std::collections::BTreeMap<u32, f64>,
 }
 
 impl Default for SimSettings {
     fn default() -> Self {
         SimSettings {
             banner: "Grbl 1.1h ['$' for help]".into(),
-            homing: true,
-            max_speed: 90.0,
-            accel: 180.0,
+            homing: false,
+            max_speed: 500.0 / 60.0,
+            accel: 10.0,
             home_seconds: 1.0,
+            others: FACTORY_SETTINGS.into_iter().filter(|(n, _)| ![22, 110, 120].contains(n)).collect(),
         }
+    }
+}
+
+impl SimSettings {
+    /// The same board `k` times faster (top rate × k, acceleration × k², homing ÷ k): what a board whose
+    /// simulated time runs `k` times faster than the wall clock looks like from the wall clock, so that what
+    /// `$$` reports holds for a host that times in wall-clock seconds.
+    pub fn faster(mut self, k: f64) -> SimSettings {
+        self.max_speed *= k;
+        self.accel *= k * k;
+        self.home_seconds /= k;
+        self
+    }
+
+    /// Every setting as `$$` lists it, ascending.
+    pub fn listing(&self) -> Vec<(u32, f64)> {
+        let mut all = self.others.clone();
+        all.insert(22, if self.homing { 1.0 } else { 0.0 });
+        all.insert(110, self.max_speed * 60.0);
+        all.insert(120, self.accel);
+        all.into_iter().collect()
+    }
+
+    /// Store `$n=v`; `Err(3)` for a setting Grbl does not have, `Err(4)` for a negative value.
+    fn set(&mut self, n: u32, v: f64) -> Result<(), u32> {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(4);
+        }
+        match n {
+            22 => self.homing = v != 0.0,
+            110 if v > 0.0 => self.max_speed = v / 60.0,
+            120 if v > 0.0 => self.accel = v,
+            110 | 120 => return Err(4),
+            _ if self.others.contains_key(&n) => {
+                self.others.insert(n, v);
+            }
+            _ => return Err(3),
+        }
+        Ok(())
+    }
+}
+
+/// A setting as Grbl 1.1 prints it: integers bare (`$22=0`), rates and lengths with three decimals.
+fn setting_line(n: u32, v: f64) -> String {
+    const FLOATS: [u32; 14] = [11, 12, 24, 25, 27, 100, 101, 102, 110, 111, 112, 120, 121, 122];
+    if FLOATS.contains(&n) || (130..=132).contains(&n) {
+        format!("${n}={v:.3}\r\n")
+    } else {
+        format!("${n}={v:.0}\r\n")
     }
 }
 
@@ -106,6 +161,11 @@ impl GrblSim {
         }
     }
 
+    /// The settings as the EEPROM holds them now (with the `$n=v` changes made since power-on).
+    pub fn eeprom(&self) -> &SimSettings {
+        &self.settings
+    }
+
     /// What the board prints when it starts (as after a reset; Arduino boards reset when the port opens).
     pub fn power_on(&mut self) -> Vec<u8> {
         self.reset(0.0)
@@ -164,7 +224,7 @@ impl GrblSim {
                 }
                 b'\r' => {}
                 _ => {
-                    if self.line.len() >= super::grbl::MAX_LINE_BYTES {
+                    if self.line.len() >= super::protocol::MAX_LINE_BYTES {
                         self.line_too_long = true;
                     } else {
                         self.line.push(b);
@@ -198,7 +258,7 @@ impl GrblSim {
                 // Frozen where it stalled; the state stays Run.
                 return;
             }
-            let end = m.start + super::grbl::move_seconds(m.to - m.from, m.speed, a);
+            let end = m.start + super::protocol::move_seconds(m.to - m.from, m.speed, a);
             if now < end {
                 self.x = position_at(m.from, m.to, m.speed, a, now - m.start);
                 self.feed = m.speed * 60.0;
@@ -298,7 +358,20 @@ impl GrblSim {
                 out.extend(self.reply(Ok(())));
                 out
             }
-            _ if upper.starts_with('$') => self.reply(Err(3)),
+            "$$" => {
+                let mut out: Vec<u8> =
+                    self.settings.listing().into_iter().flat_map(|(n, v)| setting_line(n, v).into_bytes()).collect();
+                out.extend(self.reply(Ok(())));
+                out
+            }
+            _ if upper.starts_with('$') => {
+                let r = match upper[1..].split_once('=').map(|(n, v)| (n.parse::<u32>(), v.parse::<f64>())) {
+                    Some((Ok(n), Ok(v))) => self.settings.set(n, v),
+                    Some((Ok(_), Err(_))) => Err(2),
+                    _ => Err(3),
+                };
+                self.reply(r)
+            }
             _ => match self.gcode(&upper, now) {
                 Ok(()) => self.reply(Ok(())),
                 Err(n) => self.reply(Err(n)),
@@ -344,7 +417,7 @@ impl GrblSim {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::devices::grbl::{Reply, StatusReport};
+    use crate::devices::turntable::protocol::{Reply, StatusReport};
 
     fn lines(b: &[u8]) -> Vec<Reply> {
         String::from_utf8_lossy(b).lines().filter_map(Reply::parse).collect()
@@ -359,7 +432,8 @@ mod tests {
 
     #[test]
     fn banner_alarm_home_and_a_timed_move() {
-        let mut sim = GrblSim::new(SimSettings::default());
+        let board = SimSettings { homing: true, max_speed: 90.0, accel: 180.0, ..Default::default() };
+        let mut sim = GrblSim::new(board);
         let boot = lines(&sim.power_on());
         assert_eq!(boot[0], Reply::Banner("1.1h".into()));
         assert_eq!(boot[1], Reply::Feedback("MSG:'$H'|'$X' to unlock".into()));
@@ -378,7 +452,7 @@ mod tests {
 
     #[test]
     fn faults_errors_and_resets() {
-        let mut sim = GrblSim::new(SimSettings { homing: false, ..Default::default() });
+        let mut sim = GrblSim::new(SimSettings { max_speed: 90.0, accel: 180.0, ..Default::default() });
         sim.power_on();
         assert_eq!(lines(&sim.input(b"G1 X10\n", 0.0)), [Reply::Error(22)], "no feed rate");
         assert_eq!(lines(&sim.input(b"M3 S1000\n", 0.0)), [Reply::Error(20)]);
@@ -400,5 +474,31 @@ mod tests {
         assert_eq!(lines(&sim.input(b"$X\n", 62.0)), [Reply::Feedback("MSG:Caution: Unlocked".into()), Reply::Ok]);
         assert_eq!(lines(&sim.inject(Fault::Alarm(1), 63.0)), [Reply::Alarm(1)]);
         assert_eq!(sim.state(), MachineState::Alarm);
+    }
+
+    /// A factory-fresh board: unlocked after a reset, `$H` refused (`error:5`), `$$` lists Grbl 1.1h's
+    /// defaults, `$110=` changes the top rate, and moves run at the board's 500 °/min whatever `F` asks.
+    #[test]
+    fn a_factory_fresh_board_lists_its_settings_and_refuses_homing() {
+        let mut sim = GrblSim::new(SimSettings::default());
+        let boot = lines(&sim.power_on());
+        assert_eq!(boot, [Reply::Banner("1.1h".into())], "no lock message without homing");
+        assert_eq!(sim.state(), MachineState::Idle);
+        assert_eq!(lines(&sim.input(b"$H\n", 0.0)), [Reply::Error(5)]);
+        let listed = lines(&sim.input(b"$$\n", 0.0));
+        let want: Vec<Reply> = FACTORY_SETTINGS.iter().map(|&(n, v)| Reply::Setting(n, v)).chain([Reply::Ok]).collect();
+        assert_eq!(listed, want);
+        assert_eq!(lines(&sim.input(b"$110=1000\n", 0.0)), [Reply::Ok]);
+        assert_eq!(lines(&sim.input(b"$999=1\n", 0.0)), [Reply::Error(3)]);
+        assert_eq!(lines(&sim.input(b"$120=-1\n", 0.0)), [Reply::Error(4)]);
+        assert!(lines(&sim.input(b"$$\n", 0.0)).contains(&Reply::Setting(110, 1000.0)));
+        assert_eq!(sim.eeprom().max_speed, 1000.0 / 60.0, "kept for the next power-on");
+        // 90° asked at 60 °/s runs at the board's 1000 °/min (16.7 °/s) with 10 °/s².
+        assert_eq!(lines(&sim.input(b"G90 G1 X90 F3600\n", 1.0)), [Reply::Ok]);
+        let t = crate::devices::turntable::protocol::move_seconds(90.0, 1000.0 / 60.0, 10.0);
+        assert!(status(&mut sim, 1.0 + t - 0.1).state == MachineState::Run);
+        assert_eq!(status(&mut sim, 1.0 + t + 1e-9).x, 90.0);
+        let fast = SimSettings::default().faster(10.0);
+        assert!((fast.max_speed - 500.0 / 6.0).abs() < 1e-9 && fast.accel == 1000.0 && fast.home_seconds == 0.1);
     }
 }
