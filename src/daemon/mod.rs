@@ -1,5 +1,6 @@
 //! **Daemon** — the unattended station: watch folders, a crash-safe job queue, progress on D-Bus, systemd
-//! integration. The top layer: it runs the pipeline and uses tokio and zbus; nothing below imports it.
+//! integration, scan sessions on the rig. The top layer: it runs the pipeline (and reaches the stages only
+//! through it) and uses tokio and zbus; nothing below imports it.
 //!
 //! - [`config`]: `config/scanstation.toml`, strict, validated, with a digest;
 //! - [`spool`]: the watch-folder layout (`inbox/`, `work/`, `outbox/`, `quarantine/`) and its atomic moves;
@@ -7,6 +8,8 @@
 //! - [`journal`]: one durable JSON record per job;
 //! - [`station`]: the actor that owns jobs, queue and recovery;
 //! - [`worker`]: a job's work on the CPU pool, publication and quarantine;
+//! - [`scan`]: scan sessions (the plan, the fault policy, the capture) and [`scan_bundle`] (what a scan's
+//!   bundle adds); [`durable`]: atomic, fsynced writes;
 //! - [`dbus`]: the `org.scanstation.Station1` interfaces (thin, actor-backed);
 //! - [`rig`]: the configured devices (turntable, trigger) on D-Bus and in the Manager's state;
 //! - [`client`]: proxies for the `scanstation` CLI;

@@ -1,5 +1,8 @@
-//! The whole chain for one file: read → repair → remesh → surface fit → B-rep → STEP, with a quality check
-//! and time and peak memory after every stage.
+//! The whole chain for one file: read (a mesh, a cloud, or a scan set fused) → reconstruct (clouds) → repair
+//! → remesh → surface fit → B-rep → STEP, then the solid mesh, the error map and the quality gates, with a
+//! quality check and time and peak memory after every stage. [`convert_file`] returns the report;
+//! [`convert_held`] also hands back what the chain held (the solid mesh, the fused views, the files' digests)
+//! so that a caller reads nothing back.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -9,8 +12,7 @@ use super::memory::StageMeter;
 pub use super::open_input::OpenInputMeasure;
 use super::open_input::open_input_measure;
 use crate::error::{Error, ErrorCode, Result};
-use crate::geometry::io::FileDigest;
-use crate::geometry::io::{ReadOptions, ensure_not_input};
+use crate::geometry::io::{FileDigest, ReadOptions, ensure_not_input};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::stages::brep::step::{LengthUnit, StepOptions};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
