@@ -1,6 +1,6 @@
 //! A scan's plan and its record: what `StartScan` asked for ([`ScanRequest`]), what the capture did so far
 //! ([`CaptureLog`], `capture.json`), and the poses of its views in the table frame ([`view_pose`]). Plain
-//! data and geometry, no I/O but [`CaptureLog::load`].
+//! data and geometry; the only I/O is reading the log ([`CaptureLog::load`], [`CaptureLog::read`]).
 
 use std::path::{Path, PathBuf};
 
