@@ -169,7 +169,7 @@ fn main() {
         dir.join("scanstation.toml"),
         format!(
             "[daemon]\nbus = \"session\"\nlog_format = \"pretty\"\nwatchdog = false\n[paths]\nspool = \"{}\"\nstate = \"{}\"\n\
-             [devices.turntable]\nport = \"{}\"\nspeed = 600\naccel = 1200\nreply_timeout = \"500ms\"\nbanner_timeout = \"2s\"\nhome_timeout = \"5s\"\nreconnect_max = \"400ms\"\n\
+             [devices.turntable]\nport = \"{}\"\nreply_timeout = \"500ms\"\nbanner_timeout = \"2s\"\nhome_timeout = \"5s\"\nreconnect_max = \"400ms\"\n\
              [devices.trigger]\ninterface = \"unix:{}\"\nheartbeat = \"50ms\"\nack_timeout = \"500ms\"\nview_timeout = \"2s\"\n",
             dir.join("spool").display(),
             dir.join("state").display(),
