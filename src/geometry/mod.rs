@@ -11,6 +11,7 @@ pub mod mesh;
 pub mod points;
 pub mod polygon;
 pub mod pose;
+pub mod raster;
 pub mod sampling;
 pub mod shapes;
 pub mod stats;
