@@ -17,8 +17,12 @@
 //! Each side's samples are drawn from a generator seeded by `seed` and the side's own content, so the result
 //! is deterministic, and swapping TEST and REFERENCE swaps the two one-sided results exactly.
 
+mod deviation;
 mod error_map;
 
+pub use deviation::{
+    DEVIATION_BAND, DEVIATION_INSIDE, DEVIATION_NEAR, DEVIATION_OUTSIDE, deviation_colour, signed_vertex_distances,
+};
 pub use error_map::{color_ramp, write_error_map};
 
 use rayon::prelude::*;
