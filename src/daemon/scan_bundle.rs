@@ -202,10 +202,7 @@ fn fea(
         let (from, to) = (out.join(from), b.part.join(to));
         std::fs::rename(&from, &to).map_err(|e| io_err("cannot move", &from, e))?;
         let digest = fea.digests.iter().find(|(p, _)| *p == from).map(|(_, d)| d.clone());
-        let digest = match digest {
-            Some(d) => d,
-            None => return Err(Error::internal(format!("no digest of {}", from.display()))),
-        };
+        let digest = digest.ok_or_else(|| Error::internal(format!("no digest of {}", from.display())))?;
         files.push((kind, to, digest));
     }
     let _ = std::fs::remove_dir_all(&out);

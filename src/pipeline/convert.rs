@@ -14,7 +14,7 @@ use super::open_input::open_input_measure;
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{FileDigest, ReadOptions, ensure_not_input};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
-use crate::stages::brep::step::{LengthUnit, StepOptions};
+use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
 use crate::stages::quality::{CompareOptions, DistanceReport, compare, write_error_map};
 use crate::stages::reconstruct::{ReconstructOptions, ReconstructReport};
@@ -316,13 +316,6 @@ fn write_solid_mesh(step: &Path, step_sha256: &str, tessellation: TriMesh) -> Re
     result
 }
 
-/// Write the STEP file of `solid` atomically; its size and SHA-256 taken while writing, so that nothing reads
-/// it back to hash it (the solid mesh's header and the bundle's manifest name it).
-fn write_step_digest(path: &Path, solid: &Solid, opts: &StepOptions) -> Result<FileDigest> {
-    let body = crate::stages::brep::step::to_step(solid, opts);
-    crate::geometry::io::write_atomic(path, |w| std::io::Write::write_all(w, body.as_bytes()))
-}
-
 /// Tessellation density for the solid's quality check: about `budget` triangles in all.
 fn tessellate_for_check(solid: &Solid, budget: usize) -> Result<TriMesh> {
     let spans: usize = solid.faces.iter().map(|f| (f.surface.nu - 3) * (f.surface.nv - 3)).sum::<usize>().max(1);
@@ -534,7 +527,8 @@ pub fn convert_held(
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.95, 0.98, "step");
     let name = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
-    let step = write_step_digest(output, &kept.solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
+    // Its digest is taken while writing: nothing reads it back to hash it.
+    let step = write_step(output, &kept.solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
     let (solid_mesh_file, solid_mesh, solid_digest) = write_solid_mesh(output, &step.sha256, kept.tessellation)?;
     // The crossings gate: the coarse check that chose the chain, and the fine tessellation written.
     let kept_crossings = kept.brep.self_intersections.max(mesh_self_intersections(&solid_mesh));

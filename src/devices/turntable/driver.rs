@@ -192,12 +192,12 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
     /// `device.wrong-firmware`, `device.timeout` (no banner, no reply), `device.unplugged`, `device.alarm`,
     /// `device.refused`; `device.config` when the config asks for more than the board allows.
     pub async fn connect(io: S, settings: TurntableSettings, name: &str) -> Result<Self> {
-        let factory = BoardSettings::from_settings(&super::protocol::FACTORY_SETTINGS).expect("factory settings");
         let mut t = Turntable {
             io,
             buf: Vec::new(),
+            // Both until the board's `$$` is read (step 2).
             motion: Motion { speed: 0.0, accel: 0.0, homing: Homing::Unlock, warnings: Vec::new() },
-            board: factory,
+            board: BoardSettings::FACTORY,
             settings,
             firmware: String::new(),
             homed: false,

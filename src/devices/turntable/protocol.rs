@@ -226,6 +226,10 @@ pub struct BoardSettings {
 }
 
 impl BoardSettings {
+    /// A factory-fresh board's ([`FACTORY_SETTINGS`]; a unit test keeps the two equal).
+    pub const FACTORY: BoardSettings =
+        BoardSettings { homing: false, steps_per_degree: 250.0, max_rate: 500.0, accel: 10.0 };
+
     /// The X axis' settings from `$n=v` pairs.
     ///
     /// # Errors
@@ -352,6 +356,7 @@ mod tests {
     fn board_settings_from_the_factory_defaults() {
         let b = BoardSettings::from_settings(&FACTORY_SETTINGS).unwrap();
         assert_eq!(b, BoardSettings { homing: false, steps_per_degree: 250.0, max_rate: 500.0, accel: 10.0 });
+        assert_eq!(b, BoardSettings::FACTORY);
         assert!((b.max_speed() - 500.0 / 60.0).abs() < 1e-12);
         let without: Vec<(u32, f64)> = FACTORY_SETTINGS.iter().copied().filter(|s| s.0 != 110).collect();
         assert_eq!(BoardSettings::from_settings(&without).unwrap_err(), "the board's settings have no $110");

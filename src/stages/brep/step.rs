@@ -284,11 +284,11 @@ pub fn to_step(solid: &Solid, opts: &StepOptions) -> String {
 }
 
 /// Write `solid` to `path` atomically: a temporary file beside it, renamed when complete, so a failed
-/// run leaves no half-written STEP file.
+/// run leaves no half-written STEP file. Returns the file's size and SHA-256, taken while writing.
 ///
 /// # Errors
 /// `resource.output` when the file cannot be written or renamed.
-pub fn write_step(path: &Path, solid: &Solid, opts: &StepOptions) -> Result<()> {
+pub fn write_step(path: &Path, solid: &Solid, opts: &StepOptions) -> Result<crate::geometry::io::FileDigest> {
     let body = to_step(solid, opts);
-    write_atomic(path, |w| w.write_all(body.as_bytes())).map(|_| ())
+    write_atomic(path, |w| w.write_all(body.as_bytes()))
 }
