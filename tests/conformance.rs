@@ -430,6 +430,7 @@ fn fea_surface_vtu_opens_in_meshio() {
         &dir,
         &ReadOptions::default(),
         &FeaOptions::default(),
+        None,
         &NoProgress,
     )
     .unwrap();

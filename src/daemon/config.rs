@@ -139,6 +139,7 @@ struct RawPipeline {
     max_rms_pct: Option<f64>,
     max_volume_error_pct: Option<f64>,
     accept_degraded: Option<bool>,
+    pictures_up: Option<String>,
 }
 
 #[derive(Deserialize, Default)]
@@ -220,6 +221,8 @@ pub struct Config {
     pub tolerance: Option<f64>,
     /// Default seed of remeshing and sampling.
     pub seed: u64,
+    /// The up axis of a dropped file's pictures (a scan's is the turntable's axis, z of the table frame).
+    pub pictures_up: crate::pipeline::pictures::Up,
     /// Samples per side of every quality measurement.
     pub compare_samples: usize,
     /// Re-queue jobs a restart interrupted (otherwise quarantine them as `interrupted`).
@@ -539,6 +542,11 @@ impl Config {
             vertices,
             tolerance: raw.pipeline.tolerance,
             seed: raw.pipeline.seed.unwrap_or(0),
+            pictures_up: match raw.pipeline.pictures_up.as_deref() {
+                None => crate::pipeline::pictures::Up::Y,
+                Some(s) => crate::pipeline::pictures::Up::parse(s)
+                    .ok_or_else(|| err("pipeline.pictures_up", format!("{s:?} is not an axis: use x, y or z")))?,
+            },
             compare_samples,
             resume: raw.pipeline.resume.unwrap_or(true),
             gates,

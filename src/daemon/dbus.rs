@@ -510,6 +510,12 @@ pub struct JobView {
     pub outputs: BTreeMap<String, String>,
 }
 
+/// The `Outputs` kind of a job's HTML report (property `ReportFile`).
+pub const REPORT_HTML: &str = "report-html";
+
+/// The `Outputs` kind of a job's thumbnail (property `Thumbnail`).
+pub const THUMBNAIL: &str = "thumbnail";
+
 /// `org.scanstation.Station1.Job`.
 pub struct JobIface {
     /// The actor's command channel.
@@ -631,10 +637,25 @@ pub mod job_iface {
             lock(&self.view).error_code.clone()
         }
 
-        /// Kind → path: step, solid-mesh, report, error-map, manifest, quarantine, error.
+        /// Kind → path: step, solid-mesh, report, error-map, manifest, quarantine, error, report-html,
+        /// thumbnail and the pictures (deviation, histogram, net, faces, convergence, coverage, stress).
         #[zbus(property)]
         fn outputs(&self) -> HashMap<String, String> {
             lock(&self.view).outputs.clone().into_iter().collect()
+        }
+
+        /// The job's HTML report (`NAME.report.html` in its bundle, or in quarantine: why it stopped); ""
+        /// until the bundle is published or quarantined.
+        #[zbus(property)]
+        fn report_file(&self) -> String {
+            lock(&self.view).outputs.get(REPORT_HTML).cloned().unwrap_or_default()
+        }
+
+        /// The job's 256 × 256 PNG thumbnail (the deviation map, isometric); "" until published, and for a
+        /// job quarantined before it had a solid.
+        #[zbus(property)]
+        fn thumbnail(&self) -> String {
+            lock(&self.view).outputs.get(THUMBNAIL).cloned().unwrap_or_default()
         }
 
         /// Emitted exactly once per job, after its work has stopped (also, after a restart, for a job that a

@@ -59,6 +59,15 @@ pub fn add(
     let (fusion_path, digest) = write_fusion_report(b, converted, log)?;
     extras.digests.insert(fusion_path.clone(), digest);
     extras.files.push(("fusion-report", fusion_path));
+    if let Some(fused) = &converted.fused {
+        let solid = converted.solid_mesh.triangulate().0;
+        let (seen_by, views) = crate::pipeline::reconstruct::fused_seen_by(&solid, fused);
+        let path = b.part.join(format!("{}.coverage.png", b.stem));
+        let up = crate::pipeline::pictures::Up::Z;
+        let pic = crate::pipeline::pictures::write_coverage_picture(&path, &solid, &seen_by, views, up)?;
+        extras.digests.insert(path.clone(), pic.digest());
+        extras.files.push(("coverage", path));
+    }
     if let Some(spec) = &b.scan.fea {
         for (kind, path, digest) in fea(b, converted, spec, progress)? {
             extras.digests.insert(path.clone(), digest);
@@ -193,11 +202,12 @@ fn fea(
         }
     }
     let solid = (report.output_file.as_path(), report.solid_mesh_file.as_path(), &converted.solid_mesh);
-    let fea = crate::pipeline::fea::fea_solid(solid, spec, &out, &opts, &P(progress))?;
+    let fea = crate::pipeline::fea::fea_solid(solid, spec, &out, &opts, Some(crate::pipeline::pictures::Up::Z), &P(progress))?;
     let mut files = Vec::new();
     for (kind, from, to) in [
         ("fea-result", "result.json", format!("{}.fea.json", b.stem)),
         ("fea-surface", "surface.vtu", format!("{}.fea.vtu", b.stem)),
+        ("stress", "stress.png", format!("{}.stress.png", b.stem)),
     ] {
         let (from, to) = (out.join(from), b.part.join(to));
         std::fs::rename(&from, &to).map_err(|e| io_err("cannot move", &from, e))?;

@@ -230,6 +230,8 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
         },
         // A scan's views stay in memory for its coverage.
         keep_views: rec.scan.is_some(),
+        // A scan's solid stands on the turntable: z of the table frame is up.
+        pictures: Some(if rec.scan.is_some() { crate::pipeline::pictures::Up::Z } else { cfg.pictures_up }),
         ..Default::default()
     };
     let read = ReadOptions { memory_budget: cfg.memory_budget, max_input_size: cfg.max_input_size };
@@ -283,6 +285,14 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
         ("report", report_path),
     ];
     files.extend(extra.files.iter().cloned());
+    for p in &report.pictures {
+        written.insert(p.file.clone(), p.digest());
+        files.push((p.kind, p.file.clone()));
+    }
+    // The page last before the manifest: it lists every other file of the bundle with its hash.
+    let (page, page_digest) = crate::pipeline::report_html::write_report_html(&part)?;
+    written.insert(page.clone(), page_digest);
+    files.push((super::dbus::REPORT_HTML, page));
     let mut manifest_files = serde_json::Map::new();
     for (kind, p) in &files {
         let f = std::fs::File::open(p).map_err(|e| io_err("cannot reopen", p, e))?;
@@ -419,11 +429,29 @@ pub fn quarantine_record(
     let ej = part.join("error.json");
     write_durable(&ej, serde_json::to_string_pretty(&error_json(rec, digest, stage, e)).unwrap_or_default().as_bytes())
         .map_err(|x| io_err("cannot write", &ej, x))?;
+    // The page that says why, with the pictures of a solid that missed a gate. An input is never held back
+    // for want of its page: a failure is logged and the quarantine goes on.
+    let page = match crate::pipeline::report_html::write_report_html(&part) {
+        Ok((p, _)) => p.file_name().map(|n| public.join(n)),
+        Err(x) => {
+            tracing::warn!(job_id = %rec.id, error = %x, "the quarantine's report page was not written");
+            None
+        }
+    };
+    let thumbnail = std::fs::read_dir(&part).ok().and_then(|rd| {
+        rd.flatten().map(|f| f.file_name()).find(|n| n.to_string_lossy().ends_with(".thumbnail.png"))
+    });
     sync_dir(&part).map_err(|x| io_err("cannot fsync", &part, x))?;
     std::fs::rename(&part, &public).map_err(|x| io_err("cannot publish", &public, x))?;
     sync_dir(&spool.quarantine).map_err(|x| io_err("cannot fsync", &spool.quarantine, x))?;
     let mut o = BTreeMap::new();
     o.insert("quarantine".to_string(), public.display().to_string());
     o.insert("error".to_string(), public.join("error.json").display().to_string());
+    if let Some(p) = page {
+        o.insert(super::dbus::REPORT_HTML.to_string(), p.display().to_string());
+    }
+    if let Some(t) = thumbnail {
+        o.insert(super::dbus::THUMBNAIL.to_string(), public.join(t).display().to_string());
+    }
     Ok(o)
 }

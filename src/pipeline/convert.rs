@@ -16,7 +16,7 @@ use crate::geometry::io::{FileDigest, ReadOptions, ensure_not_input};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
-use crate::stages::quality::{CompareOptions, DistanceReport, compare, write_error_map};
+use crate::stages::quality::{CompareOptions, DistanceReport, ErrorMapFile, compare, write_error_map};
 use crate::stages::reconstruct::{ReconstructOptions, ReconstructReport};
 use crate::stages::remesh::{RemeshOptions, RemeshReport, remesh};
 use crate::stages::repair::{RepairOptions, RepairReport, repair};
@@ -109,6 +109,9 @@ pub struct ConvertOptions {
     /// Hand a scan set's views back with the solid ([`Converted::fused`]) instead of dropping them once
     /// fused, for what the caller measures on them (their coverage of the solid) without reading them again.
     pub keep_views: bool,
+    /// Also draw the job's pictures beside the STEP file, the object's up axis as given
+    /// ([`super::pictures`]); listed in [`ConvertReport::pictures`].
+    pub pictures: Option<super::pictures::Up>,
 }
 
 /// Handle loops shorter than this many quad spacings √(area / n) are topological noise to `convert`: the
@@ -139,6 +142,7 @@ impl Default for ConvertOptions {
             seed: 0,
             unit: LengthUnit::Millimetre,
             quads_output: None,
+            pictures: None,
             remove_small_handles: true,
             memory_budget: 8 << 30,
             gates: GateOptions::default(),
@@ -235,6 +239,9 @@ pub struct ConvertReport {
     pub gates: Vec<Gate>,
     /// Wall seconds of the whole conversion.
     pub total_seconds: f64,
+    /// The pictures drawn, when [`ConvertOptions::pictures`] asked for them.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub pictures: Vec<super::pictures::Picture>,
 }
 
 impl ConvertReport {
@@ -296,19 +303,19 @@ fn solid_self_intersections(solid: &Solid) -> Result<(usize, Option<[f64; 3]>)> 
 /// spans sampled 8 × 8 at most, welded along the exactly shared edges) beside the STEP file as NAME.solid.ply,
 /// its header naming the STEP's sha256 (see [`super::fea`]). Removes the STEP file again when this fails, so
 /// the pair is written or neither.
-fn write_solid_mesh(step: &Path, step_sha256: &str, tessellation: TriMesh) -> Result<(PathBuf, PolyMesh, FileDigest)> {
+fn write_solid_mesh(step: &Path, step_sha256: &str, tessellation: TriMesh) -> Result<(PathBuf, PolyMesh, FileDigest, Vec<u32>)> {
     let result = (|| {
         let t = tessellation;
         let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
         let tol = crate::geometry::tolerance::BREP_EDGE_REL * t.bbox().diagonal();
-        let (pts, tris, _) = crate::stages::repair::weld::weld(&p, &t.triangles, tol);
+        let (pts, tris, _, kept) = crate::stages::repair::weld::weld_kept(&p, &t.triangles, tol);
         let positions = pts.iter().map(|q| q.map(|x| x as f32)).collect();
         let mesh = TriMesh::new(positions, tris)?;
         let path = super::provenance::solid_artifact_path(step);
         let comment = format!("{}{step_sha256}", super::provenance::SOLID_OF);
         let mesh = PolyMesh::from(mesh);
         let digest = crate::geometry::io::write_ply(&path, &mesh, &Default::default(), &[&comment])?;
-        Ok((path, mesh, digest))
+        Ok((path, mesh, digest, kept))
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(step);
@@ -316,11 +323,12 @@ fn write_solid_mesh(step: &Path, step_sha256: &str, tessellation: TriMesh) -> Re
     result
 }
 
-/// Tessellation density for the solid's quality check: about `budget` triangles in all.
-fn tessellate_for_check(solid: &Solid, budget: usize) -> Result<TriMesh> {
+/// Tessellation density for the solid's quality check: about `budget` triangles in all; with the face of
+/// every triangle.
+fn tessellate_for_check(solid: &Solid, budget: usize) -> Result<(TriMesh, Vec<u32>)> {
     let spans: usize = solid.faces.iter().map(|f| (f.surface.nu - 3) * (f.surface.nv - 3)).sum::<usize>().max(1);
     let per = ((budget as f64 / (2.0 * spans as f64)).sqrt().floor() as usize).clamp(2, 8);
-    solid.tessellate(per)
+    solid.tessellate_labelled(per)
 }
 
 /// A progress sink that passes on the largest fraction reported so far (with each new phase).
@@ -364,6 +372,8 @@ struct SolidTry {
     /// The solid's tessellation for the quality check (about 1.5M triangles), also the solid mesh written
     /// beside the STEP file.
     tessellation: TriMesh,
+    /// The B-rep face of each of its triangles.
+    tessellation_faces: Vec<u32>,
 }
 
 /// What every chain of a conversion works from: the input as read, its repaired form, and the settings.
@@ -529,7 +539,9 @@ pub fn convert_held(
     let name = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
     // Its digest is taken while writing: nothing reads it back to hash it.
     let step = write_step(output, &kept.solid, &StepOptions { name, unit: opts.unit, pcurves: true })?;
-    let (solid_mesh_file, solid_mesh, solid_digest) = write_solid_mesh(output, &step.sha256, kept.tessellation)?;
+    let (solid_mesh_file, solid_mesh, solid_digest, kept_triangles) =
+        write_solid_mesh(output, &step.sha256, kept.tessellation)?;
+    let face_of: Vec<u32> = kept_triangles.iter().map(|&t| kept.tessellation_faces[t as usize]).collect();
     // The crossings gate: the coarse check that chose the chain, and the fine tessellation written.
     let kept_crossings = kept.brep.self_intersections.max(mesh_self_intersections(&solid_mesh));
     if let Some(q) = &opts.quads_output {
@@ -543,7 +555,7 @@ pub fn convert_held(
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
     let cloud_scatter_pct = reconstruct_step.as_ref().map(|r| r.distance.reference_to_test.rms.pct_of_diagonal);
-    let (open_input, error_map_file, (error_map_scale, map_digest)) =
+    let (open_input, error_map_file, map, invented) =
         measure_and_map(output, &solid_mesh, &chain.input_geom, kept_input_to_solid_rms, &repair_report, diag)?;
     stages.push(clock.stop("quality", None));
     progress.report(1.0, "quality/done");
@@ -565,12 +577,26 @@ pub fn convert_held(
         tolerance_pct,
     };
     let (status, gates) = judge_logged(&measured, &opts.gates);
+
+    // 8. The pictures, when asked for.
+    let pictures = match opts.pictures {
+        Some(up) => {
+            let clock = Clock::start();
+            let bound_pct = tolerance_pct.unwrap_or(opts.gates.max_rms_pct);
+            let held = (&solid_mesh, &face_of[..], &kept.quads);
+            let measured = (&chain.repaired, &map, invented.as_deref());
+            let drawn = draw_pictures(output, up, held, measured, (&attempts, opts.unit, diag, bound_pct))?;
+            stages.push(clock.stop("pictures", None));
+            drawn
+        }
+        None => Vec::new(),
+    };
     let report = ConvertReport {
         input_file: input.to_path_buf(),
         output_file: output.to_path_buf(),
         solid_mesh_file,
         error_map_file,
-        error_map_scale,
+        error_map_scale: map.scale,
         unit: opts.unit,
         input_vertices,
         input_faces,
@@ -588,8 +614,9 @@ pub fn convert_held(
         status,
         gates,
         total_seconds: t_total.elapsed().as_secs_f64(),
+        pictures,
     };
-    let digests = Digests { step, solid_mesh: solid_digest, error_map: map_digest };
+    let digests = Digests { step, solid_mesh: solid_digest, error_map: map.digest };
     Ok(Converted { report, solid_mesh, fused, digests })
 }
 
@@ -624,7 +651,7 @@ fn judge_logged(m: &Measured, opts: &GateOptions) -> (Status, Vec<super::gates::
 
 /// Step 6 of [`convert_file`]: an open input's measure of `solid_mesh` (see [`OpenInputMeasure`]), then the
 /// error map beside `output` (the solid mesh coloured by its distance to `input`, the invented region grey).
-/// Returns the measure, the error map's path, and its colour-scale top and digest.
+/// Returns the measure, the error map's path, what it wrote, and the invented vertices (an open input's).
 fn measure_and_map(
     output: &Path,
     solid_mesh: &PolyMesh,
@@ -632,11 +659,38 @@ fn measure_and_map(
     input_to_solid_rms: f64,
     repair_report: &RepairReport,
     diag: f64,
-) -> Result<(Option<OpenInputMeasure>, PathBuf, (f64, FileDigest))> {
+) -> Result<(Option<OpenInputMeasure>, PathBuf, ErrorMapFile, Option<Vec<bool>>)> {
     let (open_input, invented) = open_input_measure(solid_mesh, input, input_to_solid_rms, repair_report, diag);
     let error_map_file = super::provenance::error_map_path(output);
-    let scale = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh.clone()), input, invented.as_deref())?;
-    Ok((open_input, error_map_file, scale))
+    let map = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh.clone()), input, invented.as_deref())?;
+    Ok((open_input, error_map_file, map, invented))
+}
+
+/// Step 8 of [`convert_held`]: the job's pictures beside `output` ([`super::pictures`]). The deviation is
+/// signed against the repaired (closed) input: each vertex's distance to the input (`map.distances`), with
+/// the side of the repaired surface it lies on; the tolerance band is the RMS gate's bound.
+fn draw_pictures(
+    output: &Path,
+    up: super::pictures::Up,
+    (solid, face_of, net): (&PolyMesh, &[u32], &PolyMesh),
+    (repaired, map, invented): (&TriMesh, &ErrorMapFile, Option<&[bool]>),
+    (attempts, unit, diag, bound_pct): (&[Attempt], LengthUnit, f64, f64),
+) -> Result<Vec<super::pictures::Picture>> {
+    use super::pictures::{AttemptPoint, ConvertPictures, Deviation, write_convert_pictures};
+    let (solid, _) = solid.triangulate();
+    let side = crate::stages::quality::signed_vertex_distances(&solid, repaired);
+    let signed: Vec<f64> = map.distances.iter().zip(&side).map(|(&d, &s)| if s < 0.0 { -d } else { d }).collect();
+    let attempts = attempts
+        .iter()
+        .map(|a| AttemptPoint {
+            target_vertices: a.target_vertices,
+            rms_pct: a.solid_rms_pct,
+            rejected: a.solid_self_intersections > 0 || a.solid_folded_faces > 0,
+        })
+        .collect();
+    let deviation = Deviation { signed: &signed, invented, band: bound_pct / 100.0 * diag, diag, unit: unit.symbol() };
+    let p = ConvertPictures { solid: &solid, face_of, deviation, net, attempts, rms_bound_pct: bound_pct };
+    write_convert_pictures(output, &p, up)
 }
 
 /// Step 2b of [`convert_file`]: reconstruct a cloud input, measured against its points (its stage report
@@ -806,7 +860,7 @@ impl Chain<'_> {
         let (solid, mut brep_report) = build_solid(&surface, &p1)?;
         brep_report.quad_self_intersections = quad_crossings;
         (brep_report.self_intersections, brep_report.self_intersection_at) = solid_self_intersections(&solid)?;
-        let tessellation = tessellate_for_check(&solid, 1_500_000)?;
+        let (tessellation, tessellation_faces) = tessellate_for_check(&solid, 1_500_000)?;
         let d =
             compare(&Geometry::Mesh(PolyMesh::from(tessellation.clone())), &self.input_geom, &self.cmp_opts, &span)?;
         let (rms, input_to_solid_rms) = (d.symmetric.rms.value, d.reference_to_test.rms.value);
@@ -822,6 +876,7 @@ impl Chain<'_> {
             rms,
             input_to_solid_rms,
             tessellation,
+            tessellation_faces,
         })
     }
 

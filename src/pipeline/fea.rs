@@ -39,6 +39,9 @@ pub struct FeaFileReport {
     #[serde(flatten)]
     /// The solve's report (flattened into this one).
     pub result: FeaReport,
+    /// The stress picture (`stress.png`), when asked for.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub pictures: Vec<super::pictures::Picture>,
     /// Each output's size and SHA-256, taken while writing it (not serialised).
     #[serde(skip)]
     pub digests: Vec<(PathBuf, crate::geometry::io::FileDigest)>,
@@ -80,7 +83,8 @@ fn solid_mesh_for(input: &Path) -> Result<PathBuf> {
 }
 
 /// Solve `spec_file` on the solid `input` and write `result.json` and `surface.vtu` into `output_dir`
-/// (each file atomically, the JSON last; nothing is written when the solve fails).
+/// (each file atomically, the JSON last; nothing is written when the solve fails), and `stress.png` when
+/// `pictures` gives the object's up axis ([`super::pictures`]).
 ///
 /// # Errors
 /// Reader errors; `fea.*` (see [`fea::solve`]); `resource.output`.
@@ -90,6 +94,7 @@ pub fn fea_file(
     output_dir: &Path,
     read: &ReadOptions,
     options: &FeaOptions,
+    pictures: Option<super::pictures::Up>,
     progress: &dyn Progress,
 ) -> Result<FeaFileReport> {
     let meter = StageMeter::start();
@@ -97,7 +102,7 @@ pub fn fea_file(
     let mesh_file = solid_mesh_for(input)?;
     let outs = outputs_of(output_dir, &[input, spec_file, &mesh_file])?;
     let mesh = read_mesh(&mesh_file, read)?;
-    solve_and_write(meter, spec, (input, &mesh_file, &mesh), spec_file, outs, options, progress)
+    solve_and_write(meter, spec, (input, &mesh_file, &mesh), spec_file, outs, (options, pictures), progress)
 }
 
 /// `surface.vtu` and `result.json` in `output_dir`, each checked to be neither one of `inputs` nor a file
@@ -121,12 +126,13 @@ pub fn fea_solid(
     spec_file: &Path,
     output_dir: &Path,
     options: &FeaOptions,
+    pictures: Option<super::pictures::Up>,
     progress: &dyn Progress,
 ) -> Result<FeaFileReport> {
     let meter = StageMeter::start();
     let spec = FeaSpec::read(spec_file)?;
     let outs = outputs_of(output_dir, &[input, spec_file, mesh_file])?;
-    solve_and_write(meter, spec, (input, mesh_file, mesh), spec_file, outs, options, progress)
+    solve_and_write(meter, spec, (input, mesh_file, mesh), spec_file, outs, (options, pictures), progress)
 }
 
 /// Solve `spec` on `mesh` and write `vtu`, then `json` (the report).
@@ -136,12 +142,16 @@ fn solve_and_write(
     (input, mesh_file, mesh): (&Path, &Path, &PolyMesh),
     spec_file: &Path,
     [output_dir, vtu, json]: [PathBuf; 3],
-    options: &FeaOptions,
+    (options, pictures): (&FeaOptions, Option<super::pictures::Up>),
     progress: &dyn Progress,
 ) -> Result<FeaFileReport> {
     let (tri, _) = mesh.triangulate();
     let solution = fea::solve(&tri, &spec, options, progress).map_err(|e| e.in_file(input))?;
     let vtu_digest = write_atomic(&vtu, |w| fea::vtu::write_vtu(w, &solution.surface, &solution.fields))?;
+    let pictures = match pictures {
+        Some(up) => vec![stress_picture(&output_dir.join("stress.png"), &spec, &solution, up)?],
+        None => Vec::new(),
+    };
     let (seconds, peak_rss_mib) = meter.finish();
     let mut report = FeaFileReport {
         input_file: input.to_path_buf(),
@@ -149,16 +159,34 @@ fn solve_and_write(
         spec_file: spec_file.to_path_buf(),
         spec,
         output_dir,
-        outputs: vec![vtu.clone(), json.clone()],
+        outputs: [vtu.clone(), json.clone()].into_iter().chain(pictures.iter().map(|p| p.file.clone())).collect(),
         peak_rss_mib,
         seconds,
         result: solution.report,
         digests: Vec::new(),
+        pictures,
     };
     let json_digest = write_atomic(&json, |w| {
         serde_json::to_writer_pretty(&mut *w, &report).map_err(std::io::Error::other)?;
         w.write_all(b"\n")
     })?;
     report.digests = vec![(vtu.clone(), vtu_digest), (json, json_digest)];
+    report.digests.extend(report.pictures.iter().map(|p| (p.file.clone(), p.digest())));
     Ok(report)
+}
+
+/// Write the stress picture of a solution at `path`: von Mises on its surface, the vertices its supports
+/// and loads select marked.
+///
+/// # Errors
+/// `resource.output` when the file cannot be written.
+pub fn stress_picture(path: &Path, spec: &FeaSpec, solution: &fea::FeaSolution, up: super::pictures::Up) -> Result<super::pictures::Picture> {
+    let s = &solution.surface;
+    let within = |regions: Vec<fea::spec::Region>| -> Vec<bool> {
+        s.positions.iter().map(|p| regions.iter().any(|r| r.contains(p.map(f64::from)))).collect()
+    };
+    let supported = within(spec.supports.iter().map(|x| x.region()).collect());
+    let loaded = within(spec.loads.iter().map(|x| x.region()).collect());
+    let stress = super::pictures::Stress { von_mises: &solution.fields.von_mises, supported: &supported, loaded: &loaded };
+    super::pictures::write_stress_picture(path, s, &stress, up)
 }

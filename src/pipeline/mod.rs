@@ -12,8 +12,11 @@ pub mod fea;
 pub mod gates;
 pub mod memory;
 pub mod open_input;
+pub mod pictures;
 pub mod provenance;
+pub mod report_html;
 pub mod reconstruct;
+pub mod render;
 
 /// What the daemon needs of the stages, through the pipeline: the progress sink every long step reports to,
 /// its cancellation check, and the FEA's settings.
@@ -189,7 +192,7 @@ pub fn compare_files(
     let read_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let distance = compare(&a, &b, opts, progress)?;
-    let scale = error_map.map(|out| write_error_map(out, &a, &b, None).map(|(top, _)| top)).transpose()?;
+    let scale = error_map.map(|out| write_error_map(out, &a, &b, None).map(|m| m.scale)).transpose()?;
     Ok(CompareReport {
         test: InputSummary::of(test, &a),
         reference: InputSummary::of(reference, &b),

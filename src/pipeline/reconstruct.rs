@@ -192,9 +192,33 @@ pub fn view_coverage<'a>(
     placed_views: impl IntoIterator<Item = (&'a crate::geometry::io::scanset::View, &'a crate::geometry::pose::Pose)>,
 ) -> ViewCoverage {
     use crate::geometry::points::PointIndex;
-    use crate::geometry::vec3::{add, scale, wide};
+    use crate::geometry::vec3::{add, scale};
+    let (placed, spacing) = placed_and_spacing(placed_views);
+    let all: Vec<[f32; 3]> = placed.concat();
+    let radius = COVERAGE_SPACINGS * spacing;
+    let index = PointIndex::new(&all, 4.0);
+    let (mut seen, mut total) = (0.0, 0.0);
+    for t in 0..surface.triangles.len() {
+        let a = surface.triangle_area(t);
+        let [p, q, r] = surface.corners(t);
+        let c = scale(add(add(p, q), r), 1.0 / 3.0);
+        total += a;
+        if !all.is_empty() && index.nearest_within(c, radius).is_some() {
+            seen += a;
+        }
+    }
+    ViewCoverage { share: if total > 0.0 { seen / total } else { 0.0 }, radius, spacing, points: all.len() }
+}
+
+/// Each view with at least two points, placed by its pose, and the views' median point spacing (each
+/// view's median distance to its nearest neighbour, over every 500th point at most; their median).
+fn placed_and_spacing<'a>(
+    placed_views: impl IntoIterator<Item = (&'a crate::geometry::io::scanset::View, &'a crate::geometry::pose::Pose)>,
+) -> (Vec<Vec<[f32; 3]>>, f64) {
+    use crate::geometry::points::PointIndex;
+    use crate::geometry::vec3::wide;
     let mut spacings = Vec::new();
-    let mut all: Vec<[f32; 3]> = Vec::new();
+    let mut placed = Vec::new();
     let mut out = Vec::new();
     for (v, pose) in placed_views {
         if v.points.len() < 2 {
@@ -215,21 +239,28 @@ pub fn view_coverage<'a>(
         if let Some(&m) = d.get(d.len() / 2) {
             spacings.push(m);
         }
-        all.extend(crate::geometry::io::scanset::placed(&v.points, pose));
+        placed.push(crate::geometry::io::scanset::placed(&v.points, pose));
     }
     spacings.sort_by(f64::total_cmp);
-    let spacing = spacings.get(spacings.len() / 2).copied().unwrap_or(0.0);
+    (placed, spacings.get(spacings.len() / 2).copied().unwrap_or(0.0))
+}
+
+/// How many of a converted scan's kept views saw each vertex of `solid` (a view's point within
+/// [`COVERAGE_SPACINGS`] point spacings of it), and how many views were kept: the coverage picture's data.
+/// Cost: O(N) to index each view's points, O(V) lookups per view (in parallel over the vertices).
+pub fn fused_seen_by(solid: &TriMesh, fused: &Fused) -> (Vec<u16>, u16) {
+    use crate::geometry::points::PointIndex;
+    use crate::geometry::vec3::wide;
+    use rayon::prelude::*;
+    let f = &fused.report;
+    let kept = fused.views.iter().zip(&f.poses).filter(|(v, _)| !f.rejected.contains(&v.name));
+    let (placed, spacing) = placed_and_spacing(kept);
     let radius = COVERAGE_SPACINGS * spacing;
-    let index = PointIndex::new(&all, 4.0);
-    let (mut seen, mut total) = (0.0, 0.0);
-    for t in 0..surface.triangles.len() {
-        let a = surface.triangle_area(t);
-        let [p, q, r] = surface.corners(t);
-        let c = scale(add(add(p, q), r), 1.0 / 3.0);
-        total += a;
-        if !all.is_empty() && index.nearest_within(c, radius).is_some() {
-            seen += a;
-        }
-    }
-    ViewCoverage { share: if total > 0.0 { seen / total } else { 0.0 }, radius, spacing, points: all.len() }
+    let indices: Vec<PointIndex> = placed.iter().map(|p| PointIndex::new(p, 4.0)).collect();
+    let counts = solid
+        .positions
+        .par_iter()
+        .map(|&p| indices.iter().filter(|ix| ix.nearest_within(wide(p), radius).is_some()).count() as u16)
+        .collect();
+    (counts, placed.len() as u16)
 }

@@ -6,6 +6,7 @@ use clap::Args;
 
 use crate::ranges;
 use scanstation::geometry::io::ReadOptions;
+use scanstation::pipeline::pictures::Up;
 use scanstation::pipeline::{self, ConvertOptions, ConvertReport, GateOptions, RemeshFileReport, Resolution};
 use scanstation::stages::brep::step::LengthUnit;
 use scanstation::stages::quality::CompareOptions;
@@ -200,6 +201,13 @@ pub struct ConvertArgs {
     /// without it such a solid exits 4 with the gate's `quality.*` code.
     #[arg(long)]
     pub accept_degraded: bool,
+    /// Also draw the job's pictures beside the STEP file (NAME.deviation.png, .net, .faces, .histogram,
+    /// .convergence, .thumbnail) and the self-contained page NAME.report.html.
+    #[arg(long)]
+    pub pictures: bool,
+    /// The object's up axis in the pictures: x, y or z.
+    #[arg(long, default_value = "y", value_parser = ranges::up_axis)]
+    pub up: Up,
 }
 
 /// Arguments of `scanstation fea`.
@@ -213,6 +221,72 @@ pub struct FeaArgs {
     /// The result directory.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Also draw the von Mises stress on the solid (stress.png in the result directory).
+    #[arg(long)]
+    pub pictures: bool,
+    /// The object's up axis in the picture: x, y or z.
+    #[arg(long, default_value = "y", value_parser = ranges::up_axis)]
+    pub up: Up,
+}
+
+/// Arguments of `scanstation render`.
+#[derive(Args)]
+pub struct RenderArgs {
+    /// The mesh to draw (PLY, OBJ, STL, OFF; a quad net for `net`).
+    pub mesh: PathBuf,
+    /// What the colours show: deviation (from --ref), net (the mesh's polygons), faces (each polygon its
+    /// own colour), stress (the FEA under --spec) or coverage (by the views of the scan set --ref).
+    #[arg(long, value_parser = ["deviation", "net", "faces", "stress", "coverage"])]
+    pub color_by: String,
+    /// The scan (deviation) or scan set (coverage).
+    #[arg(long = "ref", value_name = "SCAN")]
+    pub reference: Option<PathBuf>,
+    /// The FEA spec (stress).
+    #[arg(long)]
+    pub spec: Option<PathBuf>,
+    /// The PNG to write (1024 x 768: front, side, top and isometric views and a legend).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// The object's up axis: x, y or z.
+    #[arg(long, default_value = "y", value_parser = ranges::up_axis)]
+    pub up: Up,
+    /// Deviation: half width of the neutral grey band, % of the scan's diagonal (1e-6 to 100).
+    #[arg(long, value_name = "PCT", default_value_t = pipeline::gates::DEFAULT_MAX_RMS_PCT, value_parser = ranges::gate_pct)]
+    pub band: f64,
+    /// Deviation: the unit of the coordinates, for the legend: mm, cm or m.
+    #[arg(long, default_value = "mm")]
+    pub unit: String,
+}
+
+impl RenderArgs {
+    /// The render's settings.
+    ///
+    /// # Errors
+    /// `input.bad-argument` for an unknown unit.
+    pub fn options(&self, memory_budget: u64) -> Result<pipeline::render::RenderOptions, Error> {
+        let unit = LengthUnit::parse(&self.unit).ok_or_else(|| {
+            Error::new(ErrorCode::InputBadArgument, format!("unknown unit {:?}: use mm, cm or m", self.unit))
+        })?;
+        let color_by = pipeline::render::ColorBy::parse(&self.color_by)
+            .ok_or_else(|| Error::new(ErrorCode::InputBadArgument, format!("unknown colouring {:?}", self.color_by)))?;
+        Ok(pipeline::render::RenderOptions {
+            color_by,
+            reference: self.reference.clone(),
+            spec: self.spec.clone(),
+            up: self.up,
+            band_pct: self.band,
+            unit: unit.symbol(),
+            memory_budget,
+        })
+    }
+}
+
+/// Arguments of `scanstation report`.
+#[derive(Args)]
+pub struct ReportArgs {
+    /// A job's bundle: its outbox or quarantine directory (or a `convert --pictures` output directory
+    /// holding NAME.report.json).
+    pub bundle: PathBuf,
 }
 
 #[cfg(feature = "daemon")]
@@ -436,6 +510,7 @@ impl ConvertArgs {
             quads_output: self.quads.clone(),
             remove_small_handles: !self.keep_small_handles,
             memory_budget,
+            pictures: self.pictures.then_some(self.up),
             remesh: RemeshOptions { try_direct: !self.split_only, ..RemeshOptions::convert_default() },
             gates: GateOptions {
                 max_rms_pct: self.max_rms,
@@ -467,6 +542,9 @@ impl ConvertArgs {
         )?;
         if let Some(path) = &self.report {
             write_report(path, &r)?;
+        }
+        if self.pictures {
+            pipeline::report_html::write_convert_page(&r)?;
         }
         Ok(r)
     }

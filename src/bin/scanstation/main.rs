@@ -75,6 +75,11 @@ enum Command {
     /// Immersed (meshless) linear statics on a solid: a closed mesh, or a STEP file `convert` wrote (through
     /// the NAME.solid.ply it writes beside it). Writes result.json and surface.vtu into OUTPUT.
     Fea(FeaArgs),
+    /// One picture of a mesh (PNG, 1024 x 768, four views and a legend): its deviation from a scan, its quad
+    /// net, its faces, its FEA stress, or a scan set's coverage of it.
+    Render(RenderArgs),
+    /// Make a job bundle's self-contained HTML page (NAME.report.html) again from the bundle's files.
+    Report(ReportArgs),
     /// The station daemon's state (D-Bus client of scanstationd).
     #[cfg(feature = "daemon")]
     Status(StatusArgs),
@@ -153,8 +158,19 @@ fn main() -> ExitCode {
         },
         Command::Fea(a) => {
             let opts = scanstation::stages::fea::FeaOptions { memory_budget: budget };
-            pipeline::fea::fea_file(&a.input, &a.spec, &a.output, &read, &opts, &LogProgress::new("fea"))
+            let pictures = a.pictures.then_some(a.up);
+            pipeline::fea::fea_file(&a.input, &a.spec, &a.output, &read, &opts, pictures, &LogProgress::new("fea"))
                 .map(|r| emit(json, &r, print::print_fea))
+        }
+        Command::Render(a) => a
+            .options(budget)
+            .and_then(|o| pipeline::render::render_file(&a.mesh, &a.output, &read, &o))
+            .map(|r| emit(json, &r, print::print_picture)),
+        Command::Report(a) => {
+            pipeline::report_html::write_report_html(&a.bundle).map(|(path, d)| {
+                let r = print::PageWritten { file: path, bytes: d.bytes, sha256: d.sha256 };
+                emit(json, &r, print::print_page)
+            })
         }
         Command::Compare(a) => pipeline::compare_files(
             &a.test,

@@ -22,6 +22,25 @@ pub fn emit<T: serde::Serialize>(json: bool, report: &T, text: fn(&T)) {
     if json { print_json(report) } else { text(report) }
 }
 
+pub fn print_picture(p: &pipeline::pictures::Picture) {
+    outln!("{} picture written to {} ({} bytes)", p.kind, p.file.display(), p.bytes);
+}
+
+/// What `scanstation report` wrote.
+#[derive(serde::Serialize)]
+pub struct PageWritten {
+    /// The page.
+    pub file: std::path::PathBuf,
+    /// Its size.
+    pub bytes: u64,
+    /// Its SHA-256.
+    pub sha256: String,
+}
+
+pub fn print_page(p: &PageWritten) {
+    outln!("report page written to {} ({} bytes)", p.file.display(), p.bytes);
+}
+
 pub fn print_fea(r: &pipeline::fea::FeaFileReport) {
     let f = &r.result;
     outln!(

@@ -92,3 +92,8 @@ mod tests {
         assert!(within("abc", 0u64, 1).is_err());
     }
 }
+
+/// An up axis: x, y or z.
+pub fn up_axis(s: &str) -> Result<scanstation::pipeline::pictures::Up, String> {
+    scanstation::pipeline::pictures::Up::parse(s).ok_or_else(|| format!("{s:?} is not an axis: use x, y or z"))
+}

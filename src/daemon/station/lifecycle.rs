@@ -195,6 +195,8 @@ impl Station {
             let _ = g.result_changed(em).await;
             let _ = g.error_code_changed(em).await;
             let _ = g.outputs_changed(em).await;
+            let _ = g.report_file_changed(em).await;
+            let _ = g.thumbnail_changed(em).await;
         }
         self.announce(id).await;
     }

@@ -9,6 +9,7 @@ pub mod e57;
 mod obj;
 mod off;
 mod ply;
+mod png;
 pub mod scanset;
 mod stl;
 mod text;
@@ -20,6 +21,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
+pub use png::{encode_png, write_png};
 pub use write::{
     HashingFile, VertexAttributes, ensure_not_input, ensure_replaceable, write_atomic, write_obj, write_ply,
     write_ply_cloud,

@@ -216,10 +216,16 @@ impl Solid {
     /// parameter (one refined face), with vertices shared along edges inside a face (faces are separate
     /// sheets, whose shared boundaries are sampled at the same points). For distance checks.
     pub fn tessellate(&self, per_span: usize) -> Result<TriMesh> {
+        Ok(self.tessellate_labelled(per_span)?.0)
+    }
+
+    /// [`Solid::tessellate`], with the face (index into `faces`) of every triangle.
+    pub fn tessellate_labelled(&self, per_span: usize) -> Result<(TriMesh, Vec<u32>)> {
         let n = per_span.max(1);
         let mut pos: Vec<[f32; 3]> = Vec::new();
         let mut tris: Vec<[u32; 3]> = Vec::new();
-        for face in &self.faces {
+        let mut labels: Vec<u32> = Vec::new();
+        for (id, face) in self.faces.iter().enumerate() {
             let s = &face.surface;
             let (ku, _) = bspline::knot_multiplicities(&s.knots_u);
             let (kv, _) = bspline::knot_multiplicities(&s.knots_v);
@@ -240,8 +246,9 @@ impl Solid {
                     tris.push([a, a + cols + 1, a + cols]);
                 }
             }
+            labels.resize(tris.len(), id as u32);
         }
-        TriMesh::new(pos, tris)
+        Ok((TriMesh::new(pos, tris)?, labels))
     }
 }
 

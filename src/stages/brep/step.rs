@@ -38,6 +38,15 @@ impl LengthUnit {
         }
     }
 
+    /// The unit's symbol: `mm`, `cm` or `m`.
+    pub fn symbol(self) -> &'static str {
+        match self {
+            LengthUnit::Millimetre => "mm",
+            LengthUnit::Centimetre => "cm",
+            LengthUnit::Metre => "m",
+        }
+    }
+
     fn si(self) -> &'static str {
         match self {
             LengthUnit::Millimetre => "SI_UNIT(.MILLI.,.METRE.)",

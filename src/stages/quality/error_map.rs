@@ -24,10 +24,21 @@ pub fn color_ramp(t: f64) -> [u8; 3] {
 /// Colour of invented surface (caps and fills that no scan saw) on an error map: neutral grey.
 pub const INVENTED_GREY: [u8; 3] = [160, 160, 160];
 
+/// What [`write_error_map`] wrote.
+#[derive(Clone, Debug)]
+pub struct ErrorMapFile {
+    /// The colour scale's top (red), input units.
+    pub scale: f64,
+    /// The file's size and SHA-256.
+    pub digest: FileDigest,
+    /// Each vertex's distance to the reference, input units.
+    pub distances: Vec<f64>,
+}
+
 /// Write `test` as a binary PLY with per-vertex `distance` (to `reference`, in input units) and a colour
 /// ramp from 0 (blue) to the 99th percentile of the vertex distances (red; larger values clamp to red).
 /// Vertices marked in `invented` (surface no scan saw) are neutral grey (`INVENTED_GREY`) instead, and left out of the
-/// percentile; the file's comment says so. Returns the colour-scale top and the file's digest.
+/// percentile; the file's comment says so. Returns the colour-scale top, the file's digest and the distances.
 ///
 /// # Errors
 /// As [`vertex_distances`]; `resource.output` when the file cannot be written.
@@ -36,7 +47,7 @@ pub fn write_error_map(
     test: &Geometry,
     reference: &Geometry,
     invented: Option<&[bool]>,
-) -> Result<(f64, FileDigest)> {
+) -> Result<ErrorMapFile> {
     let d = vertex_distances(test, reference)?;
     let is_invented = |i: usize| invented.is_some_and(|m| m.get(i).copied().unwrap_or(false));
     let mut tmp: Vec<f64> = (0..d.len()).filter(|&i| !is_invented(i)).map(|i| d[i]).collect();
@@ -61,5 +72,5 @@ pub fn write_error_map(
             write_ply_cloud(path, &bare, &attrs, &[&comment])?
         }
     };
-    Ok((top, digest))
+    Ok(ErrorMapFile { scale: top, digest, distances: d })
 }

@@ -22,6 +22,13 @@ pub struct WeldReport {
 /// Merge vertices closer than `tol` (grid hashing, first vertex of a cluster wins, deterministic), remap
 /// faces, drop collapsed and duplicate faces and unreferenced vertices. Cost: O(V + F) expected.
 pub fn weld(positions: &[V3], triangles: &[[u32; 3]], tol: f64) -> (Vec<V3>, Vec<[u32; 3]>, WeldReport) {
+    let (pos, tris, report, _) = weld_kept(positions, triangles, tol);
+    (pos, tris, report)
+}
+
+/// [`weld`], with the index in `triangles` of every triangle kept (in order: the output's triangle k is the
+/// input's `kept[k]`, remapped).
+pub fn weld_kept(positions: &[V3], triangles: &[[u32; 3]], tol: f64) -> (Vec<V3>, Vec<[u32; 3]>, WeldReport, Vec<u32>) {
     let mut report = WeldReport { tolerance: tol, ..Default::default() };
     let cell = if tol > 0.0 { tol } else { 1.0 };
     let key = |p: V3| p.map(|c| (c / cell).floor() as i64);
@@ -60,7 +67,8 @@ pub fn weld(positions: &[V3], triangles: &[[u32; 3]], tol: f64) -> (Vec<V3>, Vec
     }
     let mut seen: HashMap<[u32; 3], ()> = HashMap::with_capacity(triangles.len());
     let mut out = Vec::with_capacity(triangles.len());
-    for t in triangles {
+    let mut kept = Vec::with_capacity(triangles.len());
+    for (k, t) in triangles.iter().enumerate() {
         let f = t.map(|i| map[i as usize]);
         if f[0] == f[1] || f[1] == f[2] || f[0] == f[2] {
             report.collapsed_faces += 1;
@@ -73,8 +81,9 @@ pub fn weld(positions: &[V3], triangles: &[[u32; 3]], tol: f64) -> (Vec<V3>, Vec
             continue;
         }
         out.push(f);
+        kept.push(k as u32);
     }
     let (pos, tris, dropped) = crate::geometry::polygon::drop_unreferenced(&reps, &out);
     report.unreferenced_vertices = dropped;
-    (pos, tris, report)
+    (pos, tris, report, kept)
 }
