@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Tools tests/daemon.rs drives the daemon with: dbus-daemon, busctl and systemd-analyze, gdbus, setpriv.
+# Tools tests/daemon.rs drives the daemon with: dbus-daemon, busctl and systemd-analyze, gdbus, setpriv; and the
+# headless Chromium the report pages are opened in (tests/report.rs, tests/daemon.rs, scripts/browser-check.py).
 # Installs the Debian packages that are missing (needs root or sudo); does nothing when all are present.
 set -euo pipefail
-declare -A pkg=([dbus-daemon]=dbus-daemon [busctl]=systemd [systemd-analyze]=systemd [gdbus]=libglib2.0-bin [setpriv]=util-linux)
+declare -A pkg=([dbus-daemon]=dbus-daemon [busctl]=systemd [systemd-analyze]=systemd [gdbus]=libglib2.0-bin [setpriv]=util-linux [chromium]=chromium)
 missing=()
 for tool in "${!pkg[@]}"; do
   command -v "$tool" >/dev/null 2>&1 || missing+=("${pkg[$tool]}")

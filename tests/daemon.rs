@@ -540,6 +540,11 @@ fn a_solid_that_misses_a_quality_gate_is_quarantined_with_its_artifacts() {
     assert!(rms["value"].as_f64().unwrap() > 0.0001, "{rms}");
     let error: serde_json::Value = serde_json::from_slice(&std::fs::read(entry.join("error.json")).unwrap()).unwrap();
     assert!(error["message"].as_str().unwrap().contains("bound 0.0001 %"), "{error}");
+    // Its page shows why, with the pictures of the solid that missed the gate, and the gates as measured.
+    let page = entry.join("coarse.report.html");
+    let seen = common::browser_check(&page, "daemon-quality-quarantine", 1280);
+    common::assert_safe_page(&page, &seen, 5);
+    common::assert_gates_match(&page, &seen, &report["convert"]["gates"]);
 
     let out = visible(&st.spool("outbox"));
     assert_eq!(out.len(), 1, "outbox: {out:?}");
@@ -550,6 +555,83 @@ fn a_solid_that_misses_a_quality_gate_is_quarantined_with_its_artifacts() {
     assert_eq!(report["status"], "degraded", "{}", report["convert"]["gates"]);
     assert_eq!(st.property("Manager", ROOT, "JobsFailed").as_deref(), Some("t 1"));
     assert_eq!(st.property("Manager", ROOT, "JobsSucceeded").as_deref(), Some("t 1"));
+}
+
+/// The SHA-256 (hex) of a file.
+fn sha256_hex(p: &Path) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// A string property as busctl prints it (`s "…"`), unquoted.
+fn string_property(st: &Station, path: &str, prop: &str) -> String {
+    let v = st.property("Job", path, prop).unwrap_or_else(|| panic!("{path}: no {prop}"));
+    v.strip_prefix("s \"").and_then(|v| v.strip_suffix('"')).unwrap_or_else(|| panic!("{prop}: {v}")).to_string()
+}
+
+/// Every job has its page: a published job's bundle lists the page, the thumbnail and the pictures in its
+/// manifest, with their hashes, and the Job's `ReportFile` and `Thumbnail` name them; a quarantined job's
+/// page says why. A file named like markup shows its name as text in a real browser, runs nothing and
+/// fetches nothing; `scanstation report` makes the same page again.
+#[test]
+fn every_job_has_its_page_and_a_name_of_markup_stays_text() {
+    need("busctl", "systemd");
+    let dir = common::scratch("daemon-pages");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let mut st = Station::new(&dir, &bus, false, "");
+    st.start();
+    let hostile = "<img src=x onerror=alert(1)>.ply";
+    drop_renamed(&st.inbox(), hostile, &sphere_bytes(&dir, 1.0));
+    drop_renamed(&st.inbox(), "broken.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n0\n1");
+    st.wait_done(2, Duration::from_secs(180));
+    let out = st.cli(&["jobs", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let job = |input: &str| {
+        let j = v["jobs"].as_array().unwrap().iter().find(|j| j["Input"] == input).unwrap_or_else(|| panic!("{input}: {v}"));
+        format!("{ROOT}/jobs/{}", j["Id"].as_str().unwrap())
+    };
+
+    // The published job: the page, the thumbnail and the pictures, in the manifest with their hashes.
+    let path = job(hostile);
+    let page = std::path::PathBuf::from(string_property(&st, &path, "ReportFile"));
+    let thumb = std::path::PathBuf::from(string_property(&st, &path, "Thumbnail"));
+    let bundle = page.parent().unwrap().to_path_buf();
+    assert!(bundle.starts_with(st.spool("outbox")), "{}", page.display());
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(bundle.join("manifest.json")).unwrap()).unwrap();
+    for kind in ["report-html", "thumbnail", "deviation", "histogram", "net", "faces"] {
+        let f = m["files"][kind]["file"].as_str().unwrap_or_else(|| panic!("the manifest lacks {kind}: {m}"));
+        assert_eq!(m["files"][kind]["sha256"], sha256_hex(&bundle.join(f)), "{kind}: {f}");
+    }
+    assert_eq!(bundle.join(m["files"]["report-html"]["file"].as_str().unwrap()), page);
+    assert_eq!(bundle.join(m["files"]["thumbnail"]["file"].as_str().unwrap()), thumb);
+    let outputs = st.property("Job", &path, "Outputs").unwrap();
+    assert!(outputs.contains("\"report-html\"") && outputs.contains("\"thumbnail\""), "{outputs}");
+    let seen = common::browser_check(&page, "daemon-markup-name", 1280);
+    common::assert_safe_page(&page, &seen, 5);
+    assert_eq!(seen["title"], hostile, "the name is shown as text");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(bundle.join(m["files"]["report"]["file"].as_str().unwrap())).unwrap()).unwrap();
+    common::assert_gates_match(&page, &seen, &report["convert"]["gates"]);
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert!(!html.contains("<img src=x"), "the name reached the page as markup");
+    // Made again from the bundle: the bytes the manifest hashed.
+    let again = Command::new(CLI).arg("report").arg(&bundle).output().unwrap();
+    assert!(again.status.success(), "{}", String::from_utf8_lossy(&again.stderr));
+    assert_eq!(sha256_hex(&page), m["files"]["report-html"]["sha256"], "the page made again differs");
+
+    // The quarantined job: its page says why; no solid, so no thumbnail.
+    let path = job("broken.ply");
+    let page = std::path::PathBuf::from(string_property(&st, &path, "ReportFile"));
+    assert!(page.starts_with(st.spool("quarantine")), "{}", page.display());
+    assert_eq!(string_property(&st, &path, "Thumbnail"), "");
+    let seen = common::browser_check(&page, "daemon-quarantined", 1280);
+    common::assert_safe_page(&page, &seen, 0);
+    assert_eq!(error_code_of(page.parent().unwrap()), "input.bad-header");
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert!(html.contains("id=\"why\"") && html.contains("input.bad-header"), "the page says why");
 }
 
 #[test]

@@ -107,3 +107,66 @@ pub fn cut_open(mesh: &scanstation::TriMesh, up: usize, share: f64, tilt: f64) -
     cut.triangles.retain(|t| t.iter().all(|&v| keep[v as usize]));
     cut
 }
+
+/// Where the browser tests keep their screenshots (`target/report-screenshots/`), named in closing notes.
+pub fn screenshot_dir() -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join("../report-screenshots");
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Open `page` in headless Chromium (`scripts/browser-check.py`) at `width` CSS pixels, save a full-page
+/// screenshot as `screenshot_dir()/NAME.png`, and return what the browser saw (see the script). A missing
+/// Chromium fails the test saying how to install it.
+pub fn browser_check(page: &Path, name: &str, width: u32) -> serde_json::Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/browser-check.py");
+    let shot = screenshot_dir().join(format!("{name}.png"));
+    let out = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(page)
+        .arg(&shot)
+        .args(["--width", &width.to_string()])
+        .output()
+        .expect("python3 runs scripts/browser-check.py");
+    assert!(
+        out.status.code() != Some(2),
+        "headless Chromium is missing: apt-get install chromium (scripts/setup-daemon-tests.sh installs it)"
+    );
+    assert!(out.status.success(), "browser check of {} failed: {}", page.display(), String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("browser check output: {e}"))
+}
+
+/// The checks every report page must pass in the browser: every image loaded, no console error, no dialog,
+/// no script, no inline handler, no request but the page itself and `data:` pictures; `images` pictures.
+pub fn assert_safe_page(page: &Path, seen: &serde_json::Value, images: usize) {
+    let what = page.display();
+    let shown = seen["images"].as_array().unwrap();
+    assert_eq!(shown.len(), images, "{what}: images {shown:?}");
+    let images = shown;
+    for i in images {
+        assert!(i["natural_width"].as_u64().unwrap_or(0) > 0, "{what}: an image did not load: {i}");
+        assert!(i["src"].as_str().unwrap_or("").starts_with("data:image/png"), "{what}: an image not embedded: {i}");
+    }
+    assert_eq!(seen["console_errors"], serde_json::json!([]), "{what}: console errors");
+    assert_eq!(seen["dialogs"], serde_json::json!([]), "{what}: a script opened a dialog");
+    assert_eq!(seen["scripts"], 0, "{what}: script elements");
+    assert_eq!(seen["handlers"], 0, "{what}: inline event handlers");
+    let page_url = format!("file://{}", page.canonicalize().unwrap().display());
+    for r in seen["requests"].as_array().unwrap() {
+        let r = r.as_str().unwrap();
+        assert!(r == page_url || r.starts_with("data:image/png;base64,"), "{what}: a request outside the bundle: {r}");
+    }
+}
+
+/// The `#gates` table's rows equal the report's gates: each name, and each value read back to the same
+/// double as the JSON holds.
+pub fn assert_gates_match(page: &Path, seen: &serde_json::Value, gates: &serde_json::Value) {
+    let rows = seen["gates"].as_array().unwrap();
+    let gates = gates.as_array().unwrap();
+    assert_eq!(rows.len(), gates.len(), "{}: gate rows {rows:?}", page.display());
+    for (row, g) in rows.iter().zip(gates) {
+        assert_eq!(row[0], g["name"], "{}", page.display());
+        let shown: f64 = row[1].as_str().unwrap().parse().unwrap_or(f64::NAN);
+        assert_eq!(shown, g["value"].as_f64().unwrap(), "{}: gate {} shows {}", page.display(), g["name"], row[1]);
+    }
+}

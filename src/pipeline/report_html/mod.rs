@@ -169,8 +169,8 @@ pub fn render(b: &Bundle) -> Result<String> {
     s.push_str(&format!("<style>{}</style></head><body>", page::STYLE));
     s.push_str(&page::header(b, thumb));
     s.push_str(&page::error(b));
-    s.push_str(&page::pictures(&images));
     s.push_str(&page::gates(b));
+    s.push_str(&page::pictures(&images));
     s.push_str(&page::stages(b));
     s.push_str(&page::caps(b));
     s.push_str(&page::scan(b));
