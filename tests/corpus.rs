@@ -279,9 +279,16 @@ fn trust_issue_meshes_are_never_published_as_good() {
     std::fs::create_dir_all(&out).unwrap();
     for f in ["meshes/scorpion.ply", "meshes/skull.ply", "meshes/falconstatue_boundary.ply"] {
         let step = out.join(Path::new(f).file_stem().unwrap()).with_extension("step");
-        let opts = ConvertOptions { compare_samples: 50_000, ..Default::default() };
+        let pictures = Some(scanstation::pipeline::pictures::Up::Y);
+        let opts = ConvertOptions { compare_samples: 50_000, pictures, ..Default::default() };
         match convert_file(&dir.join(f), &step, &ReadOptions::default(), &opts, &NoProgress) {
             Ok(r) => {
+                // Its page, opened in a real browser (the closing note names the screenshots).
+                let (page, _) = scanstation::pipeline::report_html::write_convert_page(&r).unwrap();
+                let name = format!("corpus-{}", Path::new(f).file_stem().unwrap().to_string_lossy());
+                let seen = common::browser_check(&page, &name, 1280);
+                common::assert_safe_page(&page, &seen, r.pictures.len());
+                common::assert_gates_match(&page, &seen, &serde_json::to_value(&r.gates).unwrap());
                 let gate = |n: &str| r.gates.iter().find(|g| g.name == n).unwrap_or_else(|| panic!("{f}: no gate {n}"));
                 // The gate sees at least what the chain's own check saw (it also checks the written solid mesh).
                 assert!(gate("crossings").value >= r.brep.self_intersections as f64, "{f}: {:?}", r.gates);

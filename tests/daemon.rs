@@ -585,12 +585,21 @@ fn every_job_has_its_page_and_a_name_of_markup_stays_text() {
     st.start();
     let hostile = "<img src=x onerror=alert(1)>.ply";
     drop_renamed(&st.inbox(), hostile, &sphere_bytes(&dir, 1.0));
-    drop_renamed(&st.inbox(), "broken.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n0\n1");
+    drop_renamed(
+        &st.inbox(),
+        "broken.ply",
+        b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n0\n1",
+    );
     st.wait_done(2, Duration::from_secs(180));
     let out = st.cli(&["jobs", "--json"]);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let job = |input: &str| {
-        let j = v["jobs"].as_array().unwrap().iter().find(|j| j["Input"] == input).unwrap_or_else(|| panic!("{input}: {v}"));
+        let j = v["jobs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|j| j["Input"] == input)
+            .unwrap_or_else(|| panic!("{input}: {v}"));
         format!("{ROOT}/jobs/{}", j["Id"].as_str().unwrap())
     };
 
@@ -613,7 +622,8 @@ fn every_job_has_its_page_and_a_name_of_markup_stays_text() {
     common::assert_safe_page(&page, &seen, 5);
     assert_eq!(seen["title"], hostile, "the name is shown as text");
     let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(bundle.join(m["files"]["report"]["file"].as_str().unwrap())).unwrap()).unwrap();
+        serde_json::from_slice(&std::fs::read(bundle.join(m["files"]["report"]["file"].as_str().unwrap())).unwrap())
+            .unwrap();
     common::assert_gates_match(&page, &seen, &report["convert"]["gates"]);
     let html = std::fs::read_to_string(&page).unwrap();
     assert!(!html.contains("<img src=x"), "the name reached the page as markup");

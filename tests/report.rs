@@ -36,7 +36,14 @@ fn a_converted_scan_gets_pictures_and_a_page_a_browser_shows_whole() {
     let dir = common::scratch("report-convert");
     let step = dir.join("spot.step");
     let json = dir.join("spot.report.json");
-    run(bin().arg("convert").arg(root().join("examples/spot.ply")).arg("-o").arg(&step).arg("--report").arg(&json).arg("--pictures"));
+    run(bin()
+        .arg("convert")
+        .arg(root().join("examples/spot.ply"))
+        .arg("-o")
+        .arg(&step)
+        .arg("--report")
+        .arg(&json)
+        .arg("--pictures"));
     for (kind, size) in [
         ("deviation", (1024, 768)),
         ("net", (1024, 768)),
@@ -83,7 +90,11 @@ fn render_draws_each_colouring_and_refuses_what_it_cannot() {
         (&spot, "deviation", vec!["--ref".to_string(), spot.display().to_string()]),
         (&spot, "net", vec![]),
         (&spot, "faces", vec![]),
-        (&rod, "stress", vec!["--spec".to_string(), root().join("config/fea/cantilever-rod.toml").display().to_string()]),
+        (
+            &rod,
+            "stress",
+            vec!["--spec".to_string(), root().join("config/fea/cantilever-rod.toml").display().to_string()],
+        ),
     ] {
         let out = dir.join(format!("{by}.png"));
         run(bin().arg("render").arg(mesh).args(["--color-by", by]).args(&extra).arg("-o").arg(&out));
@@ -94,7 +105,8 @@ fn render_draws_each_colouring_and_refuses_what_it_cannot() {
         (vec!["--color-by", "deviation"], "input.bad-argument"),
         (vec!["--color-by", "coverage", "--ref", spot.to_str().unwrap()], "input"),
     ] {
-        let out = bin().arg("render").arg(&spot).args(&args).arg("-o").arg(dir.join("x.png")).arg("--json").output().unwrap();
+        let out =
+            bin().arg("render").arg(&spot).args(&args).arg("-o").arg(dir.join("x.png")).arg("--json").output().unwrap();
         assert!(!out.status.success(), "{args:?} succeeded");
         let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         assert!(v["error"]["code"].as_str().unwrap().starts_with(code), "{args:?}: {v}");

@@ -66,6 +66,19 @@ fn a_twelve_view_scan_of_spot_becomes_a_solid_close_to_the_object() {
     let rms = rms_pct(&out.join("spot.solid.ply"), &dir.join("truth.ply"));
     eprintln!("solid vs the true object: RMS {rms:.4} % of the diagonal");
     assert!(rms < 0.5, "RMS {rms} % of the diagonal");
+
+    // The scan's page: its coverage picture among the others, its views with their residuals, whole in a
+    // browser; the coverage picture marks the surface no view saw (the share the fusion report gives).
+    let manifest = json(&out.join("manifest.json"));
+    for kind in ["coverage", "deviation", "net", "faces", "histogram", "thumbnail", "report-html"] {
+        assert!(manifest["files"][kind]["file"].is_string(), "the manifest lacks {kind}");
+    }
+    let page = out.join("spot.report.html");
+    let seen = common::browser_check(&page, "scan-spot", 1280);
+    common::assert_safe_page(&page, &seen, 6);
+    common::assert_gates_match(&page, &seen, &json(&out.join("spot.report.json"))["convert"]["gates"]);
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert!(html.contains("id=\"views\"") && html.contains("view-"), "the page lists the views");
 }
 
 /// The capture log of the running scan (in `work/`), when there is one.

@@ -202,7 +202,14 @@ fn fea(
         }
     }
     let solid = (report.output_file.as_path(), report.solid_mesh_file.as_path(), &converted.solid_mesh);
-    let fea = crate::pipeline::fea::fea_solid(solid, spec, &out, &opts, Some(crate::pipeline::pictures::Up::Z), &P(progress))?;
+    let fea = crate::pipeline::fea::fea_solid(
+        solid,
+        spec,
+        &out,
+        &opts,
+        Some(crate::pipeline::pictures::Up::Z),
+        &P(progress),
+    )?;
     let mut files = Vec::new();
     for (kind, from, to) in [
         ("fea-result", "result.json", format!("{}.fea.json", b.stem)),

@@ -438,9 +438,9 @@ pub fn quarantine_record(
             None
         }
     };
-    let thumbnail = std::fs::read_dir(&part).ok().and_then(|rd| {
-        rd.flatten().map(|f| f.file_name()).find(|n| n.to_string_lossy().ends_with(".thumbnail.png"))
-    });
+    let thumbnail = std::fs::read_dir(&part)
+        .ok()
+        .and_then(|rd| rd.flatten().map(|f| f.file_name()).find(|n| n.to_string_lossy().ends_with(".thumbnail.png")));
     sync_dir(&part).map_err(|x| io_err("cannot fsync", &part, x))?;
     std::fs::rename(&part, &public).map_err(|x| io_err("cannot publish", &public, x))?;
     sync_dir(&spool.quarantine).map_err(|x| io_err("cannot fsync", &spool.quarantine, x))?;

@@ -303,7 +303,11 @@ fn solid_self_intersections(solid: &Solid) -> Result<(usize, Option<[f64; 3]>)> 
 /// spans sampled 8 × 8 at most, welded along the exactly shared edges) beside the STEP file as NAME.solid.ply,
 /// its header naming the STEP's sha256 (see [`super::fea`]). Removes the STEP file again when this fails, so
 /// the pair is written or neither.
-fn write_solid_mesh(step: &Path, step_sha256: &str, tessellation: TriMesh) -> Result<(PathBuf, PolyMesh, FileDigest, Vec<u32>)> {
+fn write_solid_mesh(
+    step: &Path,
+    step_sha256: &str,
+    tessellation: TriMesh,
+) -> Result<(PathBuf, PolyMesh, FileDigest, Vec<u32>)> {
     let result = (|| {
         let t = tessellation;
         let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
@@ -579,18 +583,9 @@ pub fn convert_held(
     let (status, gates) = judge_logged(&measured, &opts.gates);
 
     // 8. The pictures, when asked for.
-    let pictures = match opts.pictures {
-        Some(up) => {
-            let clock = Clock::start();
-            let bound_pct = tolerance_pct.unwrap_or(opts.gates.max_rms_pct);
-            let held = (&solid_mesh, &face_of[..], &kept.quads);
-            let measured = (&chain.repaired, &map, invented.as_deref());
-            let drawn = draw_pictures(output, up, held, measured, (&attempts, opts.unit, diag, bound_pct))?;
-            stages.push(clock.stop("pictures", None));
-            drawn
-        }
-        None => Vec::new(),
-    };
+    let bound_pct = tolerance_pct.unwrap_or(opts.gates.max_rms_pct);
+    let (held, measured) = ((&solid_mesh, &face_of[..], &kept.quads), (&chain.repaired, &map, invented.as_deref()));
+    let pictures = draw_pictures(output, opts, held, measured, (&attempts, diag, bound_pct), &mut stages)?;
     let report = ConvertReport {
         input_file: input.to_path_buf(),
         output_file: output.to_path_buf(),
@@ -651,6 +646,10 @@ fn judge_logged(m: &Measured, opts: &GateOptions) -> (Status, Vec<super::gates::
 
 /// Step 6 of [`convert_file`]: an open input's measure of `solid_mesh` (see [`OpenInputMeasure`]), then the
 /// error map beside `output` (the solid mesh coloured by its distance to `input`, the invented region grey).
+/// What [`measure_and_map`] measured and wrote: an open input's measure, the error map's path, what it wrote,
+/// and the invented vertices (an open input's).
+type MapMeasure = (Option<OpenInputMeasure>, PathBuf, ErrorMapFile, Option<Vec<bool>>);
+
 /// Returns the measure, the error map's path, what it wrote, and the invented vertices (an open input's).
 fn measure_and_map(
     output: &Path,
@@ -659,24 +658,29 @@ fn measure_and_map(
     input_to_solid_rms: f64,
     repair_report: &RepairReport,
     diag: f64,
-) -> Result<(Option<OpenInputMeasure>, PathBuf, ErrorMapFile, Option<Vec<bool>>)> {
+) -> Result<MapMeasure> {
     let (open_input, invented) = open_input_measure(solid_mesh, input, input_to_solid_rms, repair_report, diag);
     let error_map_file = super::provenance::error_map_path(output);
     let map = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh.clone()), input, invented.as_deref())?;
     Ok((open_input, error_map_file, map, invented))
 }
 
-/// Step 8 of [`convert_held`]: the job's pictures beside `output` ([`super::pictures`]). The deviation is
-/// signed against the repaired (closed) input: each vertex's distance to the input (`map.distances`), with
-/// the side of the repaired surface it lies on; the tolerance band is the RMS gate's bound.
+/// Step 8 of [`convert_held`]: the job's pictures beside `output` ([`super::pictures`]) when
+/// [`ConvertOptions::pictures`] asks (its stage report pushed onto `stages`). The deviation is signed against
+/// the repaired (closed) input: each vertex's distance to the input (`map.distances`), with the side of the
+/// repaired surface it lies on; the tolerance band is the RMS gate's bound.
 fn draw_pictures(
     output: &Path,
-    up: super::pictures::Up,
+    opts: &ConvertOptions,
     (solid, face_of, net): (&PolyMesh, &[u32], &PolyMesh),
     (repaired, map, invented): (&TriMesh, &ErrorMapFile, Option<&[bool]>),
-    (attempts, unit, diag, bound_pct): (&[Attempt], LengthUnit, f64, f64),
+    (attempts, diag, bound_pct): (&[Attempt], f64, f64),
+    stages: &mut Vec<StageReport>,
 ) -> Result<Vec<super::pictures::Picture>> {
     use super::pictures::{AttemptPoint, ConvertPictures, Deviation, write_convert_pictures};
+    let Some(up) = opts.pictures else { return Ok(Vec::new()) };
+    let clock = Clock::start();
+    let unit = opts.unit;
     let (solid, _) = solid.triangulate();
     let side = crate::stages::quality::signed_vertex_distances(&solid, repaired);
     let signed: Vec<f64> = map.distances.iter().zip(&side).map(|(&d, &s)| if s < 0.0 { -d } else { d }).collect();
@@ -690,7 +694,9 @@ fn draw_pictures(
         .collect();
     let deviation = Deviation { signed: &signed, invented, band: bound_pct / 100.0 * diag, diag, unit: unit.symbol() };
     let p = ConvertPictures { solid: &solid, face_of, deviation, net, attempts, rms_bound_pct: bound_pct };
-    write_convert_pictures(output, &p, up)
+    let drawn = write_convert_pictures(output, &p, up)?;
+    stages.push(clock.stop("pictures", None));
+    Ok(drawn)
 }
 
 /// Step 2b of [`convert_file`]: reconstruct a cloud input, measured against its points (its stage report

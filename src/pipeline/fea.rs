@@ -180,13 +180,19 @@ fn solve_and_write(
 ///
 /// # Errors
 /// `resource.output` when the file cannot be written.
-pub fn stress_picture(path: &Path, spec: &FeaSpec, solution: &fea::FeaSolution, up: super::pictures::Up) -> Result<super::pictures::Picture> {
+pub fn stress_picture(
+    path: &Path,
+    spec: &FeaSpec,
+    solution: &fea::FeaSolution,
+    up: super::pictures::Up,
+) -> Result<super::pictures::Picture> {
     let s = &solution.surface;
     let within = |regions: Vec<fea::spec::Region>| -> Vec<bool> {
         s.positions.iter().map(|p| regions.iter().any(|r| r.contains(p.map(f64::from)))).collect()
     };
     let supported = within(spec.supports.iter().map(|x| x.region()).collect());
     let loaded = within(spec.loads.iter().map(|x| x.region()).collect());
-    let stress = super::pictures::Stress { von_mises: &solution.fields.von_mises, supported: &supported, loaded: &loaded };
+    let stress =
+        super::pictures::Stress { von_mises: &solution.fields.von_mises, supported: &supported, loaded: &loaded };
     super::pictures::write_stress_picture(path, s, &stress, up)
 }

@@ -14,9 +14,9 @@ pub mod memory;
 pub mod open_input;
 pub mod pictures;
 pub mod provenance;
-pub mod report_html;
 pub mod reconstruct;
 pub mod render;
+pub mod report_html;
 
 /// What the daemon needs of the stages, through the pipeline: the progress sink every long step reports to,
 /// its cancellation check, and the FEA's settings.

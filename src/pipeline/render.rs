@@ -64,13 +64,17 @@ pub struct RenderOptions {
 /// Reader errors; `input.bad-argument` when the colouring needs `--ref` or `--spec` and it is missing, or
 /// when `out` is an input; the FEA's errors for `stress`; `resource.output` when `out` cannot be written.
 pub fn render_file(mesh_path: &Path, out: &Path, read: &ReadOptions, opts: &RenderOptions) -> Result<Picture> {
-    let inputs: Vec<&Path> = [Some(mesh_path), opts.reference.as_deref(), opts.spec.as_deref()].into_iter().flatten().collect();
+    let inputs: Vec<&Path> =
+        [Some(mesh_path), opts.reference.as_deref(), opts.spec.as_deref()].into_iter().flatten().collect();
     ensure_not_input(out, &inputs)?;
     let poly = read_mesh(mesh_path, read)?;
     let (tri, polygon_of) = poly.triangulate();
     let need = |what: Option<&PathBuf>, flag: &str| {
         what.cloned().ok_or_else(|| {
-            Error::new(ErrorCode::InputBadArgument, format!("--color-by {:?} needs {flag}", opts.color_by).to_lowercase())
+            Error::new(
+                ErrorCode::InputBadArgument,
+                format!("--color-by {:?} needs {flag}", opts.color_by).to_lowercase(),
+            )
         })
     };
     let scene = || Scene::new(&tri, opts.up.axis());
@@ -83,7 +87,8 @@ pub fn render_file(mesh_path: &Path, out: &Path, read: &ReadOptions, opts: &Rend
                 d.iter_mut().zip(side).filter(|(_, s)| *s < 0.0).for_each(|(x, _)| *x = -*x);
             }
             let diag = reference.bbox().diagonal();
-            let dev = Deviation { signed: &d, invented: None, band: opts.band_pct / 100.0 * diag, diag, unit: opts.unit };
+            let dev =
+                Deviation { signed: &d, invented: None, band: opts.band_pct / 100.0 * diag, diag, unit: opts.unit };
             maps::deviation_sheet(&scene(), &dev)
         }
         ColorBy::Net => maps::net_sheet(&scene(), &poly, 0.01 * tri.bbox().diagonal()),
@@ -91,7 +96,8 @@ pub fn render_file(mesh_path: &Path, out: &Path, read: &ReadOptions, opts: &Rend
         ColorBy::Stress => {
             let spec = crate::stages::fea::FeaSpec::read(&need(opts.spec.as_ref(), "--spec SPEC.toml")?)?;
             let fo = crate::stages::fea::FeaOptions { memory_budget: opts.memory_budget };
-            let solution = crate::stages::fea::solve(&tri, &spec, &fo, &NoProgress).map_err(|e| e.in_file(mesh_path))?;
+            let solution =
+                crate::stages::fea::solve(&tri, &spec, &fo, &NoProgress).map_err(|e| e.in_file(mesh_path))?;
             return super::fea::stress_picture(out, &spec, &solution, opts.up);
         }
         ColorBy::Coverage => {
@@ -99,8 +105,11 @@ pub fn render_file(mesh_path: &Path, out: &Path, read: &ReadOptions, opts: &Rend
             let fuse = crate::stages::reconstruct::fusion::FuseOptions::default();
             let (_, fused) = super::reconstruct::read_input_views(&set, read, &fuse)?;
             let fused = fused.ok_or_else(|| {
-                Error::new(ErrorCode::InputBadArgument, "--color-by coverage needs --ref to be a scan set (views with poses)")
-                    .in_file(&set)
+                Error::new(
+                    ErrorCode::InputBadArgument,
+                    "--color-by coverage needs --ref to be a scan set (views with poses)",
+                )
+                .in_file(&set)
             })?;
             let (seen_by, views) = super::reconstruct::fused_seen_by(&tri, &fused);
             maps::coverage_sheet(&scene(), &seen_by, views)

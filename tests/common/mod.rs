@@ -132,7 +132,12 @@ pub fn browser_check(page: &Path, name: &str, width: u32) -> serde_json::Value {
         out.status.code() != Some(2),
         "headless Chromium is missing: apt-get install chromium (scripts/setup-daemon-tests.sh installs it)"
     );
-    assert!(out.status.success(), "browser check of {} failed: {}", page.display(), String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "browser check of {} failed: {}",
+        page.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("browser check output: {e}"))
 }
 

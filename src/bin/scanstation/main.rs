@@ -166,12 +166,10 @@ fn main() -> ExitCode {
             .options(budget)
             .and_then(|o| pipeline::render::render_file(&a.mesh, &a.output, &read, &o))
             .map(|r| emit(json, &r, print::print_picture)),
-        Command::Report(a) => {
-            pipeline::report_html::write_report_html(&a.bundle).map(|(path, d)| {
-                let r = print::PageWritten { file: path, bytes: d.bytes, sha256: d.sha256 };
-                emit(json, &r, print::print_page)
-            })
-        }
+        Command::Report(a) => pipeline::report_html::write_report_html(&a.bundle).map(|(path, d)| {
+            let r = print::PageWritten { file: path, bytes: d.bytes, sha256: d.sha256 };
+            emit(json, &r, print::print_page)
+        }),
         Command::Compare(a) => pipeline::compare_files(
             &a.test,
             &a.reference,

@@ -72,6 +72,11 @@ ranged! {
     samples: usize = 100usize, 100_000_000;
 }
 
+/// An up axis: x, y or z.
+pub fn up_axis(s: &str) -> Result<scanstation::pipeline::pictures::Up, String> {
+    scanstation::pipeline::pictures::Up::parse(s).ok_or_else(|| format!("{s:?} is not an axis: use x, y or z"))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -91,9 +96,4 @@ mod tests {
         assert!(memory_budget("99999999999G").is_err());
         assert!(within("abc", 0u64, 1).is_err());
     }
-}
-
-/// An up axis: x, y or z.
-pub fn up_axis(s: &str) -> Result<scanstation::pipeline::pictures::Up, String> {
-    scanstation::pipeline::pictures::Up::parse(s).ok_or_else(|| format!("{s:?} is not an axis: use x, y or z"))
 }

@@ -96,8 +96,10 @@ mod tests {
         let end = img.text(2, 3, "I", 1, [0; 3]);
         assert_eq!(end, 10);
         // font8x8's "I" is a vertical bar in columns 2-3 of its cell (0x1E row bits at the top, 0x0C below).
-        let dark: Vec<(u32, u32)> =
-            (0..8).flat_map(|r| (0..8).map(move |c| (c, r))).filter(|&(c, r)| img.pixel(2 + c, 3 + r) == [0; 3]).collect();
+        let dark: Vec<(u32, u32)> = (0..8)
+            .flat_map(|r| (0..8).map(move |c| (c, r)))
+            .filter(|&(c, r)| img.pixel(2 + c, 3 + r) == [0; 3])
+            .collect();
         assert!(dark.len() >= 10, "the glyph has pixels: {dark:?}");
         assert!(dark.iter().all(|&(c, _)| (1..=4).contains(&c)), "a narrow bar: {dark:?}");
         img.line((0, 31), (63, 31), 1, [9, 9, 9]);

@@ -224,7 +224,8 @@ impl Snapshot {
         for y in y0..y1 {
             for x in x0..x1 {
                 let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
-                let edge = |a: [f64; 3], b: [f64; 3]| ((b[0] - a[0]) * (py - a[1]) - (px - a[0]) * (b[1] - a[1])) / area;
+                let edge =
+                    |a: [f64; 3], b: [f64; 3]| ((b[0] - a[0]) * (py - a[1]) - (px - a[0]) * (b[1] - a[1])) / area;
                 let l = [edge(s[1], s[2]), edge(s[2], s[0]), edge(s[0], s[1])];
                 if l.iter().any(|&x| x < 0.0) {
                     continue;

@@ -159,9 +159,8 @@ fn hsv(h: f64, s: f64, v: f64) -> [u8; 3] {
 
 /// The B-rep faces, each in its own colour (`face_of[t]`: the face of the scene's triangle t).
 pub fn faces_sheet(scene: &Scene, face_of: &[u32]) -> Image {
-    let mut sheet = scene.sheet(|snap| {
-        snap.paint(|_, _, f, _| face_of.get(f).map_or(SOLID_GREY, |&id| face_colour(id)))
-    });
+    let mut sheet =
+        scene.sheet(|snap| snap.paint(|_, _, f, _| face_of.get(f).map_or(SOLID_GREY, |&id| face_colour(id))));
     let faces = face_of.iter().copied().max().map_or(0, |m| m + 1);
     let lb = legend_box();
     sheet.text(lb.bar.0, lb.caption_y, &format!("B-rep faces: {faces}, each in its own colour"), 1, INK);
@@ -226,7 +225,13 @@ pub fn stress_sheet(scene: &Scene, s: &Stress) -> Image {
     colour_bar(&mut sheet, lb.bar, viridis);
     let mid = format!("{} MPa", num(0.5 * top));
     ticks(&mut sheet, lb.bar, lb.ticks_y, &[(0.0, "0 MPa".into()), (0.5, mid), (1.0, format!(">= {} MPa", num(top)))]);
-    sheet.text(lb.bar.0, lb.caption_y, "von Mises stress (scale to the 99th percentile; higher is the top colour)", 1, INK);
+    sheet.text(
+        lb.bar.0,
+        lb.caption_y,
+        "von Mises stress (scale to the 99th percentile; higher is the top colour)",
+        1,
+        INK,
+    );
     let y = swatch(&mut sheet, (lb.swatch_x, lb.bar.1), |x, y| hatch(x, y, [200; 3], SUPPORT), "support (held)");
     swatch(&mut sheet, (lb.swatch_x, y), |x, y| hatch(x, y, [200; 3], LOAD), "load applied");
     sheet

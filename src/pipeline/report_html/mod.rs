@@ -89,13 +89,17 @@ impl Bundle {
             }
         }
         if b.report.is_none() && b.error.is_none() {
-            return Err(Error::new(ErrorCode::InputNoGeometry, "no NAME.report.json or error.json: not a job's bundle")
-                .in_file(dir));
+            return Err(Error::new(
+                ErrorCode::InputNoGeometry,
+                "no NAME.report.json or error.json: not a job's bundle",
+            )
+            .in_file(dir));
         }
         if b.stem.is_empty() {
-            b.stem = names.iter().find_map(|n| n.strip_suffix(".report.html")).map(str::to_string).unwrap_or_else(|| {
-                dir.file_name().map(|d| d.to_string_lossy().into_owned()).unwrap_or_else(|| "job".into())
-            });
+            b.stem =
+                names.iter().find_map(|n| n.strip_suffix(".report.html")).map(str::to_string).unwrap_or_else(|| {
+                    dir.file_name().map(|d| d.to_string_lossy().into_owned()).unwrap_or_else(|| "job".into())
+                });
         }
         b.title = title(&b);
         Ok(b)
@@ -117,9 +121,10 @@ fn picture_kind(name: &str) -> Option<&'static str> {
 /// The input's name as given (from the report or the error record), else the stem.
 fn title(b: &Bundle) -> String {
     let from = |v: &Option<Value>| {
-        v.as_ref().and_then(|r| r.get("input").or_else(|| r.get("input_file"))).and_then(Value::as_str).map(|s| {
-            Path::new(s).file_name().map_or_else(|| s.to_string(), |n| n.to_string_lossy().into_owned())
-        })
+        v.as_ref()
+            .and_then(|r| r.get("input").or_else(|| r.get("input_file")))
+            .and_then(Value::as_str)
+            .map(|s| Path::new(s).file_name().map_or_else(|| s.to_string(), |n| n.to_string_lossy().into_owned()))
     };
     from(&b.report).or_else(|| from(&b.error)).unwrap_or_else(|| b.stem.clone())
 }
@@ -130,7 +135,8 @@ fn read_json(p: &Path) -> Result<Value> {
         return Err(Error::new(ErrorCode::InputTooLarge, format!("a record of {len} bytes")).in_file(p));
     }
     let text = std::fs::read(p).map_err(|e| Error::new(ErrorCode::InputIo, e.to_string()).in_file(p))?;
-    serde_json::from_slice(&text).map_err(|e| Error::new(ErrorCode::InputBadHeader, format!("not JSON: {e}")).in_file(p))
+    serde_json::from_slice(&text)
+        .map_err(|e| Error::new(ErrorCode::InputBadHeader, format!("not JSON: {e}")).in_file(p))
 }
 
 /// The `src` of a picture: its bytes as a `data:` URI, or its file name (relative, inside the bundle) when

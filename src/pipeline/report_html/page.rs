@@ -20,7 +20,10 @@ dl.facts{display:grid;grid-template-columns:max-content 1fr;gap:.2rem 1rem}dd{ma
 
 /// What a picture kind shows, in the order the page shows them.
 pub const PICTURES: [(&str, &str); 7] = [
-    ("deviation", "Deviation of the solid from the scan: blue inside, red outside, grey within the tolerance band; invented surface hatched."),
+    (
+        "deviation",
+        "Deviation of the solid from the scan: blue inside, red outside, grey within the tolerance band; invented surface hatched.",
+    ),
     ("histogram", "How the deviations are distributed over the surface the scan saw."),
     ("net", "The quad control net over the shaded solid; red dots are extraordinary vertices."),
     ("faces", "The B-rep faces of the solid, each in its own colour."),
@@ -104,7 +107,11 @@ pub fn gates(b: &Bundle) -> String {
                 cell(&get("value")),
                 cell(&get("bound")),
                 cell(&get("unit")),
-                format!("<span class=\"{}\">{}</span>", if passed { "pass" } else { "miss" }, if passed { "met" } else { "missed" }),
+                format!(
+                    "<span class=\"{}\">{}</span>",
+                    if passed { "pass" } else { "miss" },
+                    if passed { "met" } else { "missed" }
+                ),
                 cell(&get("what")),
             ]
         })
@@ -183,7 +190,10 @@ pub fn scan(b: &Bundle) -> String {
     body.push_str(&facts(&[
         ("coverage (share of the surface seen)", p("/coverage/share")),
         ("fusion", p("/decision")),
-        ("pooled residual before / after", format!("{} / {}", p("/pooled_residual_before"), p("/pooled_residual_after"))),
+        (
+            "pooled residual before / after",
+            format!("{} / {}", p("/pooled_residual_before"), p("/pooled_residual_after")),
+        ),
     ]));
     section("scan", "Scan: views and residuals", &body)
 }
