@@ -38,8 +38,14 @@ fn remesh_gives_the_same_quads_on_one_and_two_threads() {
 #[test]
 fn convert_writes_the_same_bytes_on_one_and_two_threads() {
     let dir = common::scratch("determinism-convert");
-    let opts =
-        ConvertOptions { resolution: Resolution::Vertices(1_500), compare_samples: 20_000, ..Default::default() };
+    // With its pictures: the same job gives the same PNG bytes too (issue 45).
+    let pictures = Some(scanstation::pipeline::pictures::Up::Y);
+    let opts = ConvertOptions {
+        resolution: Resolution::Vertices(1_500),
+        compare_samples: 20_000,
+        pictures,
+        ..Default::default()
+    };
     let outputs: Vec<Vec<Vec<u8>>> = [1, 2]
         .iter()
         .map(|&threads| {
@@ -50,13 +56,18 @@ fn convert_writes_the_same_bytes_on_one_and_two_threads() {
             let report = pool(threads)
                 .install(|| convert_file(Path::new(SPOT), &step, &ReadOptions::default(), &opts, &NoProgress))
                 .expect("convert examples/spot.ply");
-            [&step, &report.solid_mesh_file, &report.error_map_file]
-                .iter()
+            let kinds: Vec<&str> = report.pictures.iter().map(|p| p.kind).collect();
+            assert_eq!(kinds, ["deviation", "histogram", "net", "faces", "thumbnail"], "{threads} threads");
+            let files = [&step, &report.solid_mesh_file, &report.error_map_file];
+            files
+                .into_iter()
+                .chain(report.pictures.iter().map(|p| &p.file))
                 .map(|p| std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
                 .collect()
         })
         .collect();
-    for (k, what) in ["STEP file", "solid mesh", "error map"].iter().enumerate() {
+    let names = ["STEP file", "solid mesh", "error map", "deviation", "histogram", "net", "faces", "thumbnail"];
+    for (k, what) in names.iter().enumerate() {
         let (a, b) = (&outputs[0][k], &outputs[1][k]);
         assert!(!a.is_empty(), "{what}: empty");
         assert!(a == b, "{what}: {} bytes on 1 thread and {} on 2 differ", a.len(), b.len());

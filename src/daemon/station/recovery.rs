@@ -16,7 +16,7 @@
 //! So every claimed input ends in exactly one outbox or one quarantine directory.
 
 use std::collections::{HashMap, HashSet};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use super::super::journal::{JobId, JobRecord, JobState};
 use super::super::spool::{self, Spool};
@@ -35,6 +35,9 @@ pub struct SpoolFacts {
     pub quarantine: Option<(PathBuf, Option<String>)>,
     /// The claimed input is still in `work/<id>/`.
     pub input_present: bool,
+    /// What the published or quarantined bundle holds, kind → path: every file its manifest lists; a
+    /// quarantine's page and thumbnail (so `ReportFile` and `Thumbnail` survive a crash after publication).
+    pub outputs: std::collections::BTreeMap<String, String>,
 }
 
 /// A `work/<id>/` directory no record names, with the files in it.
@@ -112,7 +115,9 @@ pub fn gather(spool: &Spool, records: &[JobRecord]) -> (Vec<SpoolFacts>, Vec<Orp
                     .and_then(|v| v["error_code"].as_str().map(String::from));
                 (q, code)
             });
-            SpoolFacts { half_built, manifest, quarantine, input_present: worker::input_path(spool, rec).exists() }
+            let outputs = bundle_outputs(manifest.as_deref(), quarantine.as_ref().map(|q| q.0.as_path()));
+            let input_present = worker::input_path(spool, rec).exists();
+            SpoolFacts { half_built, manifest, quarantine, input_present, outputs }
         })
         .collect();
     let known: HashSet<&JobId> = records.iter().map(|r| &r.id).collect();
@@ -164,6 +169,7 @@ pub fn plan(
         if let Some(manifest) = f.manifest {
             rec.state = JobState::Succeeded;
             rec.finish_usec = now_usec;
+            rec.outputs.extend(f.outputs);
             rec.outputs.insert("manifest".into(), manifest.display().to_string());
             actions.push(Action::RemoveDir(work_dir(&rec.id)));
             actions.push(Action::Restore { rec, save: true, queue: false });
@@ -172,6 +178,7 @@ pub fn plan(
             rec.state = if code == "cancelled" { JobState::Cancelled } else { JobState::Failed };
             rec.error_code = code;
             rec.finish_usec = now_usec;
+            rec.outputs.extend(f.outputs);
             rec.outputs.insert("quarantine".into(), dir.display().to_string());
             actions.push(Action::RemoveDir(work_dir(&rec.id)));
             actions.push(Action::Restore { rec, save: true, queue: false });
@@ -212,6 +219,36 @@ pub fn seen_table(actions: &[Action]) -> HashMap<String, (JobId, u64)> {
         }
     }
     seen
+}
+
+/// The outputs a finished bundle names: a published one's manifest files (kind → path), a quarantine's page
+/// (`report-html`) and thumbnail.
+fn bundle_outputs(manifest: Option<&Path>, quarantine: Option<&Path>) -> std::collections::BTreeMap<String, String> {
+    let mut out = std::collections::BTreeMap::new();
+    if let Some(m) = manifest {
+        let dir = m.parent().unwrap_or(Path::new("."));
+        let v = std::fs::read(m).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
+        for (kind, f) in v.as_ref().and_then(|v| v["files"].as_object()).into_iter().flatten() {
+            if let Some(name) = f["file"].as_str() {
+                out.insert(kind.clone(), dir.join(name).display().to_string());
+            }
+        }
+    }
+    if let Some(q) = quarantine
+        && let Ok(rd) = std::fs::read_dir(q)
+    {
+        for name in rd.flatten().map(|e| e.file_name().to_string_lossy().into_owned()) {
+            let kind = if name.ends_with(".report.html") {
+                super::super::dbus::REPORT_HTML
+            } else if name.ends_with(".thumbnail.png") {
+                super::super::dbus::THUMBNAIL
+            } else {
+                continue;
+            };
+            out.insert(kind.to_string(), q.join(name).display().to_string());
+        }
+    }
+    out
 }
 
 #[cfg(test)]
