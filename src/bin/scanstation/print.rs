@@ -60,6 +60,9 @@ pub fn print_fea(r: &pipeline::fea::FeaFileReport) {
         outln!("  probe {}: displacement {:?}, von Mises {:.4}", p.name, p.displacement, p.von_mises);
     }
     outln!("  {:.2} s, written to {}", r.seconds, r.output_dir.display());
+    for p in &r.pictures {
+        outln!("  {} picture: {}", p.kind, p.file.display());
+    }
 }
 
 pub fn print_convert(r: &pipeline::ConvertReport) {
@@ -152,6 +155,11 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
             num(g.bound),
             if g.passed { "ok" } else { "MISSED" }
         );
+    }
+    if let Some(first) = r.pictures.first() {
+        let kinds: Vec<&str> = r.pictures.iter().map(|p| p.kind).collect();
+        let page = r.output_file.with_extension("report.html");
+        outln!("  pictures: {} beside {}; page {}", kinds.join(", "), first.file.display(), page.display());
     }
 }
 
