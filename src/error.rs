@@ -137,6 +137,9 @@ pub enum ErrorCode {
     DeviceLost,
     /// A CAN node reported a fault in an emergency (EMCY) message.
     DeviceEmergency,
+    /// The scanner took a view and saw nothing: no points (nothing in its field of view, a black or shiny
+    /// surface, an object stored inside out). Not a lost view: triggering again sees the same.
+    DeviceEmptyView,
     /// Quality gate: the solid's surface crosses itself (pairs of its tessellation's triangles intersect).
     QualitySelfIntersecting,
     /// Quality gate: faces of the solid fold over (their normal turns by more than 90° inside the face).
@@ -205,6 +208,7 @@ impl ErrorCode {
             ErrorCode::DeviceBusOff => "device.bus-off",
             ErrorCode::DeviceLost => "device.lost",
             ErrorCode::DeviceEmergency => "device.emergency",
+            ErrorCode::DeviceEmptyView => "device.empty-view",
             ErrorCode::QualitySelfIntersecting => "quality.self-intersecting",
             ErrorCode::QualityFolded => "quality.folded",
             ErrorCode::QualityVolume => "quality.volume",
@@ -238,7 +242,8 @@ impl ErrorCode {
             | ErrorCode::DeviceConfig
             | ErrorCode::DeviceBusOff
             | ErrorCode::DeviceLost
-            | ErrorCode::DeviceEmergency => ErrorClass::Device,
+            | ErrorCode::DeviceEmergency
+            | ErrorCode::DeviceEmptyView => ErrorClass::Device,
             _ => ErrorClass::BadInput,
         }
     }

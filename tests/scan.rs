@@ -275,6 +275,48 @@ fn a_lost_view_is_triggered_again_and_skipped_when_it_never_arrives() {
     assert_eq!(twice.len(), 1, "one view took two triggers: {twice:?}");
 }
 
+/// A view the scanner saw nothing in (`blind`: ready with no points) is not a lost view: it is not triggered
+/// again, and is skipped with its own code (`on_empty_view = "skip"`) — or fails the scan naming it, by default.
+#[test]
+fn a_view_that_sees_nothing_is_named_as_such_and_never_retried() {
+    need("busctl", "systemd");
+    let dir = common::scratch("scan-empty-view");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let rig = start_rig(&dir, 7);
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, "view_retries = 2\non_empty_view = \"skip\""));
+    st.start();
+    start_scan(&st, &["2", "views", "u", "8", "vertices", "u", "3000"]);
+    wait_views(&st, 2, Duration::from_secs(60));
+    rig.send("blind 1");
+    st.wait_done(1, Duration::from_secs(600));
+    let out = only_entry(&st.spool("outbox"));
+    let fusion = json(&out.join("scan.fusion.json"));
+    let skipped = fusion["skipped"].as_array().unwrap();
+    eprintln!("empty view: skipped {skipped:?}, retries {}", fusion["capture"]["retries"]);
+    assert_eq!(skipped.len(), 1, "{skipped:?}");
+    let reason = skipped[0]["reason"].as_str().unwrap();
+    assert!(reason.starts_with("[device.empty-view] the scanner saw nothing"), "{reason}");
+    assert_eq!(fusion["capture"]["retries"], 0, "an empty view is not triggered again");
+    assert_eq!(view_indices(&fusion, "fusion report").len(), 7);
+
+    // The default: the scan fails with the code, naming the view.
+    drop(st);
+    let dir2 = common::scratch("scan-empty-view-fail");
+    let bus2 = start_bus(&dir2, OPEN_POLICY);
+    let rig2 = start_rig(&dir2, 7);
+    let mut st = Station::new(&dir2, &bus2, false, &scan_config(&dir2, ""));
+    st.start();
+    start_scan(&st, &["2", "views", "u", "8", "vertices", "u", "3000"]);
+    wait_views(&st, 1, Duration::from_secs(60));
+    rig2.send("blind 1");
+    st.wait_done(1, Duration::from_secs(300));
+    let q = only_entry(&st.spool("quarantine"));
+    assert_eq!(error_code_of(&q), "device.empty-view");
+    let e = json(&q.join("error.json"));
+    assert!(e["message"].as_str().unwrap().contains("the scanner saw nothing"), "{e}");
+    drop(rig);
+}
+
 #[test]
 fn kill_9_during_capture_and_fusion_ten_times_keeps_every_view_once() {
     need("busctl", "systemd");

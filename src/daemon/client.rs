@@ -72,6 +72,7 @@ pub mod ops {
             ErrorCode::DeviceBusOff,
             ErrorCode::DeviceLost,
             ErrorCode::DeviceEmergency,
+            ErrorCode::DeviceEmptyView,
         ]
         .into_iter()
         .find(|c| c.as_str() == code)

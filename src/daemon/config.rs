@@ -53,6 +53,7 @@ struct RawScan {
     view_file_timeout: Option<String>,
     view_retries: Option<u32>,
     on_lost_view: Option<String>,
+    on_empty_view: Option<String>,
     on_unplug: Option<String>,
     replug_timeout: Option<String>,
     trigger_channel: Option<u8>,
@@ -283,6 +284,9 @@ pub struct ScanConfig {
     pub view_retries: u32,
     /// After the retries: fail the scan, or skip the view.
     pub on_lost_view: OnLostView,
+    /// A view with no points (`device.empty-view`, not retried: the scanner would see the same): fail the
+    /// scan, or skip the view.
+    pub on_empty_view: OnLostView,
     /// The turntable lost mid-scan: wait for it, or fail.
     pub on_unplug: OnUnplug,
     #[serde(with = "secs")]
@@ -677,6 +681,11 @@ fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, Confi
         "skip" => OnLostView::Skip,
         o => return Err(err(&k("on_lost_view"), format!("{o:?}: use \"fail\" or \"skip\""))),
     };
+    let on_empty_view = match t.on_empty_view.as_deref().unwrap_or("fail") {
+        "fail" => OnLostView::Fail,
+        "skip" => OnLostView::Skip,
+        o => return Err(err(&k("on_empty_view"), format!("{o:?}: use \"fail\" or \"skip\""))),
+    };
     let on_unplug = match t.on_unplug.as_deref().unwrap_or("wait") {
         "wait" => OnUnplug::Wait,
         "fail" => OnUnplug::Fail,
@@ -691,6 +700,7 @@ fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, Confi
         view_file_timeout: dur(&k("view_file_timeout"), &t.view_file_timeout, "5s")?,
         view_retries,
         on_lost_view,
+        on_empty_view,
         on_unplug,
         replug_timeout: dur(&k("replug_timeout"), &t.replug_timeout, "60s")?,
         trigger_channel: t.trigger_channel.unwrap_or(0),

@@ -102,6 +102,35 @@ impl CameraSettings {
     }
 }
 
+/// `mesh` with its faces facing outward: a closed, consistently oriented mesh whose enclosed volume is
+/// negative (stored inside out) is reversed. The rig holds solid objects: a mesh with a hole, a non-manifold
+/// edge or faces in conflict is refused, saying which.
+///
+/// # Errors
+/// The reason, naming the counts and `scanstation repair` as the fix.
+pub fn oriented_outward(mesh: &TriMesh) -> Result<TriMesh, String> {
+    use crate::geometry::mesh::PolyMesh;
+    use crate::geometry::topology::TopologyReport;
+    let t = TopologyReport::compute(&PolyMesh::from(mesh.clone()));
+    if !t.closed || t.nonmanifold_edges > 0 {
+        return Err(format!(
+            "the simulated rig holds closed objects: this mesh has {} boundary edges and {} non-manifold edges (close it first with `scanstation repair`)",
+            t.boundary_edges, t.nonmanifold_edges
+        ));
+    }
+    if !t.consistently_oriented {
+        return Err(format!(
+            "the simulated rig holds closed objects with consistently oriented faces: this mesh has {} orientation conflicts (`scanstation repair` orients them)",
+            t.orientation_conflicts
+        ));
+    }
+    let mut out = mesh.clone();
+    if t.volume.unwrap_or(0.0) < 0.0 {
+        out.triangles.iter_mut().for_each(|f| f.swap(1, 2));
+    }
+    Ok(out)
+}
+
 /// Which mesh axis points up on the table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Up {
@@ -130,15 +159,19 @@ pub struct RangeCamera {
 }
 
 impl RangeCamera {
-    /// Place `mesh` on the table (`up` along the axis) and aim the camera at it.
+    /// Place `mesh` on the table (`up` along the axis) and aim the camera at it: any closed mesh, its faces
+    /// turned outward first ([`oriented_outward`]: one stored inside out would show the camera nothing).
     ///
     /// # Errors
-    /// Settings out of range, or a mesh with no triangles or no extent.
+    /// Settings out of range; a mesh with no triangles or no extent; one that is not closed, not manifold or
+    /// not consistently oriented (the message says which, and how to fix it).
     pub fn new(mesh: &TriMesh, up: Up, settings: CameraSettings) -> Result<RangeCamera, String> {
         settings.validate()?;
         if mesh.triangles.is_empty() {
             return Err("the object mesh has no triangles".into());
         }
+        let oriented = oriented_outward(mesh)?;
+        let mesh = &oriented;
         // Mesh → table: `up` becomes +z (for y-up, (x, y, z) → (x, −z, y), a proper rotation).
         let turn = |p: [f32; 3]| -> V3 {
             let p = wide(p);
@@ -308,6 +341,28 @@ mod tests {
             [3, 4, 7],
         ];
         TriMesh { positions, triangles }
+    }
+
+    /// A cube stored inside out is turned outward and seen as the outward one is (the same views); an open
+    /// mesh is refused, naming its boundary edges.
+    #[test]
+    fn an_inside_out_object_is_turned_outward_and_an_open_one_refused() {
+        let s = CameraSettings { noise_rel: 0.0, width: 64, height: 48, ..Default::default() };
+        let mut inside_out = cube(1.0);
+        inside_out.triangles.iter_mut().for_each(|f| f.swap(1, 2));
+        let (a, b) = (
+            RangeCamera::new(&cube(1.0), Up::Z, s.clone()).unwrap(),
+            RangeCamera::new(&inside_out, Up::Z, s.clone()).unwrap(),
+        );
+        for angle in [0.0, 45.0] {
+            let (va, vb) = (a.capture(angle), b.capture(angle));
+            assert!(va.len() > 200, "{} points", va.len());
+            assert_eq!(va, vb, "angle {angle}: the inside-out cube is seen as the cube");
+        }
+        let mut open = cube(1.0);
+        open.triangles.truncate(10);
+        let e = RangeCamera::new(&open, Up::Z, s).err().expect("an open mesh is refused");
+        assert!(e.contains("closed objects") && e.contains("boundary edges"), "{e}");
     }
 
     /// Noise-free views, placed by the turntable pose about the reported axis, land on the truth.

@@ -67,12 +67,13 @@ pub fn scanner_command(line: &str) -> Result<ScannerFault, String> {
         "emcy" => ScannerFault::Emergency(number(None)?.min(0xFFFF) as u16),
         "drop-view" => ScannerFault::DropViews(number(Some(1))?.min(u64::from(u32::MAX)) as u32),
         "busy" => ScannerFault::Busy(number(Some(1))?.min(u64::from(u32::MAX)) as u32),
+        "blind" => ScannerFault::Blind(number(Some(1))?.min(u64::from(u32::MAX)) as u32),
         "garbage" => ScannerFault::Garbage(number(None)?.min(10_000) as u32),
         "bus-off" => ScannerFault::BusOff(ms(number(None)?)),
         "quit" => ScannerFault::Quit,
         _ => {
             return Err(format!(
-                "unknown command {word:?} (silence MS, emcy CODE, drop-view [N], busy [N], garbage N, bus-off MS, quit)"
+                "unknown command {word:?} (silence MS, emcy CODE, drop-view [N], busy [N], blind [N], garbage N, bus-off MS, quit)"
             ));
         }
     })
@@ -197,6 +198,7 @@ mod tests {
         assert!(turntable_command("error").unwrap_err().contains("a number is needed"));
         assert_eq!(scanner_command("emcy 0x5000"), Ok(ScannerFault::Emergency(0x5000)));
         assert_eq!(scanner_command("drop-view"), Ok(ScannerFault::DropViews(1)));
+        assert_eq!(scanner_command("blind 2"), Ok(ScannerFault::Blind(2)));
         assert!(scanner_command("fly").unwrap_err().contains("silence MS"));
     }
 }

@@ -140,15 +140,17 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
             ViewOutcome::Taken(v) => log.views.push(v),
             ViewOutcome::GaveUp(e) => {
                 save(job.dir, &log).await?;
-                return Err(Error::new(
-                    e.code,
+                let what = if e.code == ErrorCode::DeviceEmptyView {
+                    format!("view {} at {angle:.1}°: {}", i + 1, e.message)
+                } else {
                     format!(
                         "view {} at {angle:.1}° never arrived after {} triggers: {}",
                         i + 1,
                         cfg.view_retries + 1,
                         e.message
-                    ),
-                ));
+                    )
+                };
+                return Err(Error::new(e.code, what));
             }
             ViewOutcome::Skipped(e) => {
                 let reason = format!("[{}] {}", e.code.as_str(), e.message);
@@ -203,8 +205,10 @@ async fn trigger_view(
             }
             Err(e) => e,
         };
-        let view_lost = classify(Device::Trigger, &e, true) == Fault::ViewLost;
-        if view_lost {
+        let fault = classify(Device::Trigger, &e, true);
+        // The view's own trouble (lost, or seen empty), as against the scanner's.
+        let view_lost = matches!(fault, Fault::ViewLost | Fault::ViewEmpty);
+        if fault == Fault::ViewLost {
             lost += 1;
         }
         match next(Device::Trigger, Action::View, &e, true, &rules, lost) {
@@ -325,6 +329,15 @@ async fn take_view(
     index: u32,
 ) -> Result<(String, crate::devices::trigger::FireReport, FileDigest), Error> {
     let report = or_cancel(job.cancel, trigger.fire(job.cfg.trigger_channel)).await??;
+    if report.points == 0 {
+        return Err(Error::new(
+            ErrorCode::DeviceEmptyView,
+            format!(
+                "the scanner saw nothing (trigger {}: no points; nothing in its field of view, or a black, shiny or inside-out surface)",
+                report.seq
+            ),
+        ));
+    }
     let from = job.cfg.capture_dir.join(format!("view-{:05}.ply", report.seq));
     let name = format!("view-{index:03}.ply");
     let to = job.dir.join(&name);

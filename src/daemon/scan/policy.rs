@@ -44,6 +44,8 @@ pub enum Fault {
     Gone,
     /// A view did not arrive (or arrived broken): another trigger may bring it.
     ViewLost,
+    /// A view arrived with no points: the scanner saw nothing, and would see the same again.
+    ViewEmpty,
     /// Anything else: retrying will not help.
     Fatal,
 }
@@ -71,6 +73,7 @@ pub fn classify(device: Device, e: &Error, connected: bool) -> Fault {
         Device::Turntable if matches!(e.code, C::DeviceUnplugged | C::DeviceLost) || !connected => Fault::Gone,
         Device::Trigger if matches!(e.code, C::DeviceUnplugged | C::DeviceLost | C::DeviceBusOff) => Fault::Gone,
         Device::Trigger if matches!(e.code, C::DeviceTimeout | C::DeviceRefused | C::InputIo) => Fault::ViewLost,
+        Device::Trigger if e.code == C::DeviceEmptyView => Fault::ViewEmpty,
         _ => Fault::Fatal,
     }
 }
@@ -82,6 +85,8 @@ pub struct Rules {
     pub on_unplug: OnUnplug,
     /// A view lost after its retries: skip it or fail.
     pub on_lost_view: OnLostView,
+    /// A view with no points: skip it or fail (never retried).
+    pub on_empty_view: OnLostView,
     /// Triggers sent again for a view that did not arrive.
     pub view_retries: u32,
 }
@@ -89,7 +94,12 @@ pub struct Rules {
 impl Rules {
     /// From `[scan]`.
     pub fn of(cfg: &ScanConfig) -> Rules {
-        Rules { on_unplug: cfg.on_unplug, on_lost_view: cfg.on_lost_view, view_retries: cfg.view_retries }
+        Rules {
+            on_unplug: cfg.on_unplug,
+            on_lost_view: cfg.on_lost_view,
+            on_empty_view: cfg.on_empty_view,
+            view_retries: cfg.view_retries,
+        }
     }
 }
 
@@ -102,6 +112,7 @@ pub fn next(device: Device, action: Action, e: &Error, connected: bool, rules: &
         (Fault::Gone, _) => Step::WaitFor(device),
         (Fault::ViewLost, Action::View) if lost <= rules.view_retries => Step::Retry,
         (Fault::ViewLost, Action::View) if rules.on_lost_view == OnLostView::Skip => Step::Skip,
+        (Fault::ViewEmpty, Action::View) if rules.on_empty_view == OnLostView::Skip => Step::Skip,
         _ => Step::Fail,
     }
 }
@@ -114,8 +125,30 @@ mod tests {
         Error::new(code, "test")
     }
 
-    const WAIT: Rules = Rules { on_unplug: OnUnplug::Wait, on_lost_view: OnLostView::Fail, view_retries: 2 };
-    const FAIL: Rules = Rules { on_unplug: OnUnplug::Fail, on_lost_view: OnLostView::Skip, view_retries: 0 };
+    const WAIT: Rules = Rules {
+        on_unplug: OnUnplug::Wait,
+        on_lost_view: OnLostView::Fail,
+        on_empty_view: OnLostView::Fail,
+        view_retries: 2,
+    };
+    const FAIL: Rules = Rules {
+        on_unplug: OnUnplug::Fail,
+        on_lost_view: OnLostView::Skip,
+        on_empty_view: OnLostView::Skip,
+        view_retries: 0,
+    };
+
+    /// A view with no points is its own fault, never retried: skipped or failing the scan as
+    /// `on_empty_view` says, whatever `view_retries` allows.
+    #[test]
+    fn an_empty_view_is_not_a_lost_one_and_is_never_retried() {
+        use {Action::View, Device::Trigger};
+        let empty = e(ErrorCode::DeviceEmptyView);
+        assert_eq!(classify(Trigger, &empty, true), Fault::ViewEmpty);
+        assert_eq!(next(Trigger, View, &empty, true, &WAIT, 0), Step::Fail, "retries left, still not retried");
+        assert_eq!(next(Trigger, View, &empty, true, &FAIL, 0), Step::Skip);
+        assert_eq!(classify(Trigger, &e(ErrorCode::DeviceTimeout), true), Fault::ViewLost);
+    }
 
     /// The table unplugged (or silent) is waited for; in a move it is homed again after it is back; with
     /// `on_unplug = "fail"` the scan fails.

@@ -68,6 +68,8 @@ pub enum ScannerFault {
     DropViews(u32),
     /// Answer the next n triggers `busy`.
     Busy(u32),
+    /// Report the next n views ready with no points: the scanner saw nothing (a black or shiny object).
+    Blind(u32),
     /// Send n malformed frames on the node's identifiers.
     Garbage(u32),
     /// Report bus-off (an error frame), stay silent this long, then report the restart. On a bus whose
@@ -115,6 +117,7 @@ pub async fn run_scanner<B: CanBus>(
     let mut off_until: Option<Instant> = None;
     let mut drop_views = 0u32;
     let mut busy = 0u32;
+    let mut blind = 0u32;
     // Views in exposure: (due, seq), in order.
     let mut exposing: std::collections::VecDeque<(Instant, u16)> = Default::default();
     let mut booted = false;
@@ -149,6 +152,7 @@ pub async fn run_scanner<B: CanBus>(
                 }
                 ScannerFault::DropViews(n) => drop_views = n,
                 ScannerFault::Busy(n) => busy = n,
+                ScannerFault::Blind(n) => blind = n,
                 ScannerFault::Garbage(n) => {
                     for i in 0..n {
                         // A heartbeat of three bytes, an acknowledgement of one: our identifiers, wrong bodies.
@@ -207,6 +211,10 @@ pub async fn run_scanner<B: CanBus>(
                     }
                     exposing.pop_front();
                     let points = match &settings.views {
+                        _ if blind > 0 => {
+                            blind -= 1;
+                            Some(0)
+                        }
                         None => Some(settings.points),
                         // Making a view takes milliseconds of ray casting: off the async thread (the node's
                         // heartbeat waits for it, well within a period).
