@@ -63,6 +63,18 @@ fn a_twelve_view_scan_of_spot_becomes_a_solid_close_to_the_object() {
         fusion["pooled_residual_before"], fusion["pooled_residual_after"], fusion["decision"]
     );
     assert!((0.8..1.0).contains(&coverage), "coverage {coverage}");
+    // The solid says what was seen: the unseen surface (no view saw any corner of a triangle) is about what
+    // the coverage leaves, in patches, the largest named; the error map marks it invented (grey).
+    let unseen = &fusion["unseen"];
+    let share = unseen["share"].as_f64().unwrap();
+    eprintln!("unseen: {unseen}");
+    assert!((share - (1.0 - coverage)).abs() < 0.05, "unseen {share} against coverage {coverage}");
+    let largest = unseen["largest_patch_share"].as_f64().unwrap();
+    assert!(largest > 0.0 && largest <= share, "{unseen}");
+    assert!(unseen["patches"].as_u64().unwrap() >= 1 && unseen["largest_patch_at"].is_array(), "{unseen}");
+    let map = std::fs::read(out.join("spot.error-map.ply")).unwrap();
+    let head = String::from_utf8_lossy(&map[..map.len().min(2048)]).into_owned();
+    assert!(head.contains("grey: invented surface"), "the error map marks the unseen surface: {head}");
     let rms = rms_pct(&out.join("spot.solid.ply"), &dir.join("truth.ply"));
     eprintln!("solid vs the true object: RMS {rms:.4} % of the diagonal");
     assert!(rms < 0.5, "RMS {rms} % of the diagonal");

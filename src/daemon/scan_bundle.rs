@@ -59,12 +59,11 @@ pub fn add(
     let (fusion_path, digest) = write_fusion_report(b, converted, log)?;
     extras.digests.insert(fusion_path.clone(), digest);
     extras.files.push(("fusion-report", fusion_path));
-    if let Some(fused) = &converted.fused {
+    if let Some(seen) = &converted.seen_by {
         let solid = converted.solid_mesh.triangulate().0;
-        let (seen_by, views) = crate::pipeline::reconstruct::fused_seen_by(&solid, fused);
         let path = b.part.join(format!("{}.coverage.png", b.stem));
         let up = crate::pipeline::pictures::Up::Z;
-        let pic = crate::pipeline::pictures::write_coverage_picture(&path, &solid, &seen_by, views, up)?;
+        let pic = crate::pipeline::pictures::write_coverage_picture(&path, &solid, &seen.counts, seen.views, up)?;
         extras.digests.insert(path.clone(), pic.digest());
         extras.files.push(("coverage", path));
     }
@@ -173,6 +172,7 @@ fn write_fusion_report(
         "rejected": fusion.as_ref().map(|f| f.rejected.clone()),
         "fused_points": fusion.as_ref().map(|f| f.points),
         "coverage": coverage,
+        "unseen": converted.seen_by.as_ref().map(|s| &s.unseen),
     });
     let fusion_path = b.part.join(format!("{}.fusion.json", b.stem));
     let digest = super::durable::write_durable(

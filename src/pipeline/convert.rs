@@ -242,6 +242,11 @@ pub struct ConvertReport {
     /// The pictures drawn, when [`ConvertOptions::pictures`] asked for them.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub pictures: Vec<super::pictures::Picture>,
+    /// For a scan set whose views were kept ([`ConvertOptions::keep_views`]): the solid's surface no view
+    /// saw (invented by the reconstruction), and its largest patch. The error map and the deviation picture
+    /// mark it as invented.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unseen: Option<super::reconstruct::UnseenSurface>,
 }
 
 impl ConvertReport {
@@ -450,6 +455,8 @@ pub struct Converted {
     pub fused: Option<super::reconstruct::Fused>,
     /// The written files' sizes and SHA-256, taken while writing them.
     pub digests: Digests,
+    /// For a scan set whose views were kept: which surface of the solid each view saw.
+    pub seen_by: Option<super::reconstruct::SeenBy>,
 }
 
 /// The sizes and SHA-256 of the files [`convert_held`] wrote, taken while writing them.
@@ -559,8 +566,9 @@ pub fn convert_held(
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
     let cloud_scatter_pct = reconstruct_step.as_ref().map(|r| r.distance.reference_to_test.rms.pct_of_diagonal);
-    let (open_input, error_map_file, map, invented) =
-        measure_and_map(output, &solid_mesh, &chain.input_geom, kept_input_to_solid_rms, &repair_report, diag)?;
+    let (input_to_solid, held) = ((kept_input_to_solid_rms, diag), fused.as_ref());
+    let (open_input, error_map_file, map, invented, seen_by) =
+        measure_and_map(output, &solid_mesh, &chain.input_geom, input_to_solid, &repair_report, held)?;
     stages.push(clock.stop("quality", None));
     progress.report(1.0, "quality/done");
 
@@ -610,9 +618,10 @@ pub fn convert_held(
         gates,
         total_seconds: t_total.elapsed().as_secs_f64(),
         pictures,
+        unseen: seen_by.as_ref().map(|s| s.unseen.clone()),
     };
     let digests = Digests { step, solid_mesh: solid_digest, error_map: map.digest };
-    Ok(Converted { report, solid_mesh, fused, digests })
+    Ok(Converted { report, solid_mesh, fused, digests, seen_by })
 }
 
 /// Step 1 of [`convert_held`]: no output may overwrite the input or another output, nor replace what is not
@@ -647,22 +656,30 @@ fn judge_logged(m: &Measured, opts: &GateOptions) -> (Status, Vec<super::gates::
 /// Step 6 of [`convert_file`]: an open input's measure of `solid_mesh` (see [`OpenInputMeasure`]), then the
 /// error map beside `output` (the solid mesh coloured by its distance to `input`, the invented region grey).
 /// What [`measure_and_map`] measured and wrote: an open input's measure, the error map's path, what it wrote,
-/// and the invented vertices (an open input's).
-type MapMeasure = (Option<OpenInputMeasure>, PathBuf, ErrorMapFile, Option<Vec<bool>>);
+/// the invented vertices (an open input's fills, a scan's unseen surface), and what a scan's views saw.
+type MapMeasure =
+    (Option<OpenInputMeasure>, PathBuf, ErrorMapFile, Option<Vec<bool>>, Option<super::reconstruct::SeenBy>);
 
 /// Returns the measure, the error map's path, what it wrote, and the invented vertices (an open input's).
 fn measure_and_map(
     output: &Path,
     solid_mesh: &PolyMesh,
     input: &Geometry,
-    input_to_solid_rms: f64,
+    (input_to_solid_rms, diag): (f64, f64),
     repair_report: &RepairReport,
-    diag: f64,
+    fused: Option<&super::reconstruct::Fused>,
 ) -> Result<MapMeasure> {
     let (open_input, invented) = open_input_measure(solid_mesh, input, input_to_solid_rms, repair_report, diag);
+    // A scan's views: the surface none saw is invented too (the reconstruction closed it).
+    let seen_by = fused.map(|f| super::reconstruct::seen_by_views(&solid_mesh.triangulate().0, f));
+    let invented = match (invented, &seen_by) {
+        (Some(m), Some(s)) => Some(m.iter().zip(&s.counts).map(|(&a, &n)| a || n == 0).collect()),
+        (None, Some(s)) => Some(s.unseen_vertices()),
+        (m, None) => m,
+    };
     let error_map_file = super::provenance::error_map_path(output);
     let map = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh.clone()), input, invented.as_deref())?;
-    Ok((open_input, error_map_file, map, invented))
+    Ok((open_input, error_map_file, map, invented, seen_by))
 }
 
 /// Step 8 of [`convert_held`]: the job's pictures beside `output` ([`super::pictures`]) when

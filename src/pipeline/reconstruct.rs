@@ -245,6 +245,97 @@ fn placed_and_spacing<'a>(
     (placed, spacings.get(spacings.len() / 2).copied().unwrap_or(0.0))
 }
 
+/// Which surface of a scan's solid the views saw: per vertex, how many kept views saw it, and what no view
+/// saw ([`seen_by_views`]).
+#[derive(Clone, Debug)]
+pub struct SeenBy {
+    /// Per vertex of the solid: the kept views that saw it.
+    pub counts: Vec<u16>,
+    /// The kept views.
+    pub views: u16,
+    /// The surface no view saw.
+    pub unseen: UnseenSurface,
+}
+
+impl SeenBy {
+    /// Per vertex: no view saw it (surface the reconstruction invented).
+    pub fn unseen_vertices(&self) -> Vec<bool> {
+        self.counts.iter().map(|&n| n == 0).collect()
+    }
+}
+
+/// The surface of a scan's solid that no view saw: a triangle is unseen when no view saw any of its corners.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct UnseenSurface {
+    /// Its share of the solid's area (0–1).
+    pub share: f64,
+    /// Its area, model units².
+    pub area: f64,
+    /// Edge-connected patches of it.
+    pub patches: usize,
+    /// The largest patch's area, model units².
+    pub largest_patch_area: f64,
+    /// The largest patch's share of the solid's area (0–1).
+    pub largest_patch_share: f64,
+    /// The largest patch's centroid (area-weighted), model units.
+    pub largest_patch_at: Option<[f64; 3]>,
+}
+
+/// [`fused_seen_by`] with the unseen surface measured ([`unseen_surface`]).
+pub fn seen_by_views(solid: &TriMesh, fused: &Fused) -> SeenBy {
+    let (counts, views) = fused_seen_by(solid, fused);
+    let unseen = unseen_surface(solid, &counts);
+    SeenBy { counts, views, unseen }
+}
+
+/// The unseen surface of `solid` (`counts`: per vertex, the views that saw it): a triangle is unseen when
+/// all its corners are; patches join unseen triangles across shared edges. Cost: O(F α(F)).
+pub fn unseen_surface(solid: &TriMesh, counts: &[u16]) -> UnseenSurface {
+    use crate::geometry::topology::UnionFind;
+    let unseen = |t: usize| solid.triangles[t].iter().all(|&v| counts.get(v as usize).is_some_and(|&n| n == 0));
+    let n = solid.triangles.len();
+    let mut uf = UnionFind::new(n);
+    let mut by_edge: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
+    let mut total = 0.0;
+    for t in 0..n {
+        total += solid.triangle_area(t);
+        if !unseen(t) {
+            continue;
+        }
+        let [a, b, c] = solid.triangles[t];
+        for (u, v) in [(a, b), (b, c), (c, a)] {
+            match by_edge.entry((u.min(v), u.max(v))) {
+                std::collections::hash_map::Entry::Occupied(o) => uf.union(*o.get(), t as u32),
+                std::collections::hash_map::Entry::Vacant(e) => {
+                    e.insert(t as u32);
+                }
+            }
+        }
+    }
+    // Area and area-weighted centroid per patch root, in triangle order (deterministic).
+    let mut patches: std::collections::BTreeMap<u32, (f64, [f64; 3])> = std::collections::BTreeMap::new();
+    for t in (0..n).filter(|&t| unseen(t)) {
+        let a = solid.triangle_area(t);
+        let [p, q, r] = solid.corners(t);
+        let e = patches.entry(uf.find(t as u32)).or_insert((0.0, [0.0; 3]));
+        e.0 += a;
+        for k in 0..3 {
+            e.1[k] += a * (p[k] + q[k] + r[k]) / 3.0;
+        }
+    }
+    let area: f64 = patches.values().map(|p| p.0).sum();
+    let largest = patches.values().copied().max_by(|x, y| x.0.total_cmp(&y.0));
+    let share = |a: f64| if total > 0.0 { a / total } else { 0.0 };
+    UnseenSurface {
+        share: share(area),
+        area,
+        patches: patches.len(),
+        largest_patch_area: largest.map_or(0.0, |l| l.0),
+        largest_patch_share: share(largest.map_or(0.0, |l| l.0)),
+        largest_patch_at: largest.filter(|l| l.0 > 0.0).map(|l| l.1.map(|c| c / l.0)),
+    }
+}
+
 /// How many of a converted scan's kept views saw each vertex of `solid` (a view's point within
 /// [`COVERAGE_SPACINGS`] point spacings of it), and how many views were kept: the coverage picture's data.
 /// Cost: O(N) to index each view's points, O(V) lookups per view (in parallel over the vertices).

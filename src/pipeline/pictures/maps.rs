@@ -61,7 +61,12 @@ pub fn deviation_sheet(scene: &Scene, dev: &Deviation) -> Image {
     let caption = format!("solid - scan, signed: blue inside, red outside; grey within +-{}", dev.label(dev.band));
     sheet.text(lb.bar.0, lb.caption_y, &caption, 1, INK);
     let y = swatch(&mut sheet, (lb.swatch_x, lb.bar.1), |_, _| DEVIATION_BAND, "within the tolerance band");
-    swatch(&mut sheet, (lb.swatch_x, y), |x, y| hatch(x, y, INVENTED_GREY, INVENTED_INK), "invented: caps, fills");
+    swatch(
+        &mut sheet,
+        (lb.swatch_x, y),
+        |x, y| hatch(x, y, INVENTED_GREY, INVENTED_INK),
+        "invented: caps, fills, unseen",
+    );
     sheet
 }
 

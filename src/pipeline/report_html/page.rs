@@ -189,6 +189,11 @@ pub fn scan(b: &Bundle) -> String {
     let p = |ptr: &str| cell(f.pointer(ptr).unwrap_or(&Value::Null));
     body.push_str(&facts(&[
         ("coverage (share of the surface seen)", p("/coverage/share")),
+        ("unseen surface (share of the solid's area)", p("/unseen/share")),
+        (
+            "largest unseen patch (share, at)",
+            format!("{} at {}", p("/unseen/largest_patch_share"), p("/unseen/largest_patch_at")),
+        ),
         ("fusion", p("/decision")),
         (
             "pooled residual before / after",
