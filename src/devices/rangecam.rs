@@ -206,6 +206,21 @@ impl RangeCamera {
         Ok(RangeCamera { settings, object, bvh, eye, axes: [right, upv, back], projector, distance, diagonal })
     }
 
+    /// Whether the ray `from + t·dir`, 0 < t ≤ `far`, crosses the table top: the disc of radius one
+    /// diagonal in the table frame's plane z = 0, seen from either side (the object stands on it).
+    fn table_hit(&self, from: V3, dir: V3, far: f64) -> bool {
+        if dir[2].abs() < 1e-12 {
+            return false;
+        }
+        let t = -from[2] / dir[2];
+        // The object's bottom lies in the table's plane: a ray that meets both there meets the table.
+        if !(t > 1e-9 * self.diagonal && t < far + 1e-7 * self.diagonal) {
+            return false;
+        }
+        let (x, y) = (from[0] + t * dir[0], from[1] + t * dir[1]);
+        x * x + y * y <= self.diagonal * self.diagonal
+    }
+
     /// The settings.
     pub fn settings(&self) -> &CameraSettings {
         &self.settings
@@ -238,24 +253,49 @@ impl RangeCamera {
         TriMesh { positions, triangles: self.object.triangles.clone() }
     }
 
+    /// The cradle's tilt axis in the camera frame, at 0° and 0°: a point on it (the table top's centre) and
+    /// its unit direction (the camera's right, so a positive tilt turns the table's top toward the camera).
+    /// What the station's calibration gives it for a tilting table.
+    pub fn tilt_axis(&self) -> (V3, V3) {
+        let p = self.to_camera([0.0; 3]);
+        let d = [self.axes[0][0], self.axes[1][0], self.axes[2][0]];
+        (p, d)
+    }
+
     /// One range image with the table at `angle_deg` (the object turned by that angle about the axis,
     /// right-handed): the measured points in the camera frame, row by row. Cost: one or two ray casts per
     /// pixel, O(log F) each.
     pub fn capture(&self, angle_deg: f64) -> Vec<[f32; 3]> {
+        self.capture_tilted(angle_deg, 0.0)
+    }
+
+    /// [`RangeCamera::capture`] on a tilting table: turned by `angle_deg`, then tilted by `tilt_deg` about the
+    /// [`RangeCamera::tilt_axis`]. The table top (a disc of the object's diagonal) hides what rests on it:
+    /// a tilt shows the object's underside only where it does not stand on the table.
+    pub fn capture_tilted(&self, angle_deg: f64, tilt_deg: f64) -> Vec<[f32; 3]> {
         let s = &self.settings;
-        // Turning the object by θ is turning the camera and projector by −θ around it.
+        // Turning the object by θ, then tilting it by φ about x, is moving the camera and projector by the
+        // opposite tilt, then the opposite turn, around it (the table frame stays the object's).
         let (sin, cos) = (-angle_deg.to_radians()).sin_cos();
-        let rot = |v: V3| [cos * v[0] - sin * v[1], sin * v[0] + cos * v[1], v[2]];
+        let (sin_t, cos_t) = (-tilt_deg.to_radians()).sin_cos();
+        let untilt = |v: V3| [v[0], cos_t * v[1] - sin_t * v[2], sin_t * v[1] + cos_t * v[2]];
+        let rot = |v: V3| {
+            let v = untilt(v);
+            [cos * v[0] - sin * v[1], sin * v[0] + cos * v[1], v[2]]
+        };
         let eye = rot(self.eye);
         let projector = rot(self.projector);
         let axes = self.axes.map(rot);
+        let table = |from: V3, dir: V3, far: f64| self.table_hit(from, dir, far);
         let half = (s.fov_deg.to_radians() / 2.0).tan();
         let aspect = f64::from(s.width) / f64::from(s.height);
         let sigma0 = s.noise_rel * self.diagonal;
         let far = self.distance + 2.0 * self.diagonal;
         let grazing = s.grazing_deg.to_radians().cos();
         let ramp_start = (s.grazing_deg - 20.0).max(0.0).to_radians().cos();
-        let key = (angle_deg * 1000.0).round() as i64 as u64;
+        // Tilt 0 keeps the keys (and so the views) of a single-axis table.
+        let key = (angle_deg * 1000.0).round() as i64 as u64
+            ^ ((tilt_deg * 1000.0).round() as i64 as u64).wrapping_mul(0x94D0_49BB_1331_11EB);
         let mut out = Vec::new();
         for j in 0..s.height {
             for i in 0..s.width {
@@ -271,6 +311,9 @@ impl RangeCamera {
                 let cam_dir = scale(cam_dir, 1.0 / len);
                 let dir = add(add(scale(axes[0], cam_dir[0]), scale(axes[1], cam_dir[1])), scale(axes[2], cam_dir[2]));
                 let Some((t, n)) = self.bvh.ray_first(eye, dir, 0.0, far) else { continue };
+                if table(eye, dir, t) {
+                    continue;
+                }
                 let hit = add(eye, scale(dir, t));
                 // Facing the camera, and lit by the projector.
                 let cos_cam = -dot(n, dir);
@@ -286,7 +329,9 @@ impl RangeCamera {
                     continue;
                 }
                 let eps = 1e-6 * self.diagonal;
-                if self.bvh.ray_first(add(hit, scale(to_proj, eps)), to_proj, eps, proj_dist).is_some() {
+                if self.bvh.ray_first(add(hit, scale(to_proj, eps)), to_proj, eps, proj_dist).is_some()
+                    || table(add(hit, scale(to_proj, eps)), to_proj, proj_dist)
+                {
                     continue;
                 }
                 let sigma = sigma0 * (t / self.distance).powi(2);
@@ -363,6 +408,34 @@ mod tests {
         open.triangles.truncate(10);
         let e = RangeCamera::new(&open, Up::Z, s).err().expect("an open mesh is refused");
         assert!(e.contains("closed objects") && e.contains("boundary edges"), "{e}");
+    }
+
+    /// On a tilting table: noise-free views at several turns and tilts, placed by the composed pose about
+    /// the reported axes ([`Pose::tilted_turntable`]), land on the truth; tilting toward the camera shows
+    /// the cube's top, and the table top keeps its bottom hidden at every tilt.
+    #[test]
+    fn tilted_views_placed_by_the_composed_pose_lie_on_the_truth() {
+        let s = CameraSettings { noise_rel: 0.0, width: 64, height: 48, ..Default::default() };
+        let cam = RangeCamera::new(&cube(1.0), Up::Z, s).expect("camera");
+        let truth = cam.truth_in_scanner();
+        let bvh = TriangleBvh::new(&truth);
+        let (axis, tilt) = (cam.axis(), cam.tilt_axis());
+        let top = truth.positions.iter().map(|p| dot(wide(*p), axis.1)).fold(f64::MIN, f64::max);
+        let bottom = truth.positions.iter().map(|p| dot(wide(*p), axis.1)).fold(f64::MAX, f64::min);
+        let mut on_top = Vec::new();
+        for (angle, tilt_deg) in [(0.0, 0.0), (30.0, 20.0), (135.0, -30.0), (270.0, 45.0), (60.0, 90.0)] {
+            let view = cam.capture_tilted(angle, tilt_deg);
+            assert!(view.len() > 100, "({angle}, {tilt_deg}): {} points", view.len());
+            let pose = Pose::tilted_turntable(axis, tilt, angle, tilt_deg).expect("pose");
+            let placed: Vec<V3> = view.iter().map(|&p| pose.apply(wide(p))).collect();
+            let worst = placed.iter().map(|&p| bvh.distance(p)).fold(0.0, f64::max);
+            assert!(worst < 1e-4, "({angle}, {tilt_deg}): a point is {worst} from the truth");
+            let height = |p: &V3| dot(*p, axis.1);
+            assert!(placed.iter().all(|p| height(p) > bottom + 1e-3), "({angle}, {tilt_deg}): the bottom was seen");
+            on_top.push(placed.iter().filter(|p| (height(p) - top).abs() < 1e-6).count());
+        }
+        assert_eq!(cam.capture_tilted(30.0, 0.0), cam.capture(30.0), "tilt 0 is the single-axis view");
+        assert!(on_top[4] > on_top[0], "tilted 90° toward the camera, the top faces it: {on_top:?}");
     }
 
     /// Noise-free views, placed by the turntable pose about the reported axis, land on the truth.

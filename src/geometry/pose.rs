@@ -98,6 +98,20 @@ impl Pose {
         Ok(Pose::about(axis_angle(scale(direction, 1.0 / len), -angle_deg.to_radians()), point, [0.0; 3]))
     }
 
+    /// The pose of a view taken on a tilting turntable: the table turned the object by `angle_deg` about its
+    /// axis, then the cradle tilted table, axis and object by `tilt_deg` about the tilt axis (`axis` and
+    /// `tilt`: a point and a direction each, in the view's frame at 0° and 0°; both right-handed). The view's
+    /// points go back by the opposite tilt, then the opposite turn. With `tilt_deg` 0 it is
+    /// [`Pose::turntable`].
+    ///
+    /// # Errors
+    /// As [`Pose::turntable`], for either axis.
+    pub fn tilted_turntable(axis: (V3, V3), tilt: (V3, V3), angle_deg: f64, tilt_deg: f64) -> Result<Pose, String> {
+        let untilt = Pose::turntable(tilt.0, tilt.1, tilt_deg)?;
+        let unturn = Pose::turntable(axis.0, axis.1, angle_deg)?;
+        Ok(unturn.then_after(&untilt))
+    }
+
     /// `rotation` about `centre`, then `shift`: `w = R·(p − c) + c + shift`.
     pub fn about(rotation: [[f64; 3]; 3], centre: V3, shift: V3) -> Pose {
         let turned = Pose { rotation, translation: [0.0; 3] }.apply_dir(centre);
