@@ -58,7 +58,7 @@ def main():
         os.dup2(r, 3)
         os.dup2(w, 4)
     proc = subprocess.Popen(
-        [exe, "--headless=new", "--no-sandbox", "--disable-gpu", "--remote-debugging-pipe",
+        [exe, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--remote-debugging-pipe",
          f"--user-data-dir={profile}", "--no-first-run", "--no-default-browser-check",
          "--disable-background-networking", "--disable-component-update", "--disable-sync", "about:blank"],
         close_fds=False, preexec_fn=child_fds,

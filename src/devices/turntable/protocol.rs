@@ -92,6 +92,8 @@ pub struct StatusReport {
     pub state: MachineState,
     /// Position of axis X (the table), degrees: `MPos` (or `WPos`, whichever the firmware reports).
     pub x: f64,
+    /// Position of axis Y (a tilting table's cradle), degrees; 0 when the report has no second value.
+    pub y: f64,
     /// Feed rate now (degrees per minute), when reported.
     pub feed: Option<f64>,
 }
@@ -161,15 +163,19 @@ impl Reply {
 fn parse_status(inner: &str) -> Option<StatusReport> {
     let mut fields = inner.split('|');
     let state = MachineState::parse(fields.next()?)?;
-    let (mut x, mut feed) = (None, None);
+    let (mut x, mut y, mut feed) = (None, 0.0, None);
     for f in fields {
         if let Some(p) = f.strip_prefix("MPos:").or_else(|| f.strip_prefix("WPos:")) {
-            x = p.split(',').next()?.parse::<f64>().ok().filter(|v| v.is_finite());
+            let mut axes = p.split(',');
+            x = axes.next()?.parse::<f64>().ok().filter(|v| v.is_finite());
+            if let Some(v) = axes.next() {
+                y = v.parse::<f64>().ok().filter(|v| v.is_finite())?;
+            }
         } else if let Some(fs) = f.strip_prefix("FS:").or_else(|| f.strip_prefix("F:")) {
             feed = fs.split(',').next()?.parse::<f64>().ok().filter(|v| v.is_finite());
         }
     }
-    Some(StatusReport { state, x: x?, feed })
+    Some(StatusReport { state, x: x?, y, feed })
 }
 
 /// Grbl 1.1h's factory settings (`$$` of a board with a fresh EEPROM: `defaults.h`, `DEFAULTS_GENERIC`):
@@ -298,6 +304,12 @@ pub fn move_line(degrees: f64, feed: f64) -> String {
     format!("G90 G1 X{degrees:.4} F{feed:.1}\n")
 }
 
+/// A tilting table's absolute move: the table to `degrees` (X) and the cradle to `tilt` (Y) along one
+/// straight path at `feed` degrees per minute: `G90 G1 X45.0000 Y-20.0000 F720.0`.
+pub fn move_line_tilted(degrees: f64, tilt: f64, feed: f64) -> String {
+    format!("G90 G1 X{degrees:.4} Y{tilt:.4} F{feed:.1}\n")
+}
+
 /// Time a move of `distance` degrees takes at top speed `speed` (°/s) with acceleration `accel` (°/s²): a
 /// trapezoid, or a triangle when the move is too short to reach the top speed. Seconds.
 pub fn move_seconds(distance: f64, speed: f64, accel: f64) -> f64 {
@@ -343,9 +355,12 @@ mod tests {
         assert_eq!(Reply::parse("Grbl 1.1h ['$' for help]"), Some(Reply::Banner("1.1h".into())));
         assert_eq!(Reply::parse("[MSG:'$H'|'$X' to unlock]"), Some(Reply::Feedback("MSG:'$H'|'$X' to unlock".into())));
         let s = Reply::parse("<Run|MPos:12.345,0.000,0.000|FS:720,0|WCO:0.000,0.000,0.000>");
-        assert_eq!(s, Some(Reply::Status(StatusReport { state: MachineState::Run, x: 12.345, feed: Some(720.0) })));
-        let s = Reply::parse("<Hold:0|WPos:-1.5,0,0|Bf:15,128|FS:0,0>");
-        assert_eq!(s, Some(Reply::Status(StatusReport { state: MachineState::Hold, x: -1.5, feed: Some(0.0) })));
+        let run = StatusReport { state: MachineState::Run, x: 12.345, y: 0.0, feed: Some(720.0) };
+        assert_eq!(s, Some(Reply::Status(run)));
+        let s = Reply::parse("<Hold:0|WPos:-1.5,30.25,0|Bf:15,128|FS:0,0>");
+        let hold = StatusReport { state: MachineState::Hold, x: -1.5, y: 30.25, feed: Some(0.0) };
+        assert_eq!(s, Some(Reply::Status(hold)));
+        assert_eq!(move_line_tilted(45.0, -20.0, 720.0), "G90 G1 X45.0000 Y-20.0000 F720.0\n");
         assert_eq!(Reply::parse("$100=250.000"), Some(Reply::Setting(100, 250.0)));
         assert_eq!(Reply::parse("$N0="), Some(Reply::Other("$N0=".into())));
         assert_eq!(Reply::parse("$110=inf"), Some(Reply::Other("$110=inf".into())));

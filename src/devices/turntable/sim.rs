@@ -9,7 +9,8 @@
 //!   unlocks, `$I` names the build, `$$` lists the settings and `$n=v` changes one (kept across a replug, as
 //!   the EEPROM keeps it);
 //! - `G90 G1 X… F…` is answered `ok` at once (buffered) and then moves along a trapezoid; `G0` moves at the
-//!   top speed; motion while in `Alarm` is `error:9`; an unknown command `error:20`, a bad number `error:2`,
+//!   top speed; a `Y…` word moves the second axis too (a tilting table's cradle), both axes along one
+//!   straight path, the feed along it, as Grbl interpolates; motion while in `Alarm` is `error:9`; an unknown command `error:20`, a bad number `error:2`,
 //!   a line over 80 bytes `error:11`;
 //! - `?` answers a status report at once, `!` holds (the table stops where it is), `~` resumes.
 //!
@@ -117,10 +118,28 @@ pub enum Fault {
 /// A move in progress.
 #[derive(Clone, Copy, Debug)]
 struct Motion {
-    from: f64,
-    to: f64,
+    /// Start and end of the move, (X, Y).
+    from: [f64; 2],
+    to: [f64; 2],
     start: f64,
     speed: f64,
+}
+
+impl Motion {
+    /// The path's length.
+    fn length(&self) -> f64 {
+        (self.to[0] - self.from[0]).hypot(self.to[1] - self.from[1])
+    }
+
+    /// Where the move is `t` seconds in (a trapezoid along the straight path).
+    fn at(&self, accel: f64, t: f64) -> [f64; 2] {
+        let l = self.length();
+        if l == 0.0 {
+            return self.to;
+        }
+        let s = position_at(0.0, l, self.speed, accel, t) / l;
+        [self.from[0] + s * (self.to[0] - self.from[0]), self.from[1] + s * (self.to[1] - self.from[1])]
+    }
 }
 
 /// The simulated firmware.
@@ -129,8 +148,10 @@ pub struct GrblSim {
     settings: SimSettings,
     state: MachineState,
     x: f64,
+    /// The second axis (a tilting table's cradle), degrees.
+    y: f64,
     motion: Option<Motion>,
-    queue: VecDeque<(f64, f64)>,
+    queue: VecDeque<([f64; 2], f64)>,
     homing_until: Option<f64>,
     line: Vec<u8>,
     line_too_long: bool,
@@ -149,6 +170,7 @@ impl GrblSim {
             settings,
             state,
             x: 0.0,
+            y: 0.0,
             motion: None,
             queue: VecDeque::new(),
             homing_until: None,
@@ -180,6 +202,12 @@ impl GrblSim {
     pub fn position(&mut self, now: f64) -> f64 {
         self.advance(now);
         self.x
+    }
+
+    /// The second axis' position (a tilting table's cradle, degrees) at `now`.
+    pub fn tilt(&mut self, now: f64) -> f64 {
+        self.advance(now);
+        self.y
     }
 
     /// Inject `fault` (at `now`); returns what the firmware prints because of it.
@@ -242,7 +270,7 @@ impl GrblSim {
             && now >= t
         {
             self.homing_until = None;
-            self.x = 0.0;
+            (self.x, self.y) = (0.0, 0.0);
             self.state = MachineState::Idle;
             out.extend(self.reply(Ok(())));
         }
@@ -258,16 +286,16 @@ impl GrblSim {
                 // Frozen where it stalled; the state stays Run.
                 return;
             }
-            let end = m.start + super::protocol::move_seconds(m.to - m.from, m.speed, a);
+            let end = m.start + super::protocol::move_seconds(m.length(), m.speed, a);
             if now < end {
-                self.x = position_at(m.from, m.to, m.speed, a, now - m.start);
+                [self.x, self.y] = m.at(a, now - m.start);
                 self.feed = m.speed * 60.0;
                 return;
             }
-            self.x = m.to;
+            [self.x, self.y] = m.to;
             self.motion = None;
             if let Some((to, speed)) = self.queue.pop_front() {
-                self.motion = Some(Motion { from: self.x, to, start: end, speed: speed.min(s) });
+                self.motion = Some(Motion { from: [self.x, self.y], to, start: end, speed: speed.min(s) });
             } else {
                 self.state = MachineState::Idle;
                 self.feed = 0.0;
@@ -314,7 +342,8 @@ impl GrblSim {
 
     fn status_line(&mut self, now: f64) -> Vec<u8> {
         self.advance(now);
-        format!("<{}|MPos:{:.3},0.000,0.000|FS:{:.0},0>\r\n", self.state.as_str(), self.x, self.feed).into_bytes()
+        format!("<{}|MPos:{:.3},{:.3},0.000|FS:{:.0},0>\r\n", self.state.as_str(), self.x, self.y, self.feed)
+            .into_bytes()
     }
 
     /// `ok` or `error:n`, unless a dropped reply was injected.
@@ -381,7 +410,7 @@ impl GrblSim {
 
     /// `G90 G1 X… F…` (or `G0`): queue the move.
     fn gcode(&mut self, line: &str, now: f64) -> Result<(), u32> {
-        let (mut rapid, mut target, mut feed) = (false, None, None);
+        let (mut rapid, mut target, mut tilt, mut feed) = (false, None, None, None);
         for word in line.split_whitespace() {
             let (letter, value) = word.split_at(1);
             let v: f64 = value.parse().map_err(|_| 2u32)?;
@@ -393,6 +422,7 @@ impl GrblSim {
                 ("G", 0.0) => rapid = true,
                 ("G", 1.0) => rapid = false,
                 ("X", v) => target = Some(v),
+                ("Y", v) => tilt = Some(v),
                 ("F", v) if v > 0.0 => feed = Some(v),
                 ("F", _) => return Err(2),
                 _ => return Err(20),
@@ -401,13 +431,18 @@ impl GrblSim {
         if self.state == MachineState::Alarm {
             return Err(9);
         }
-        let Some(to) = target else { return Ok(()) };
+        if target.is_none() && tilt.is_none() {
+            return Ok(());
+        }
+        // An axis not named stays where the queue leaves it.
+        let last = self.queue.back().map(|q| q.0).or(self.motion.map(|m| m.to)).unwrap_or([self.x, self.y]);
+        let to = [target.unwrap_or(last[0]), tilt.unwrap_or(last[1])];
         let speed = if rapid { self.settings.max_speed } else { feed.ok_or(22u32)? / 60.0 };
         let speed = speed.min(self.settings.max_speed);
         if self.motion.is_some() {
             self.queue.push_back((to, speed));
         } else {
-            self.motion = Some(Motion { from: self.x, to, start: now, speed });
+            self.motion = Some(Motion { from: [self.x, self.y], to, start: now, speed });
             self.state = MachineState::Run;
         }
         Ok(())
@@ -428,6 +463,28 @@ mod tests {
             Some(Reply::Status(s)) => s,
             other => panic!("no status: {other:?}"),
         }
+    }
+
+    /// A move naming Y too runs both axes along one straight path, the feed along it: X 0 → 30 and Y 0 → 40
+    /// at 3000 °/min (50 °/s) over a path of 50°, with 250 °/s², takes 50/50 + 50/250 s; halfway both are
+    /// halfway; the status reports Y; a move naming only Y leaves X where it is.
+    #[test]
+    fn a_tilting_move_runs_both_axes_along_one_path() {
+        let board = SimSettings { max_speed: 100.0, accel: 250.0, ..Default::default() };
+        let mut sim = GrblSim::new(board);
+        sim.power_on();
+        assert_eq!(lines(&sim.input(b"G90 G1 X30 Y40 F3000\n", 0.0)), [Reply::Ok]);
+        let t = 1.0 + 50.0 / 250.0;
+        let mid = status(&mut sim, t / 2.0);
+        assert!((mid.x - 15.0).abs() < 1e-9 && (mid.y - 20.0).abs() < 1e-9, "halfway: {mid:?}");
+        assert_eq!(mid.state, MachineState::Run);
+        let before = status(&mut sim, t - 0.01);
+        assert!(before.state == MachineState::Run && before.y < 40.0, "{before:?}");
+        let end = status(&mut sim, t + 1e-6);
+        assert_eq!((end.state, end.x, end.y), (MachineState::Idle, 30.0, 40.0));
+        assert_eq!(lines(&sim.input(b"G90 G1 Y-10 F3000\n", 2.0)), [Reply::Ok]);
+        assert_eq!(sim.tilt(10.0), -10.0);
+        assert_eq!(sim.position(10.0), 30.0, "X stays");
     }
 
     #[test]
