@@ -287,20 +287,27 @@ fn a_lost_view_is_triggered_again_and_skipped_when_it_never_arrives() {
     assert_eq!(twice.len(), 1, "one view took two triggers: {twice:?}");
 }
 
+/// An 8-view scan of spot in `dir` with `extra` in `[scan]`, the scanner blinded for one view once `after`
+/// views are in; the station when the job has ended (its rig and bus kept alive with it).
+fn scan_blinded_once(dir: &Path, extra: &str, after: usize) -> (Station, Rig, Bus) {
+    let bus = start_bus(dir, OPEN_POLICY);
+    let rig = start_rig(dir, 7);
+    let mut st = Station::new(dir, &bus, false, &scan_config(dir, extra));
+    st.start();
+    start_scan(&st, &["2", "views", "u", "8", "vertices", "u", "3000"]);
+    wait_views(&st, after, Duration::from_secs(60));
+    rig.send("blind 1");
+    st.wait_done(1, Duration::from_secs(600));
+    (st, rig, bus)
+}
+
 /// A view the scanner saw nothing in (`blind`: ready with no points) is not a lost view: it is not triggered
 /// again, and is skipped with its own code (`on_empty_view = "skip"`) — or fails the scan naming it, by default.
 #[test]
 fn a_view_that_sees_nothing_is_named_as_such_and_never_retried() {
     need("busctl", "systemd");
     let dir = common::scratch("scan-empty-view");
-    let bus = start_bus(&dir, OPEN_POLICY);
-    let rig = start_rig(&dir, 7);
-    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, "view_retries = 2\non_empty_view = \"skip\""));
-    st.start();
-    start_scan(&st, &["2", "views", "u", "8", "vertices", "u", "3000"]);
-    wait_views(&st, 2, Duration::from_secs(60));
-    rig.send("blind 1");
-    st.wait_done(1, Duration::from_secs(600));
+    let (st, _rig, _bus) = scan_blinded_once(&dir, "view_retries = 2\non_empty_view = \"skip\"", 2);
     let out = only_entry(&st.spool("outbox"));
     let fusion = json(&out.join("scan.fusion.json"));
     let skipped = fusion["skipped"].as_array().unwrap();
@@ -310,23 +317,15 @@ fn a_view_that_sees_nothing_is_named_as_such_and_never_retried() {
     assert!(reason.starts_with("[device.empty-view] the scanner saw nothing"), "{reason}");
     assert_eq!(fusion["capture"]["retries"], 0, "an empty view is not triggered again");
     assert_eq!(view_indices(&fusion, "fusion report").len(), 7);
+    drop(st);
 
     // The default: the scan fails with the code, naming the view.
-    drop(st);
-    let dir2 = common::scratch("scan-empty-view-fail");
-    let bus2 = start_bus(&dir2, OPEN_POLICY);
-    let rig2 = start_rig(&dir2, 7);
-    let mut st = Station::new(&dir2, &bus2, false, &scan_config(&dir2, ""));
-    st.start();
-    start_scan(&st, &["2", "views", "u", "8", "vertices", "u", "3000"]);
-    wait_views(&st, 1, Duration::from_secs(60));
-    rig2.send("blind 1");
-    st.wait_done(1, Duration::from_secs(300));
+    let dir = common::scratch("scan-empty-view-fail");
+    let (st, _rig, _bus) = scan_blinded_once(&dir, "", 1);
     let q = only_entry(&st.spool("quarantine"));
     assert_eq!(error_code_of(&q), "device.empty-view");
     let e = json(&q.join("error.json"));
     assert!(e["message"].as_str().unwrap().contains("the scanner saw nothing"), "{e}");
-    drop(rig);
 }
 
 #[test]
