@@ -22,7 +22,8 @@ pub use html::esc;
 /// Largest JSON record of a bundle the page reads (a fusion report of many views is far below).
 const MAX_RECORD_BYTES: u64 = 64 << 20;
 
-/// Largest picture the page embeds; a larger PNG is linked by name instead.
+/// Largest picture the page embeds; a larger (or unreadable) PNG is named on the page instead: the page's
+/// policy loads images from `data:` URIs only, so a link to the file would show nothing.
 const MAX_EMBED_BYTES: u64 = 4 << 20;
 
 /// What the page is made from: a job's bundle (outbox or quarantine) or `convert`'s output directory.
@@ -139,17 +140,11 @@ fn read_json(p: &Path) -> Result<Value> {
         .map_err(|e| Error::new(ErrorCode::InputBadHeader, format!("not JSON: {e}")).in_file(p))
 }
 
-/// The `src` of a picture: its bytes as a `data:` URI, or its file name (relative, inside the bundle) when
-/// it is too large to embed or unreadable.
-fn image_src(p: &Path) -> String {
-    let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    match std::fs::metadata(p) {
-        Ok(m) if m.len() <= MAX_EMBED_BYTES => match std::fs::read(p) {
-            Ok(bytes) => format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(bytes)),
-            Err(_) => esc(&name),
-        },
-        _ => esc(&name),
-    }
+/// The `src` of a picture: its bytes as a `data:` URI; `None` when it is too large to embed or unreadable.
+fn image_src(p: &Path) -> Option<String> {
+    let m = std::fs::metadata(p).ok().filter(|m| m.len() <= MAX_EMBED_BYTES)?;
+    let bytes = std::fs::read(p).ok().filter(|b| b.len() as u64 == m.len())?;
+    Some(format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(bytes)))
 }
 
 /// The page of `b`, deterministic: the same bundle gives the same bytes.
@@ -157,8 +152,8 @@ fn image_src(p: &Path) -> String {
 /// # Errors
 /// `resource.output` when a listed file cannot be hashed.
 pub fn render(b: &Bundle) -> Result<String> {
-    let images: Vec<(String, String)> = b.pictures.iter().map(|(k, p)| (k.clone(), image_src(p))).collect();
-    let thumb = images.iter().find(|(k, _)| k == "thumbnail").map(|(_, s)| s.as_str());
+    let images: Vec<(String, Option<String>)> = b.pictures.iter().map(|(k, p)| (k.clone(), image_src(p))).collect();
+    let thumb = images.iter().find(|(k, _)| k == "thumbnail").and_then(|(_, s)| s.as_deref());
     let style_hash = {
         let d = <sha2::Sha256 as sha2::Digest>::digest(page::STYLE.as_bytes());
         base64::engine::general_purpose::STANDARD.encode(d)
@@ -236,4 +231,45 @@ pub fn write_convert_page(report: &super::convert::ConvertReport) -> Result<(Pat
     let path = b.page_path();
     let digest = write_atomic(&path, |w| std::io::Write::write_all(w, page.as_bytes()))?;
     Ok((path, digest))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::raster::Image;
+
+    /// A bundle with markup in its input's name, one picture and one too large to embed: the name is text,
+    /// the picture a `data:` URI, the large one named, the gate's value as the JSON holds it, and the policy
+    /// set; the same bundle gives the same bytes.
+    #[test]
+    fn a_page_escapes_names_embeds_pictures_and_repeats() {
+        let dir = std::env::temp_dir().join(format!("scanstation-page-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let report = serde_json::json!({
+            "input": "<b onmouseover=x>bust<b>.ply",
+            "convert": {"status": "ok", "gates": [
+                {"name": "rms", "value": 0.012345678901234567, "bound": 0.05, "unit": "%", "passed": true, "what": "<i>"}
+            ]}
+        });
+        std::fs::write(dir.join("bust.report.json"), report.to_string()).unwrap();
+        crate::geometry::io::write_png(&dir.join("bust.deviation.png"), &Image::filled(8, 8, [1, 2, 3])).unwrap();
+        std::fs::write(dir.join("bust.net.png"), vec![0u8; (MAX_EMBED_BYTES + 1) as usize]).unwrap();
+        let b = Bundle::load(&dir).unwrap();
+        assert_eq!((b.stem.as_str(), b.title.as_str()), ("bust", "<b onmouseover=x>bust<b>.ply"));
+        let page = render(&b).unwrap();
+        assert!(page.contains("&lt;b onmouseover=x&gt;bust&lt;b&gt;.ply") && !page.contains("<b onmouseover"), "name");
+        assert!(!page.contains("<i>") && page.contains("&lt;i&gt;"), "the gate's text is escaped");
+        assert_eq!(page.matches("data:image/png;base64,").count(), 1, "one picture embedded");
+        assert!(page.contains("The net picture is in the bundle but too large to embed here."));
+        let value = serde_json::json!(0.012345678901234567_f64).to_string();
+        assert!(page.contains(&format!("<td>{value}</td>")), "the value as the JSON writes it: {value}");
+        assert!(page.contains("default-src 'none'; img-src data:; style-src 'sha256-"));
+        assert!(!page.contains("<script"));
+        assert_eq!(page, render(&Bundle::load(&dir).unwrap()).unwrap(), "the same bytes again");
+        std::fs::remove_file(dir.join("bust.report.json")).unwrap();
+        let e = Bundle::load(&dir).unwrap_err();
+        assert_eq!(e.code, ErrorCode::InputNoGeometry, "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -119,15 +119,20 @@ pub fn gates(b: &Bundle) -> String {
     section("quality", "Quality gates", &table("gates", &["gate", "value", "bound", "unit", "result", "what"], &rows))
 }
 
-/// The pictures, as `<figure>`s (`images`: kind → the `src` to use).
-pub fn pictures(images: &[(String, String)]) -> String {
+/// The pictures, as `<figure>`s (`images`: kind → the `data:` URI, or `None` for one too large to embed,
+/// which is named instead).
+pub fn pictures(images: &[(String, Option<String>)]) -> String {
     let mut body = String::new();
     for (kind, what) in PICTURES {
-        if let Some((_, src)) = images.iter().find(|(k, _)| k == kind) {
-            body.push_str(&format!(
+        match images.iter().find(|(k, _)| k == kind) {
+            Some((_, Some(src))) => body.push_str(&format!(
                 "<figure id=\"picture-{kind}\"><img alt=\"{kind}\" src=\"{src}\"><figcaption>{}</figcaption></figure>",
                 esc(what)
-            ));
+            )),
+            Some((_, None)) => body.push_str(&format!(
+                "<p id=\"picture-{kind}\">The {kind} picture is in the bundle but too large to embed here.</p>"
+            )),
+            None => {}
         }
     }
     if body.is_empty() { String::new() } else { section("pictures", "Pictures", &body) }
