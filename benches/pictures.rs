@@ -74,7 +74,7 @@ fn row(name: &str, input: &Path, r: &scanstation::pipeline::ConvertReport, tmp: 
     common::reset_peak();
     let t0 = Instant::now();
     let side = signed_vertex_distances(&big, &input_mesh.triangulate().0);
-    let signed: Vec<f64> = map.distances.iter().zip(&side).map(|(&d, &s)| if s < 0.0 { -d } else { d }).collect();
+    let signed = scanstation::stages::quality::with_side(&map.distances, &side);
     let t_sign = t0.elapsed().as_secs_f64();
     let diag = r.bbox_diagonal;
     let deviation = Deviation { signed: &signed, invented: None, band: 0.0005 * diag, diag, unit: "mm" };

@@ -700,7 +700,7 @@ fn draw_pictures(
     let unit = opts.unit;
     let (solid, _) = solid.triangulate();
     let side = crate::stages::quality::signed_vertex_distances(&solid, repaired);
-    let signed: Vec<f64> = map.distances.iter().zip(&side).map(|(&d, &s)| if s < 0.0 { -d } else { d }).collect();
+    let signed = crate::stages::quality::with_side(&map.distances, &side);
     let attempts = attempts
         .iter()
         .map(|a| AttemptPoint {

@@ -8,7 +8,7 @@ use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{ReadOptions, ensure_not_input, read_geometry, read_mesh};
 use crate::geometry::mesh::Geometry;
 use crate::stages::NoProgress;
-use crate::stages::quality::{signed_vertex_distances, vertex_distances};
+use crate::stages::quality::{signed_vertex_distances, vertex_distances, with_side};
 
 /// What a render colours the mesh by.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -83,13 +83,12 @@ pub fn render_file(mesh_path: &Path, out: &Path, read: &ReadOptions, opts: &Rend
             let reference = read_geometry(&need(opts.reference.as_ref(), "--ref SCAN")?, read)?;
             let mut d = vertex_distances(&Geometry::Mesh(poly.clone()), &reference)?;
             if let Geometry::Mesh(r) = &reference {
-                let side = signed_vertex_distances(&tri, &r.triangulate().0);
-                d.iter_mut().zip(side).filter(|(_, s)| *s < 0.0).for_each(|(x, _)| *x = -*x);
+                d = with_side(&d, &signed_vertex_distances(&tri, &r.triangulate().0));
             }
             let diag = reference.bbox().diagonal();
             let dev =
                 Deviation { signed: &d, invented: None, band: opts.band_pct / 100.0 * diag, diag, unit: opts.unit };
-            maps::deviation_sheet(&scene(), &dev)
+            maps::deviation_sheet(&scene(), &dev, &dev.colours())
         }
         ColorBy::Net => maps::net_sheet(&scene(), &poly, 0.01 * tri.bbox().diagonal()),
         ColorBy::Faces => maps::faces_sheet(&scene(), &polygon_of),

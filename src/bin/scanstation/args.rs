@@ -528,7 +528,7 @@ impl ConvertArgs {
         if let Some(r) = &self.report {
             use scanstation::pipeline::provenance::{error_map_path, solid_artifact_path};
             let (solid, map) = (solid_artifact_path(&self.output), error_map_path(&self.output));
-            let page = self.output.with_extension("report.html");
+            let page = pipeline::report_html::convert_page_path(&self.output);
             let mut others = vec![self.input.as_path(), &self.output, &solid, &map];
             others.extend(self.quads.as_deref());
             if self.pictures {

@@ -158,7 +158,7 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
     }
     if let Some(first) = r.pictures.first() {
         let kinds: Vec<&str> = r.pictures.iter().map(|p| p.kind).collect();
-        let page = r.output_file.with_extension("report.html");
+        let page = pipeline::report_html::convert_page_path(&r.output_file);
         outln!("  pictures: {} beside {}; page {}", kinds.join(", "), first.file.display(), page.display());
     }
 }

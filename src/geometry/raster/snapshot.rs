@@ -124,22 +124,6 @@ impl Snapshot {
         snap
     }
 
-    /// Width, pixels.
-    pub fn width(&self) -> u32 {
-        self.width
-    }
-
-    /// Height, pixels.
-    pub fn height(&self) -> u32 {
-        self.height
-    }
-
-    /// The triangle covering pixel (x, y), if any.
-    pub fn face_at(&self, x: u32, y: u32) -> Option<usize> {
-        let f = self.face[y as usize * self.width as usize + x as usize];
-        (f != EMPTY).then_some(f as usize)
-    }
-
     /// Paint every covered pixel with `colour(x, y, triangle, barycentric weights)` times its shade; the
     /// rest is [`BACKGROUND`].
     pub fn paint(&self, colour: impl Fn(u32, u32, usize, [f32; 3]) -> [u8; 3]) -> Image {
@@ -177,11 +161,6 @@ impl Snapshot {
     pub fn screen(&self, p: V3) -> Option<[f64; 3]> {
         let (u, v, w) = self.frame;
         self.fit.as_ref().map(|f| f.screen([dot(p, u), dot(p, v), dot(p, w)]))
-    }
-
-    /// Pixels per model unit.
-    pub fn scale(&self) -> f64 {
-        self.fit.as_ref().map_or(0.0, |f| f.scale)
     }
 
     /// Whether a point at screen position `s` (from [`Snapshot::screen`]) is in front of the surface there,

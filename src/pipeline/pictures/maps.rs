@@ -44,6 +44,12 @@ impl Deviation<'_> {
         p.max(2.0 * self.band).max(1e-12 * self.diag.max(1e-300))
     }
 
+    /// Each vertex's colour on the map's scale ([`Deviation::range`], the band).
+    pub fn colours(&self) -> Vec<[u8; 3]> {
+        let range = self.range();
+        self.signed.iter().map(|&d| deviation_colour(d, range, self.band)).collect()
+    }
+
     /// `v` model units as the legend writes it: in the unit and in % of the diagonal.
     pub fn label(&self, v: f64) -> String {
         format!("{} {} ({}%)", num(v), self.unit, num(100.0 * v / self.diag.max(1e-300)))
@@ -51,10 +57,10 @@ impl Deviation<'_> {
 }
 
 /// The deviation map: blue inside, red outside, grey within the band, invented surface hatched.
-pub fn deviation_sheet(scene: &Scene, dev: &Deviation) -> Image {
+/// The deviation map, its vertices coloured by `colours` ([`Deviation::colours`]).
+pub fn deviation_sheet(scene: &Scene, dev: &Deviation, colours: &[[u8; 3]]) -> Image {
     let range = dev.range();
-    let colours: Vec<[u8; 3]> = dev.signed.iter().map(|&d| deviation_colour(d, range, dev.band)).collect();
-    let mut sheet = scene.sheet(|snap| paint_deviation(snap, scene, dev, &colours));
+    let mut sheet = scene.sheet(|snap| paint_deviation(snap, scene, dev, colours));
     let lb = legend_box();
     colour_bar(&mut sheet, lb.bar, |t| deviation_colour((2.0 * t - 1.0) * range, range, dev.band));
     ticks(&mut sheet, lb.bar, lb.ticks_y, &[(0.0, dev.label(-range)), (0.5, "0".into()), (1.0, dev.label(range))]);
@@ -100,18 +106,11 @@ fn blend(c: [[u8; 3]; 3], l: [f32; 3]) -> [u8; 3] {
 pub fn net_sheet(scene: &Scene, net: &PolyMesh, slack: f64) -> Image {
     const EDGE: [u8; 3] = [30, 60, 150];
     const ODD: [u8; 3] = [210, 30, 30];
+    let edges = crate::geometry::polygon::unique_edges(net.faces());
     let mut valence = vec![0u32; net.positions.len()];
-    // Each edge of a closed net once, from its (a < b) side.
-    let mut edges = Vec::new();
-    for face in net.faces() {
-        for (k, &a) in face.iter().enumerate() {
-            let b = face[(k + 1) % face.len()];
-            if a < b {
-                edges.push((a, b));
-                valence[a as usize] += 1;
-                valence[b as usize] += 1;
-            }
-        }
+    for &(a, b) in &edges {
+        valence[a as usize] += 1;
+        valence[b as usize] += 1;
     }
     let p = |i: u32| net.positions[i as usize].map(f64::from);
     let odd: Vec<u32> = (0..net.positions.len() as u32).filter(|&i| valence[i as usize] != 4).collect();

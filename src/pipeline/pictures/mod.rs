@@ -112,13 +112,10 @@ pub fn write_convert_pictures(step: &Path, p: &ConvertPictures, up: Up) -> Resul
     let scene = Scene::new(p.solid, up.axis());
     let dev = &p.deviation;
     let slack = 0.01 * dev.diag;
-    let colours: Vec<[u8; 3]> = {
-        let range = dev.range();
-        dev.signed.iter().map(|&d| crate::stages::quality::deviation_colour(d, range, dev.band)).collect()
-    };
+    let colours = dev.colours();
     type Make<'b> = Box<dyn Fn() -> Image + Send + Sync + 'b>;
     let mut jobs: Vec<(&'static str, Make)> = vec![
-        ("deviation", Box::new(|| maps::deviation_sheet(&scene, dev))),
+        ("deviation", Box::new(|| maps::deviation_sheet(&scene, dev, &colours))),
         ("histogram", Box::new(|| plots::histogram(dev))),
         ("net", Box::new(|| maps::net_sheet(&scene, p.net, slack))),
         ("faces", Box::new(|| maps::faces_sheet(&scene, p.face_of))),
@@ -196,7 +193,7 @@ mod tests {
         assert!(signed.iter().all(|&d| (d + 0.01).abs() < 1e-4), "every vertex 0.01 inside");
         let diag = large.bbox().diagonal();
         let dev = Deviation { signed: &signed, invented: None, band: 0.001, diag, unit: "mm" };
-        let sheet = maps::deviation_sheet(&Scene::new(&small, Up::Y.axis()), &dev);
+        let sheet = maps::deviation_sheet(&Scene::new(&small, Up::Y.axis()), &dev, &dev.colours());
         let px = covered(&sheet);
         assert!(px.len() > 4 * 40_000, "four discs: {} pixels", px.len());
         let off: Vec<_> = px.iter().filter(|&&(x, y)| !shaded(sheet.pixel(x, y), DEVIATION_INSIDE)).take(5).collect();
@@ -220,7 +217,7 @@ mod tests {
         }
         let signed = signed_vertex_distances(&bumped, &plain);
         let dev = Deviation { signed: &signed, invented: None, band: 0.002, diag: 3.46, unit: "mm" };
-        let sheet = maps::deviation_sheet(&Scene::new(&bumped, Up::Y.axis()), &dev);
+        let sheet = maps::deviation_sheet(&Scene::new(&bumped, Up::Y.axis()), &dev, &dev.colours());
         // Front panel 512 × 336 with 5 % margins: x from −1.05 to 1.05 over 302.4 rows → scale 144 px/unit,
         // centred at column 256 (a sphere's extent is symmetric up to the bump's 0.05). The bump spans
         // x in (0.8, 1.05]: columns 256 + 144 · 0.8 ≈ 371 onward.

@@ -26,7 +26,13 @@ const MAX_RECORD_BYTES: u64 = 64 << 20;
 /// policy loads images from `data:` URIs only, so a link to the file would show nothing.
 const MAX_EMBED_BYTES: u64 = 4 << 20;
 
-/// What the page is made from: a job's bundle (outbox or quarantine) or `convert`'s output directory.
+/// The page beside the STEP file `NAME.step` that `convert --pictures` writes: `NAME.report.html`.
+pub fn convert_page_path(step: &Path) -> PathBuf {
+    step.with_extension("report.html")
+}
+
+/// What the page is made from: a job's bundle (outbox or quarantine) or `convert`'s output directory. Its
+/// manifest is not read: the page lists the files it finds, hashed (the manifest is written after it).
 #[derive(Clone, Debug, Default)]
 pub struct Bundle {
     /// The directory.
@@ -39,8 +45,6 @@ pub struct Bundle {
     pub report: Option<Value>,
     /// `error.json` of a quarantined job.
     pub error: Option<Value>,
-    /// `manifest.json` of a published job.
-    pub manifest: Option<Value>,
     /// A scan's `<stem>.fusion.json`.
     pub fusion: Option<Value>,
     /// The FEA's `<stem>.fea.json`.
@@ -75,8 +79,6 @@ impl Bundle {
                 b.report = Some(read_json(&p)?);
             } else if n == "error.json" {
                 b.error = Some(read_json(&p)?);
-            } else if n == "manifest.json" {
-                b.manifest = Some(read_json(&p)?);
             } else if n.ends_with(".fusion.json") {
                 b.fusion = Some(read_json(&p)?);
             } else if n.ends_with(".fea.json") {
@@ -228,7 +230,7 @@ pub fn write_convert_page(report: &super::convert::ConvertReport) -> Result<(Pat
     };
     b.title = title(&b);
     let page = render(&b)?;
-    let path = b.page_path();
+    let path = convert_page_path(step);
     let digest = write_atomic(&path, |w| std::io::Write::write_all(w, page.as_bytes()))?;
     Ok((path, digest))
 }

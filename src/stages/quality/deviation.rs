@@ -35,6 +35,13 @@ pub fn signed_vertex_distances(test: &TriMesh, reference: &TriMesh) -> Vec<f64> 
         .collect()
 }
 
+/// Unsigned distances `magnitudes` given the sign of `side` (each vertex's [`signed_vertex_distances`] to a
+/// closed surface: negative inside): the deviation map's data when the distance is measured to one surface
+/// (a scan, possibly open) and the side to another (its closed, repaired form).
+pub fn with_side(magnitudes: &[f64], side: &[f64]) -> Vec<f64> {
+    magnitudes.iter().zip(side).map(|(&d, &s)| if s < 0.0 { -d } else { d }).collect()
+}
+
 /// The colour of a signed deviation `d` on a symmetric scale to `range` (> 0) with a neutral band of half
 /// width `band` (0 ≤ band < range): [`DEVIATION_BAND`] within the band, then from [`DEVIATION_NEAR`] at the
 /// band's edge to [`DEVIATION_INSIDE`] (d ≤ −range) or [`DEVIATION_OUTSIDE`] (d ≥ range), linearly. NaN is the

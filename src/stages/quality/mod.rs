@@ -22,6 +22,7 @@ mod error_map;
 
 pub use deviation::{
     DEVIATION_BAND, DEVIATION_INSIDE, DEVIATION_NEAR, DEVIATION_OUTSIDE, deviation_colour, signed_vertex_distances,
+    with_side,
 };
 pub use error_map::{ErrorMapFile, INVENTED_GREY, color_ramp, write_error_map};
 
