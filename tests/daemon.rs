@@ -954,6 +954,22 @@ fn the_rig_on_dbus_moves_fires_degrades_and_recovers_with_its_simulators() {
         let angle: f64 = angle.trim_start_matches("d ").parse().unwrap();
         assert!((angle - target).abs() < 0.01, "Angle {angle} after MoveTo {deg}");
     }
+    // Issue 46: a tilting table (the rig config names tilt_min = -60, tilt_max = 60). MoveTo's `tilt` option
+    // moves Grbl's Y too, Tilt follows; out of range or of the wrong type: refused, naming why.
+    assert_eq!(st.property("Turntable", TURNTABLE, "TiltRange").as_deref(), Some("ad 2 -60 60"));
+    let tt = format!("{NAME}.Turntable");
+    let out = st.busctl(&["--", "call", NAME, TURNTABLE, &tt, "MoveTo", "da{sv}", "30", "1", "tilt", "d", "-20"]);
+    assert!(out.status.success(), "MoveTo tilted: {}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(st.property("Turntable", TURNTABLE, "Tilt").as_deref(), Some("d -20"));
+    for (value, why) in [("d 75", "outside the cradle's range -60° to 60°"), ("s x", "must be a finite double")] {
+        let (ty, v) = value.split_once(' ').unwrap();
+        let out = st.busctl(&["--", "call", NAME, TURNTABLE, &tt, "MoveTo", "da{sv}", "30", "1", "tilt", ty, v]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(why), "tilt {value}: {err}");
+    }
+    assert_eq!(st.property("Turntable", TURNTABLE, "Tilt").as_deref(), Some("d -20"), "a refused move moves nothing");
+    let out = st.busctl(&["--", "call", NAME, TURNTABLE, &tt, "MoveTo", "da{sv}", "90", "1", "tilt", "d", "0"]);
+    assert!(out.status.success(), "MoveTo level: {}", String::from_utf8_lossy(&out.stderr));
     let sent = st.busctl(&["call", NAME, TRIGGER, &format!("{NAME}.Trigger"), "Fire", "ua{sv}", "0", "0"]);
     assert!(sent.status.success(), "Fire: {}", String::from_utf8_lossy(&sent.stderr));
     assert!(String::from_utf8_lossy(&sent.stdout).starts_with("t "));

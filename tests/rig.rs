@@ -310,3 +310,51 @@ fn the_simulators_command_readers_are_bounded() {
     let log = std::fs::read_to_string(dir.join("sim.log")).unwrap();
     assert!(log.contains("was dropped"), "{log}");
 }
+
+/// Issue 46: a tilting table over a real pty. On a factory-fresh board (no homing: X and Y are zero where they
+/// stand) a tilted move drives X and Y along one straight path, its deadline from the path's length, and
+/// both axes are checked; the simulated firmware's cradle (what its camera sees) stands where the board
+/// reports it. A tilt outside the configured range, or any tilt on a table configured without a tilt axis,
+/// is refused before anything moves.
+#[test]
+fn a_tilting_table_moves_both_axes_within_its_range() {
+    let dir = common::scratch("rig-tilt");
+    let board = SimTurntable::spawn(SimSettings::default(), &dir.join("ttyTurntable"), TIME_SCALE).expect("a pty");
+    let tilt_of = board.tilt_source();
+    runtime().block_on(async {
+        let mut settings = link_settings(board.link());
+        settings.driver.tilt = Some((-60.0, 60.0));
+        let tt = spawn_turntable(settings);
+        until(&tt, "connected", Duration::from_secs(8), |s| s.connected && s.homed).await;
+        assert_eq!(tt.state().tilt_range, Some((-60.0, 60.0)));
+        for (angle, tilt) in [(90.0, -45.0), (135.0, 50.0), (135.0, 0.0), (200.0, -25.0)] {
+            let r = tt.move_to_tilted(angle, tilt).await.unwrap_or_else(|e| panic!("move to {angle}°/{tilt}°: {e}"));
+            println!(
+                "tilted move to {angle}°, {tilt}°: reached {:.4}°, {:.4}° in {:.3} s",
+                r.reached, r.tilt, r.seconds
+            );
+            assert!((r.reached - angle).abs() <= 0.01 && (r.tilt - tilt).abs() <= 0.01, "{r:?}");
+            assert!((tt.state().tilt - tilt).abs() <= 0.01, "the published tilt follows: {:?}", tt.state());
+            assert!((tilt_of() - tilt).abs() <= 0.01, "the firmware's cradle: {}", tilt_of());
+        }
+        // A plain move leaves the cradle where it is.
+        let r = tt.move_to(10.0).await.unwrap();
+        assert!((r.tilt + 25.0).abs() <= 0.01, "{r:?}");
+        let e = tt.move_to_tilted(10.0, 61.0).await.unwrap_err();
+        assert_eq!(e.code, ErrorCode::InputBadArgument, "{e}");
+        assert!(e.message.contains("outside the cradle's range -60° to 60°"), "{e}");
+        assert!((tilt_of() + 25.0).abs() <= 0.01, "a refused tilt moves nothing");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        assert_eq!(tt.state().faults, 0, "a caller's bad argument is no device fault: {:?}", tt.state().last_fault);
+    });
+    drop(board);
+    let board = SimTurntable::spawn(SimSettings::default(), &dir.join("ttyTurntable"), TIME_SCALE).expect("a pty");
+    runtime().block_on(async {
+        let tt = spawn_turntable(link_settings(board.link()));
+        until(&tt, "connected", Duration::from_secs(8), |s| s.connected && s.homed).await;
+        let e = tt.move_to_tilted(10.0, 20.0).await.unwrap_err();
+        assert_eq!(e.code, ErrorCode::DeviceConfig, "{e}");
+        assert!(e.message.contains("no tilt axis"), "{e}");
+        assert_eq!(board.angle(), 0.0, "the table never moved");
+    });
+}

@@ -48,6 +48,9 @@ struct RawScan {
     capture_dir: Option<PathBuf>,
     axis_point: Option<[f64; 3]>,
     axis_direction: Option<[f64; 3]>,
+    tilt_axis_point: Option<[f64; 3]>,
+    tilt_axis_direction: Option<[f64; 3]>,
+    tilts: Option<String>,
     views: Option<u32>,
     settle: Option<String>,
     view_file_timeout: Option<String>,
@@ -79,6 +82,8 @@ struct RawTurntable {
     banner_timeout: Option<String>,
     home_timeout: Option<String>,
     reconnect_max: Option<String>,
+    tilt_min: Option<f64>,
+    tilt_max: Option<f64>,
 }
 
 #[derive(Deserialize)]
@@ -272,6 +277,11 @@ pub struct ScanConfig {
     pub axis_point: [f64; 3],
     /// The axis direction in the scanner's frame, pointing up from the table (calibration; normalised).
     pub axis_direction: [f64; 3],
+    /// A tilting table's cradle axis in the scanner's frame, the table at 0° and level: a point on it and
+    /// its direction (calibration; normalised); `None` without one.
+    pub tilt_axis: Option<([f64; 3], [f64; 3])>,
+    /// A tilting table's rings after the level one when `StartScan` names none (`TILT:VIEWS,…`).
+    pub tilts: Vec<crate::daemon::scan::plan::Ring>,
     /// Views per scan when `StartScan` names none.
     pub views: u32,
     #[serde(with = "secs")]
@@ -325,6 +335,9 @@ pub struct TurntableConfig {
     #[serde(with = "secs")]
     /// Longest wait between reconnecting tries.
     pub reconnect_max: Duration,
+    /// A tilting table: its cradle on Grbl's Y, in degrees, may move from the first to the second
+    /// (`tilt_min`, `tilt_max`); `None`: a single-axis table.
+    pub tilt: Option<(f64, f64)>,
 }
 
 /// `[devices.trigger]`: the scanner's node on CAN.
@@ -605,7 +618,19 @@ fn turntable_config(t: RawTurntable, dur: &DurOf, err: &ErrOf) -> Result<Turntab
             ));
         }
     };
+    let tilt = match (t.tilt_min, t.tilt_max) {
+        (None, None) => None,
+        (Some(lo), Some(hi)) if lo.is_finite() && hi.is_finite() && lo < hi && lo >= -180.0 && hi <= 180.0 => {
+            Some((lo, hi))
+        }
+        (Some(lo), Some(hi)) => {
+            return Err(err(&k("tilt_min"), format!("{lo} to {hi}: a range of degrees, lowest first, within ±180")));
+        }
+        (Some(_), None) => return Err(err(&k("tilt_max"), "required with tilt_min (the cradle's range)".into())),
+        (None, Some(_)) => return Err(err(&k("tilt_min"), "required with tilt_max (the cradle's range)".into())),
+    };
     Ok(TurntableConfig {
+        tilt,
         port,
         baud,
         steps_per_revolution: t.steps_per_revolution.unwrap_or(0),
@@ -672,6 +697,29 @@ fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, Confi
     if !(1..=360).contains(&views) {
         return Err(err(&k("views"), format!("{views} is outside 1..=360")));
     }
+    let tilt_axis = match (t.tilt_axis_point, t.tilt_axis_direction) {
+        (None, None) => None,
+        (Some(p), Some(d)) => {
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            if p.iter().any(|v| !v.is_finite()) {
+                return Err(err(&k("tilt_axis_point"), "three finite numbers".into()));
+            }
+            if !(len.is_finite() && len > 1e-9) {
+                return Err(err(&k("tilt_axis_direction"), "a non-zero vector of finite numbers".into()));
+            }
+            Some((p, d.map(|v| v / len)))
+        }
+        (Some(_), None) => return Err(err(&k("tilt_axis_direction"), "required with tilt_axis_point".into())),
+        (None, Some(_)) => return Err(err(&k("tilt_axis_point"), "required with tilt_axis_direction".into())),
+    };
+    let tilts = crate::daemon::scan::plan::Ring::parse_list(t.tilts.as_deref().unwrap_or(""))
+        .map_err(|m| err(&k("tilts"), m))?;
+    if !tilts.is_empty() && tilt_axis.is_none() {
+        return Err(err(
+            &k("tilts"),
+            "tilted rings need the cradle's calibration: tilt_axis_point and tilt_axis_direction".into(),
+        ));
+    }
     let view_retries = t.view_retries.unwrap_or(2);
     if view_retries > 20 {
         return Err(err(&k("view_retries"), format!("{view_retries} is more than 20")));
@@ -695,6 +743,8 @@ fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, Confi
         capture_dir,
         axis_point,
         axis_direction: d.map(|v| v / len),
+        tilt_axis,
+        tilts,
         views,
         settle: dur(&k("settle"), &t.settle, "300ms")?,
         view_file_timeout: dur(&k("view_file_timeout"), &t.view_file_timeout, "5s")?,
@@ -722,6 +772,8 @@ pub mod option_keys {
     pub const VIEWS: &str = "views";
     /// Degrees between a scan's views (double).
     pub const STEP_DEG: &str = "step_deg";
+    /// A tilting table's rings after the level one, `TILT:VIEWS,…` (string).
+    pub const TILTS: &str = "tilts";
     /// A scan's name (string).
     pub const NAME: &str = "name";
     /// An FEA spec for a scan's solid, an absolute path (string).
@@ -729,7 +781,7 @@ pub mod option_keys {
     /// Every job's options ([`super::JobOptions`]).
     pub const JOB: [&str; 4] = [VERTICES, TOLERANCE, SEED, ACCEPT_DEGRADED];
     /// A scan's own options, beside [`JOB`].
-    pub const SCAN: [&str; 4] = [VIEWS, STEP_DEG, NAME, FEA];
+    pub const SCAN: [&str; 5] = [VIEWS, STEP_DEG, TILTS, NAME, FEA];
 }
 
 /// Per-job options: from a sidecar `NAME.job.toml` or the `a{sv}` of `SubmitFile`.

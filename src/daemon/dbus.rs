@@ -242,6 +242,8 @@ pub struct ManagerIface {
     pub access: Access,
     /// Views of a scan that names none (`[scan] views`).
     pub default_views: u32,
+    /// Tilted rings of a scan that names none (`[scan] tilts`).
+    pub default_tilts: Vec<crate::daemon::scan::plan::Ring>,
 }
 
 /// Lock a view, also after a panic elsewhere (views hold plain values; a poisoned one is still consistent).
@@ -294,14 +296,16 @@ fn parse_options(options: &HashMap<String, OwnedValue>, known: &[&str]) -> Resul
     Ok(o)
 }
 
-/// Parse the `a{sv}` of `StartScan`: `views` (integer), `step_deg` (double), `name` (string), `fea` (string, an
-/// absolute path), and the options of `SubmitFile`. `default_views` when neither views nor step is given.
+/// Parse the `a{sv}` of `StartScan`: `views` (integer), `step_deg` (double), `tilts` (string, `TILT:VIEWS,…`),
+/// `name` (string), `fea` (string, an absolute path), and the options of `SubmitFile`. `default_views` when
+/// neither views nor step is given, `default_tilts` when `tilts` is not.
 fn parse_scan_options(
     options: &HashMap<String, OwnedValue>,
-    default_views: u32,
+    (default_views, default_tilts): (u32, &[crate::daemon::scan::plan::Ring]),
 ) -> Result<(crate::daemon::scan::ScanRequest, String, JobOptions), StationError> {
     let mut rest = HashMap::new();
     let (mut views, mut step, mut name, mut fea) = (None, None, "scan".to_string(), None);
+    let mut rings = None;
     for (k, v) in options {
         let bad =
             || StationError::InvalidArgument(format!("option {k:?} has the wrong type ({})", v.value_signature()));
@@ -317,6 +321,10 @@ fn parse_scan_options(
                 _ => return Err(bad()),
             },
             option_keys::NAME => name = text()?,
+            option_keys::TILTS => {
+                rings =
+                    Some(crate::daemon::scan::plan::Ring::parse_list(&text()?).map_err(StationError::InvalidArgument)?);
+            }
             option_keys::FEA => {
                 let p = PathBuf::from(text()?);
                 if !p.is_absolute() {
@@ -332,6 +340,8 @@ fn parse_scan_options(
     let mut request =
         crate::daemon::scan::ScanRequest::new(views, step, default_views).map_err(StationError::InvalidArgument)?;
     request.fea = fea;
+    // None named: the station's (`[scan] tilts`); an empty text: the level ring only.
+    request.rings = rings.unwrap_or_else(|| default_tilts.to_vec());
     let known: Vec<&str> = option_keys::SCAN.into_iter().chain(option_keys::JOB).collect();
     let options = parse_options(&rest, &known)?;
     Ok((request, name, options))
@@ -368,7 +378,8 @@ pub mod manager_iface {
 
         /// Scan the object on the turntable: home, then at each of `views` stops (or every `step_deg`) move,
         /// settle and trigger the scanner, keep the view; then fuse the views and convert them as a submitted
-        /// file. Options: `views` (u), `step_deg` (d), `name` (s: the bundle's stem), `fea` (s: an FEA spec
+        /// file. Options: `views` (u), `step_deg` (d), `tilts` (s: a tilting table's rings after the level one,
+        /// `TILT:VIEWS,…`, e.g. `-25:8,-45:8,50:6`; "" for none), `name` (s: the bundle's stem), `fea` (s: an FEA spec
         /// on the station, in table coordinates), and `vertices` (u), `tolerance` (d), `seed` (t),
         /// `accept_degraded` (b) as `SubmitFile`. The job object exists when this returns.
         async fn start_scan(
@@ -378,7 +389,7 @@ pub mod manager_iface {
             #[zbus(connection)] conn: &Connection,
         ) -> Result<OwnedObjectPath, StationError> {
             authorize(conn, &hdr, &self.access, "StartScan").await?;
-            let (request, name, options) = parse_scan_options(&options, self.default_views)?;
+            let (request, name, options) = parse_scan_options(&options, (self.default_views, &self.default_tilts))?;
             let source = format!("dbus:{}", hdr.sender().map(|s| s.to_string()).unwrap_or_default());
             let id = ask(&self.tx, |reply| Command::StartScan { request, name, options, source, reply }).await??;
             Ok(job_path(&id))

@@ -121,6 +121,7 @@ pub async fn run(cfg: Config) -> Result<(), StartError> {
                 memory_budget: cfg.memory_budget,
                 access: access.clone(),
                 default_views: cfg.scan.as_ref().map_or(12, |s| s.views),
+                default_tilts: cfg.scan.as_ref().map_or(Vec::new(), |s| s.tilts.clone()),
             },
         )
         .await

@@ -42,6 +42,24 @@ fn no_options(options: &HashMap<String, OwnedValue>) -> Result<(), StationError>
     }
 }
 
+/// `MoveTo`'s options: `tilt` (a double), nothing else.
+fn tilt_option(options: &HashMap<String, OwnedValue>) -> Result<Option<f64>, StationError> {
+    let mut tilt = None;
+    for (k, v) in options {
+        match (k.as_str(), &**v) {
+            ("tilt", Value::F64(t)) if t.is_finite() => tilt = Some(*t),
+            ("tilt", other) => {
+                return Err(StationError::InvalidArgument(format!(
+                    "option \"tilt\" must be a finite double (degrees), not {} {other:?}",
+                    other.value_signature()
+                )));
+            }
+            _ => return Err(StationError::InvalidArgument(format!("unknown option {k:?} (MoveTo takes: tilt)"))),
+        }
+    }
+    Ok(tilt)
+}
+
 /// `org.scanstation.Station1.Turntable`.
 pub struct TurntableIface {
     handle: TurntableHandle,
@@ -73,7 +91,9 @@ pub mod ifaces {
             self.handle.home().await.map_err(device_err)
         }
 
-        /// Turn to `degrees` (absolute); returns the angle the board reports when it stops. No options yet.
+        /// Turn to `degrees` (absolute); returns the angle the board reports when it stops. Options: `tilt`
+        /// (double, degrees): a tilting table's cradle moves there too, along the same path (within
+        /// `TiltRange`; a table with none refuses it, `device.config`).
         async fn move_to(
             &self,
             degrees: f64,
@@ -82,11 +102,15 @@ pub mod ifaces {
             #[zbus(connection)] conn: &Connection,
         ) -> Result<f64, StationError> {
             authorize(conn, &hdr, &self.access, "Turntable.MoveTo").await?;
-            no_options(&options)?;
+            let tilt = tilt_option(&options)?;
             if !(degrees.is_finite() && degrees.abs() <= 1e6) {
                 return Err(StationError::InvalidArgument(format!("{degrees} is not an angle (|a| ≤ 1e6)")));
             }
-            self.handle.move_to(degrees).await.map(|r| r.reached).map_err(device_err)
+            let moved = match tilt {
+                Some(t) => self.handle.move_to_tilted(degrees, t).await,
+                None => self.handle.move_to(degrees).await,
+            };
+            moved.map(|r| r.reached).map_err(device_err)
         }
 
         /// Stop where the table is.
@@ -128,6 +152,19 @@ pub mod ifaces {
         #[zbus(property)]
         fn angle(&self) -> f64 {
             self.handle.state().angle
+        }
+
+        /// The cradle's tilt, degrees, as the board last reported (Grbl's Y; 0 on a single-axis table).
+        #[zbus(property)]
+        fn tilt(&self) -> f64 {
+            self.handle.state().tilt
+        }
+
+        /// A tilting table's range (lowest, highest tilt), degrees, as configured; empty on a single-axis
+        /// table.
+        #[zbus(property(emits_changed_signal = "const"))]
+        fn tilt_range(&self) -> Vec<f64> {
+            self.handle.state().tilt_range.map_or(Vec::new(), |(lo, hi)| vec![lo, hi])
         }
 
         /// As configured (0: not given).
@@ -250,6 +287,7 @@ pub fn link_settings(c: &TurntableConfig) -> LinkSettings {
             reply_timeout: c.reply_timeout,
             banner_timeout: c.banner_timeout,
             home_timeout: c.home_timeout,
+            tilt: c.tilt,
             ..Default::default()
         },
         reconnect_max: c.reconnect_max,
@@ -382,6 +420,9 @@ impl Mirrored for TurntableIface {
         }
         if new.angle != old.angle {
             let _ = self.angle_changed(em).await;
+        }
+        if new.tilt != old.tilt {
+            let _ = self.tilt_changed(em).await;
         }
         if new.board != old.board {
             let _ = self.board_homing_changed(em).await;

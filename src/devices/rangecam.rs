@@ -22,7 +22,8 @@
 //! station's and Stanford's convention), and the table axis in that frame is [`RangeCamera::axis`] — what a
 //! calibration gives the station (`[scan] axis_point`, `axis_direction`). The object at table angle 0 in the
 //! camera frame is [`RangeCamera::truth_in_scanner`]; in the table frame the station fuses in,
-//! [`RangeCamera::truth`]. The table top itself is not rendered (scanners crop it away by height).
+//! [`RangeCamera::truth`]. The table top itself is not rendered (scanners crop it away by height), but it hides
+//! what lies beyond it: a plate just wider than the object's footing ([`plate_radius`]).
 
 use std::f64::consts::PI;
 
@@ -131,6 +132,20 @@ pub fn oriented_outward(mesh: &TriMesh) -> Result<TriMesh, String> {
     Ok(out)
 }
 
+/// The radius of the plate an object stands on: 10 % beyond the farthest point of its footing (what lies
+/// within 2 % of its height of the table), so a four-legged figure's plate reaches just past its feet and a
+/// statue's just past its base, as a cradle's plate is chosen for what it carries. `object` in the table
+/// frame (origin at the table top's centre, z up); `height` its extent along z.
+fn plate_radius(object: &TriMesh, height: f64) -> f64 {
+    let footing = object
+        .positions
+        .iter()
+        .filter(|p| f64::from(p[2]) <= 0.02 * height)
+        .map(|p| f64::from(p[0]).hypot(f64::from(p[1])))
+        .fold(0.0, f64::max);
+    1.1 * footing
+}
+
 /// Which mesh axis points up on the table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Up {
@@ -156,6 +171,8 @@ pub struct RangeCamera {
     distance: f64,
     /// The object's bounding-box diagonal.
     diagonal: f64,
+    /// The table top's radius: the plate the object stands on ([`plate_radius`]).
+    plate: f64,
 }
 
 impl RangeCamera {
@@ -203,11 +220,12 @@ impl RangeCamera {
         let back = scale(forward, -1.0);
         let upv = cross(back, right);
         let projector = add(eye, scale(right, settings.baseline_rel * distance));
-        Ok(RangeCamera { settings, object, bvh, eye, axes: [right, upv, back], projector, distance, diagonal })
+        let plate = plate_radius(&object, height);
+        Ok(RangeCamera { settings, object, bvh, eye, axes: [right, upv, back], projector, distance, diagonal, plate })
     }
 
-    /// Whether the ray `from + t·dir`, 0 < t ≤ `far`, crosses the table top: the disc of radius one
-    /// diagonal in the table frame's plane z = 0, seen from either side (the object stands on it).
+    /// Whether the ray `from + t·dir`, 0 < t ≤ `far`, crosses the table top: the plate the object stands
+    /// on, a disc in the table frame's plane z = 0 ([`plate_radius`]), seen from either side.
     fn table_hit(&self, from: V3, dir: V3, far: f64) -> bool {
         if dir[2].abs() < 1e-12 {
             return false;
@@ -218,7 +236,7 @@ impl RangeCamera {
             return false;
         }
         let (x, y) = (from[0] + t * dir[0], from[1] + t * dir[1]);
-        x * x + y * y <= self.diagonal * self.diagonal
+        x * x + y * y <= self.plate * self.plate
     }
 
     /// The settings.
@@ -270,7 +288,7 @@ impl RangeCamera {
     }
 
     /// [`RangeCamera::capture`] on a tilting table: turned by `angle_deg`, then tilted by `tilt_deg` about the
-    /// [`RangeCamera::tilt_axis`]. The table top (a disc of the object's diagonal) hides what rests on it:
+    /// [`RangeCamera::tilt_axis`]. The table top (the plate, [`plate_radius`]) hides what rests on it:
     /// a tilt shows the object's underside only where it does not stand on the table.
     pub fn capture_tilted(&self, angle_deg: f64, tilt_deg: f64) -> Vec<[f32; 3]> {
         let s = &self.settings;

@@ -129,13 +129,13 @@ impl RigSim {
         let (link, time_scale) = &s.table;
         let table = SimTurntable::spawn(SimSettings::default(), link, *time_scale)
             .map_err(|e| format!("cannot start the simulated turntable at {}: {e}", link.display()))?;
-        let angle = table.angle_source();
+        let (angle, tilt) = (table.angle_source(), table.tilt_source());
         let (cam, dir) = (camera.clone(), s.capture.clone());
         let views = ViewSource(Arc::new(move |seq: u16| {
-            let at = angle();
-            let cloud = PointCloud { positions: cam.capture(at), normals: None, colors: None };
+            let (at, tilted) = (angle(), tilt());
+            let cloud = PointCloud { positions: cam.capture_tilted(at, tilted), normals: None, colors: None };
             let path = dir.join(format!("view-{seq:05}.ply"));
-            let note = format!("simulated range image at table angle {at:.4} deg");
+            let note = format!("simulated range image at table angle {at:.4} deg, tilt {tilted:.4} deg");
             match crate::geometry::io::write_ply_cloud(&path, &cloud, &Default::default(), &[&note]) {
                 Ok(_) => Some(cloud.positions.len() as u32),
                 Err(e) => {
@@ -150,13 +150,14 @@ impl RigSim {
         Ok(RigSim { table, node, camera })
     }
 
-    /// The station's calibration for this rig: a TOML `[scan]` fragment with the table's axis in the
-    /// scanner's frame.
+    /// The station's calibration for this rig: a TOML `[scan]` fragment with the table's axis and the
+    /// cradle's tilt axis (Grbl's Y; the table at 0°, level) in the scanner's frame.
     pub fn calibration_toml(&self) -> String {
         let (p, d) = self.camera.axis();
+        let (tp, td) = self.camera.tilt_axis();
         format!(
-            "# The simulated rig's turntable axis in the scanner's frame (scanstation sim rig).\n[scan]\naxis_point = [{}, {}, {}]\naxis_direction = [{}, {}, {}]\n",
-            p[0], p[1], p[2], d[0], d[1], d[2]
+            "# The simulated rig's turntable axis and cradle (tilt) axis in the scanner's frame (scanstation sim rig).\n[scan]\naxis_point = [{}, {}, {}]\naxis_direction = [{}, {}, {}]\ntilt_axis_point = [{}, {}, {}]\ntilt_axis_direction = [{}, {}, {}]\n",
+            p[0], p[1], p[2], d[0], d[1], d[2], tp[0], tp[1], tp[2], td[0], td[1], td[2]
         )
     }
 

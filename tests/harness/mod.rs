@@ -425,6 +425,8 @@ reply_timeout = "500ms"
 banner_timeout = "2s"
 home_timeout = "5s"
 reconnect_max = "400ms"
+tilt_min = -60
+tilt_max = 60
 [devices.trigger]
 interface = "unix:{}"
 heartbeat = "50ms"
@@ -540,7 +542,8 @@ pub fn scan_config(dir: &Path, scan_extra: &str) -> String {
 
 /// `StartScan` through busctl with `args` (`a{sv}` count and entries); the job's path.
 pub fn start_scan(st: &Station, args: &[&str]) -> String {
-    let mut a = vec!["call", NAME, ROOT, "org.scanstation.Station1.Manager", "StartScan", "a{sv}"];
+    // `--`: a negative number among the arguments (a tilt) is not an option.
+    let mut a = vec!["--", "call", NAME, ROOT, "org.scanstation.Station1.Manager", "StartScan", "a{sv}"];
     a.extend_from_slice(args);
     let out = st.busctl(&a);
     assert!(out.status.success(), "StartScan failed: {}\n{}", String::from_utf8_lossy(&out.stderr), st.log());

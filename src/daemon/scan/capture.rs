@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use super::super::config::ScanConfig;
 use super::super::durable::{sync_dir, write_durable};
 use super::Rig;
-use super::plan::{CAPTURE_LOG, CaptureLog, ScanRequest, SkippedView, TakenView, view_pose};
+use super::plan::{CAPTURE_LOG, CaptureLog, ScanRequest, SkippedView, Stop, TakenView};
 use super::policy::{Action, Device, Fault, Rules, Step, classify, next};
 use crate::devices::trigger::TriggerHandle;
 use crate::devices::turntable::actor::TurntableHandle;
@@ -29,11 +29,7 @@ pub fn persist(dir: &Path, log: &CaptureLog) -> Result<(), Error> {
     let json = serde_json::to_vec_pretty(log).unwrap_or_default();
     write_durable(&log_path, &json).map_err(|e| io(&log_path, e))?;
     if !log.views.is_empty() {
-        let listed: Vec<(String, Pose)> = log
-            .views
-            .iter()
-            .map(|v| (v.file.clone(), view_pose(log.axis_point, log.axis_direction, v.angle_deg)))
-            .collect();
+        let listed: Vec<(String, Pose)> = log.views.iter().map(|v| (v.file.clone(), log.pose_of(v))).collect();
         crate::geometry::io::scanset::write_manifest(&dir.join(crate::geometry::io::scanset::MANIFEST), &listed)?;
         sync_dir(dir).map_err(|e| io(dir, e))?;
     }
@@ -108,67 +104,88 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
     let mut log = CaptureLog::load(job.dir).unwrap_or(CaptureLog {
         axis_point: cfg.axis_point,
         axis_direction: cfg.axis_direction,
-        planned: job.request.views,
+        tilt_axis: if job.request.tilts() { cfg.tilt_axis } else { None },
+        planned: job.request.stops().len() as u32,
         ..Default::default()
     });
     log.runs += 1;
     save(job.dir, &log).await?;
-    let angles = job.request.angles();
-    let total = angles.len().max(1) as f64;
-    let share = |log: &CaptureLog| (log.views.len() + log.skipped.len()) as f64 / total;
+    let stops = job.request.stops();
 
     // 1. Home (again after a restart: the table may have been turned by hand meanwhile), unless every view
     //    is in already.
-    if (0..job.request.views).any(|i| !log.has(i)) {
+    if (0..stops.len() as u32).any(|i| !log.has(i)) {
         (job.progress)(0.0, "home", "home/homing the turntable".into());
         home(job, table, &mut log).await?;
     }
 
     // 2. Every missing view, in plan order.
-    for (i, &angle) in angles.iter().enumerate() {
-        let index = i as u32;
+    take_stops(job, (table, trigger), &mut log, &stops, 0).await?;
+    if log.views.len() < 2 {
+        return Err(Error::new(
+            ErrorCode::ReconstructViewsDisagree,
+            format!("only {} view(s) captured of {}: too few to fuse", log.views.len(), stops.len()),
+        ));
+    }
+    Ok(log)
+}
+
+/// Take the views of `stops` (plan indices from `first`) that `log` does not hold, in order: move, settle,
+/// trigger, keep; the log saved after each.
+async fn take_stops(
+    job: &CaptureJob<'_>,
+    (table, trigger): (&TurntableHandle, &TriggerHandle),
+    log: &mut CaptureLog,
+    stops: &[Stop],
+    first: u32,
+) -> Result<(), Error> {
+    let total = (log.planned as usize).max(1) as f64;
+    let share = |log: &CaptureLog| ((log.views.len() + log.skipped.len()) as f64 / total).min(1.0);
+    for (i, stop) in stops.iter().enumerate() {
+        let index = first + i as u32;
         if log.has(index) {
             continue;
         }
         if job.cancel.load(Ordering::Relaxed) {
             return Err(cancelled());
         }
-        (job.progress)(share(&log), "capture", format!("capture/view {} of {} at {angle:.1}°", i + 1, angles.len()));
-        let reached = move_to(job, table, &mut log, angle).await?;
-        tokio::time::sleep(cfg.settle).await;
-        match trigger_view(job, trigger, &mut log, index, (angle, reached)).await? {
+        let n = index + 1;
+        let at = where_text(stop);
+        (job.progress)(share(log), "capture", format!("capture/view {n} of {} at {at}", log.planned));
+        let reached = move_to(job, table, log, stop).await?;
+        tokio::time::sleep(job.cfg.settle).await;
+        match trigger_view(job, trigger, log, index, (stop, reached)).await? {
             ViewOutcome::Taken(v) => log.views.push(v),
             ViewOutcome::GaveUp(e) => {
-                save(job.dir, &log).await?;
+                save(job.dir, log).await?;
                 let what = if e.code == ErrorCode::DeviceEmptyView {
-                    format!("view {} at {angle:.1}°: {}", i + 1, e.message)
+                    format!("view {n} at {at}: {}", e.message)
                 } else {
-                    format!(
-                        "view {} at {angle:.1}° never arrived after {} triggers: {}",
-                        i + 1,
-                        cfg.view_retries + 1,
-                        e.message
-                    )
+                    format!("view {n} at {at} never arrived after {} triggers: {}", job.cfg.view_retries + 1, e.message)
                 };
                 return Err(Error::new(e.code, what));
             }
             ViewOutcome::Skipped(e) => {
                 let reason = format!("[{}] {}", e.code.as_str(), e.message);
                 tracing::warn!(view = index, %reason, "view skipped");
-                log.skipped.push(SkippedView { index, angle_deg: angle, reason });
+                let (angle_deg, tilt_deg) = (stop.angle_deg, stop.tilt_deg);
+                log.skipped.push(SkippedView { index, angle_deg, tilt_deg, reason });
             }
         }
         log.views.sort_by_key(|v| v.index);
-        save(job.dir, &log).await?;
-        (job.progress)(share(&log), "capture", format!("capture/{} of {} views", log.views.len(), angles.len()));
+        save(job.dir, log).await?;
+        (job.progress)(share(log), "capture", format!("capture/{} of {} views", log.views.len(), log.planned));
     }
-    if log.views.len() < 2 {
-        return Err(Error::new(
-            ErrorCode::ReconstructViewsDisagree,
-            format!("only {} view(s) captured of {}: too few to fuse", log.views.len(), angles.len()),
-        ));
+    Ok(())
+}
+
+/// A stop in words: `30.0°`, or `30.0° tilted -25.0°`.
+fn where_text(stop: &Stop) -> String {
+    if stop.tilt_deg == 0.0 {
+        format!("{:.1}°", stop.angle_deg)
+    } else {
+        format!("{:.1}° tilted {:.1}°", stop.angle_deg, stop.tilt_deg)
     }
-    Ok(log)
 }
 
 /// Trigger view `index` (the table asked to `angle`, at `reached`) until it arrives, or until the policy
@@ -179,7 +196,7 @@ async fn trigger_view(
     trigger: &TriggerHandle,
     log: &mut CaptureLog,
     index: u32,
-    (angle, reached): (f64, f64),
+    (stop, reached): (&Stop, f64),
 ) -> Result<ViewOutcome, Error> {
     let rules = Rules::of(job.cfg);
     // Triggers lost for this view so far.
@@ -195,8 +212,9 @@ async fn trigger_view(
                     file,
                     bytes: digest.bytes,
                     sha256: digest.sha256,
-                    angle_deg: angle,
+                    angle_deg: stop.angle_deg,
                     reached_deg: reached,
+                    tilt_deg: stop.tilt_deg,
                     seq: report.seq,
                     points: report.points,
                     tries: lost + 1,
@@ -248,18 +266,22 @@ async fn home(job: &CaptureJob<'_>, table: &TurntableHandle, log: &mut CaptureLo
     }
 }
 
-/// Move to `angle`; after a lost table, as the policy says: wait for it, home it and move again. The angle
-/// reached.
+/// Move to `stop` (a tilting plan sends the tilt with every move, 0 for the level ring); after a lost table,
+/// as the policy says: wait for it, home it and move again. The angle reached.
 async fn move_to(
     job: &CaptureJob<'_>,
     table: &TurntableHandle,
     log: &mut CaptureLog,
-    angle: f64,
+    stop: &Stop,
 ) -> Result<f64, Error> {
     let rules = Rules::of(job.cfg);
     loop {
         // A move under way is finished before a cancel takes effect: the table stops within one move.
-        let e = match table.move_to(angle).await {
+        let moved = match log.tilt_axis {
+            Some(_) => table.move_to_tilted(stop.angle_deg, stop.tilt_deg).await,
+            None => table.move_to(stop.angle_deg).await,
+        };
+        let e = match moved {
             Ok(r) => return Ok(r.reached),
             Err(e) => e,
         };

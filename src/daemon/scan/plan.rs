@@ -11,22 +11,86 @@ use crate::geometry::vec3::{V3, cross, dot, norm, scale, sub};
 /// The capture log's file name in a scan directory.
 pub const CAPTURE_LOG: &str = "capture.json";
 
+/// One ring of a tilting table's plan: `views` stops evenly around with the cradle at `tilt_deg`, the first
+/// half a step from 0 (so a ring's views fall between the level ring's).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Ring {
+    /// The cradle's tilt, degrees (positive turns the table's top toward the scanner).
+    pub tilt_deg: f64,
+    /// Stops around.
+    pub views: u32,
+}
+
+impl Ring {
+    /// Rings from `TILT:VIEWS,TILT:VIEWS…` (`-25:8,-45:8,50:6`); an empty text is no ring.
+    ///
+    /// # Errors
+    /// A message naming the item that is not `TILT:VIEWS`, a tilt that is not a finite angle within ±180, a
+    /// ring with 0 or more than 360 views, or a ring at tilt 0 (the level ring is `views`).
+    pub fn parse_list(text: &str) -> Result<Vec<Ring>, String> {
+        let mut out = Vec::new();
+        for item in text.split(',').map(str::trim).filter(|i| !i.is_empty()) {
+            let bad = || format!("tilts: {item:?} is not TILT:VIEWS (degrees:count, e.g. -25:8)");
+            let (t, n) = item.split_once(':').ok_or_else(bad)?;
+            let tilt_deg: f64 = t.trim().parse().map_err(|_| bad())?;
+            let views: u32 = n.trim().parse().map_err(|_| bad())?;
+            if !(tilt_deg.is_finite() && tilt_deg.abs() <= 180.0) || tilt_deg == 0.0 {
+                return Err(format!(
+                    "tilts: {item:?}: the tilt must be a non-zero angle within ±180° (the level ring is `views`)"
+                ));
+            }
+            if !(1..=360).contains(&views) {
+                return Err(format!("tilts: {item:?}: {views} views is outside 1..=360"));
+            }
+            out.push(Ring { tilt_deg, views });
+        }
+        Ok(out)
+    }
+
+    /// The ring as `TILT:VIEWS`.
+    pub fn text(rings: &[Ring]) -> String {
+        rings.iter().map(|r| format!("{}:{}", r.tilt_deg, r.views)).collect::<Vec<_>>().join(",")
+    }
+}
+
+/// One stop of a plan: where the table turns and tilts to.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Stop {
+    /// The table angle, degrees.
+    pub angle_deg: f64,
+    /// The cradle's tilt, degrees (0: level).
+    pub tilt_deg: f64,
+}
+
 /// What `StartScan` asked for.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ScanRequest {
-    /// Views (stops of the table).
+    /// Views (stops of the table) of the level ring.
     pub views: u32,
     /// Degrees between stops.
     pub step_deg: f64,
+    /// A tilting table's further rings, after the level one (`tilts`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rings: Vec<Ring>,
     /// An FEA spec to solve on the solid (a TOML file on the station; coordinates in the table frame).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fea: Option<PathBuf>,
 }
 
 impl ScanRequest {
-    /// The table angles of the plan's views, degrees.
-    pub fn angles(&self) -> Vec<f64> {
-        (0..self.views).map(|i| f64::from(i) * self.step_deg).collect()
+    /// The plan's stops, in order: the level ring's, then each tilted ring's.
+    pub fn stops(&self) -> Vec<Stop> {
+        let level = (0..self.views).map(|i| Stop { angle_deg: f64::from(i) * self.step_deg, tilt_deg: 0.0 });
+        let tilted = self.rings.iter().flat_map(|r| {
+            let step = 360.0 / f64::from(r.views);
+            (0..r.views).map(move |i| Stop { angle_deg: (f64::from(i) + 0.5) * step, tilt_deg: r.tilt_deg })
+        });
+        level.chain(tilted).collect()
+    }
+
+    /// Whether the plan tilts the cradle (every move then sends the tilt, 0 for the level ring).
+    pub fn tilts(&self) -> bool {
+        !self.rings.is_empty()
     }
 
     /// From `views` and/or `step_deg` (one is enough; neither: the configured number of views, evenly
@@ -51,7 +115,7 @@ impl ScanRequest {
         if f64::from(views - 1) * step_deg >= 360.0 - 1e-9 {
             return Err(format!("{views} views {step_deg}° apart go round more than once"));
         }
-        Ok(ScanRequest { views, step_deg, fea: None })
+        Ok(ScanRequest { views, step_deg, rings: Vec::new(), fea: None })
     }
 }
 
@@ -72,6 +136,9 @@ pub struct TakenView {
     pub angle_deg: f64,
     /// The angle the table reported reaching, degrees.
     pub reached_deg: f64,
+    /// The cradle's tilt asked, degrees (0: level, and in logs of single-axis scans).
+    #[serde(default)]
+    pub tilt_deg: f64,
     /// The trigger's sequence number.
     pub seq: u16,
     /// Points in the view.
@@ -89,6 +156,9 @@ pub struct SkippedView {
     pub index: u32,
     /// The table angle, degrees.
     pub angle_deg: f64,
+    /// The cradle's tilt, degrees.
+    #[serde(default)]
+    pub tilt_deg: f64,
     /// Why (the last error, with its code).
     pub reason: String,
 }
@@ -100,6 +170,10 @@ pub struct CaptureLog {
     pub axis_point: V3,
     /// The axis direction in the scanner's frame.
     pub axis_direction: V3,
+    /// A tilting table's calibrated cradle axis in the scanner's frame (table at 0°, level): a point and a
+    /// direction; `None` for a single-axis scan.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilt_axis: Option<(V3, V3)>,
     /// Views planned.
     pub planned: u32,
     /// Views taken, in plan order.
@@ -156,4 +230,79 @@ pub fn table_frame(point: V3, direction: V3) -> Pose {
 pub fn view_pose(point: V3, direction: V3, angle_deg: f64) -> Pose {
     let back = Pose::turntable(point, direction, angle_deg).unwrap_or(Pose::IDENTITY);
     table_frame(point, direction).then_after(&back)
+}
+
+/// The pose of a view taken at table angle `angle_deg` with the cradle tilted by `tilt_deg` about `tilt`
+/// (its calibrated axis: a point and a direction in the scanner's frame): untilt, unturn, then the table
+/// frame ([`Pose::tilted_turntable`]). Level (`tilt_deg` 0) it is [`view_pose`].
+pub fn tilted_view_pose(point: V3, direction: V3, tilt: (V3, V3), angle_deg: f64, tilt_deg: f64) -> Pose {
+    let back = Pose::tilted_turntable((point, direction), tilt, angle_deg, tilt_deg).unwrap_or(Pose::IDENTITY);
+    table_frame(point, direction).then_after(&back)
+}
+
+impl CaptureLog {
+    /// The pose of a view of this log (its angle and tilt, the log's calibration): scanner frame → table
+    /// frame.
+    pub fn pose_of(&self, v: &TakenView) -> Pose {
+        match self.tilt_axis {
+            Some(tilt) if v.tilt_deg != 0.0 => {
+                tilted_view_pose(self.axis_point, self.axis_direction, tilt, v.angle_deg, v.tilt_deg)
+            }
+            _ => view_pose(self.axis_point, self.axis_direction, v.angle_deg),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rings_parse_and_stops_interleave() {
+        let rings = Ring::parse_list(" -25:8, 50:2 ").unwrap();
+        assert_eq!(rings, vec![Ring { tilt_deg: -25.0, views: 8 }, Ring { tilt_deg: 50.0, views: 2 }]);
+        assert_eq!(Ring::text(&rings), "-25:8,50:2");
+        assert!(Ring::parse_list("").unwrap().is_empty());
+        for (bad, why) in [("-25", "TILT:VIEWS"), ("0:4", "non-zero"), ("200:4", "±180"), ("10:0", "1..=360")] {
+            assert!(Ring::parse_list(bad).unwrap_err().contains(why), "{bad}");
+        }
+        let mut r = ScanRequest::new(Some(4), None, 12).unwrap();
+        assert!(!r.tilts());
+        r.rings = rings;
+        let stops = r.stops();
+        assert_eq!(stops.len(), 14);
+        assert_eq!(stops[3], Stop { angle_deg: 270.0, tilt_deg: 0.0 });
+        assert_eq!(stops[4], Stop { angle_deg: 22.5, tilt_deg: -25.0 });
+        assert_eq!(stops[13], Stop { angle_deg: 270.0, tilt_deg: 50.0 });
+    }
+
+    /// A point on the object, seen from a tilted stop and placed by the log's pose, lands where the level
+    /// view at 0° places it; a level view's pose is the single-axis one.
+    #[test]
+    fn a_tilted_view_is_placed_by_turn_and_tilt() {
+        let (p, d) = ([0.1, -0.4, -2.0], [0.0, 0.94, 0.34]);
+        let tilt = (p, [1.0, 0.0, 0.0]);
+        let log = CaptureLog { axis_point: p, axis_direction: d, tilt_axis: Some(tilt), ..Default::default() };
+        let view = |angle_deg: f64, tilt_deg: f64| TakenView {
+            index: 0,
+            file: String::new(),
+            bytes: 0,
+            sha256: String::new(),
+            angle_deg,
+            reached_deg: angle_deg,
+            tilt_deg,
+            seq: 0,
+            points: 0,
+            tries: 1,
+            view_ms: 0.0,
+        };
+        let q = [0.3, -0.1, -1.8];
+        // Where the object's point q (scanner frame, table at 0°, level) is seen from the stop (30°, -40°).
+        let seen = Pose::tilted_turntable((p, d), tilt, 30.0, -40.0).unwrap().inverse_apply(q);
+        let placed = log.pose_of(&view(30.0, -40.0)).apply(seen);
+        let level = log.pose_of(&view(0.0, 0.0)).apply(q);
+        assert!(norm(sub(placed, level)) < 1e-12, "{placed:?} vs {level:?}");
+        let single = view_pose(p, d, 30.0);
+        assert_eq!(log.pose_of(&view(30.0, 0.0)), single);
+    }
 }

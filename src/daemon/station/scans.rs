@@ -38,6 +38,21 @@ impl Station {
                 "[device.unplugged] a scan needs both [devices.turntable] and [devices.trigger]".into(),
             ));
         }
+        if !request.rings.is_empty() {
+            let calibrated = self.cfg.scan.as_ref().is_some_and(|s| s.tilt_axis.is_some());
+            let tilting = self.cfg.turntable.as_ref().and_then(|t| t.tilt);
+            let Some((lo, hi)) = tilting.filter(|_| calibrated) else {
+                return Err(StationError::Device(
+                    "[device.config] tilted rings need a tilting table: tilt_min and tilt_max in [devices.turntable], and its calibration (tilt_axis_point, tilt_axis_direction) in [scan]".into(),
+                ));
+            };
+            if let Some(r) = request.rings.iter().find(|r| !(lo..=hi).contains(&r.tilt_deg)) {
+                return Err(StationError::InvalidArgument(format!(
+                    "tilts: {}° is outside the cradle's range {lo}° to {hi}°",
+                    r.tilt_deg
+                )));
+            }
+        }
         if !valid_scan_name(&name) {
             return Err(StationError::InvalidArgument(format!(
                 "name {name:?}: 1 to 64 letters, digits, '_', '-' or '.', not starting with '.'"
@@ -91,7 +106,12 @@ impl Station {
                 let fraction = if s == "home" { 0.0 } else { HOME_END + share * (CAPTURE_END - HOME_END) };
                 let _ = events.send(WorkerEvent::Progress { id: id.clone(), fraction, stage: s, message });
             };
-            let request = run.record.scan.clone().unwrap_or(ScanRequest { views: 0, step_deg: 0.0, fea: None });
+            let request = run.record.scan.clone().unwrap_or(ScanRequest {
+                views: 0,
+                step_deg: 0.0,
+                rings: Vec::new(),
+                fea: None,
+            });
             let result = {
                 // One scan at a time on the rig.
                 if lock.try_lock().is_err() {

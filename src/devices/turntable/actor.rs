@@ -65,6 +65,10 @@ pub struct TurntableState {
     pub moving: bool,
     /// The table's angle as last reported, degrees.
     pub angle: f64,
+    /// The cradle's tilt as last reported, degrees (0 on a single-axis table).
+    pub tilt: f64,
+    /// A tilting table's range (lowest, highest tilt), degrees, as configured; `None`: single-axis.
+    pub tilt_range: Option<(f64, f64)>,
     /// Lines from the board that parsed as nothing, over all connections.
     pub garbage_lines: u64,
     /// Faults so far.
@@ -88,8 +92,8 @@ pub use crate::devices::DeviceFault;
 pub enum Command {
     /// Home (or unlock).
     Home(oneshot::Sender<Result<()>>),
-    /// Turn to the angle, degrees.
-    MoveTo(f64, oneshot::Sender<Result<MoveReport>>),
+    /// Turn to the angle, and tilt to the second when given, degrees.
+    MoveTo(f64, Option<f64>, oneshot::Sender<Result<MoveReport>>),
     /// Stop where the table is.
     Stop(oneshot::Sender<Result<()>>),
 }
@@ -120,7 +124,15 @@ impl TurntableHandle {
     /// # Errors
     /// As [`Turntable::move_to`]; `device.unplugged` while disconnected.
     pub async fn move_to(&self, degrees: f64) -> Result<MoveReport> {
-        self.0.ask(|tx| Command::MoveTo(degrees, tx)).await
+        self.0.ask(|tx| Command::MoveTo(degrees, None, tx)).await
+    }
+
+    /// Turn to `degrees` and tilt the cradle to `tilt`.
+    ///
+    /// # Errors
+    /// As [`Turntable::move_to_tilted`]; `device.unplugged` while disconnected.
+    pub async fn move_to_tilted(&self, degrees: f64, tilt: f64) -> Result<MoveReport> {
+        self.0.ask(|tx| Command::MoveTo(degrees, Some(tilt), tx)).await
     }
 
     /// Stop where the table is (after the command before it).
@@ -134,7 +146,11 @@ impl TurntableHandle {
 
 /// Start the turntable actor on the current tokio runtime.
 pub fn spawn_turntable(settings: LinkSettings) -> TurntableHandle {
-    let state = TurntableState { port: settings.port.display().to_string(), ..Default::default() };
+    let state = TurntableState {
+        port: settings.port.display().to_string(),
+        tilt_range: settings.driver.tilt,
+        ..Default::default()
+    };
     let (handle, ends) = Handle::new("turntable", state);
     let actor = Actor { settings, ends, garbage_base: 0 };
     tokio::spawn(actor.run());
@@ -192,6 +208,7 @@ impl Actor {
                 s.homing = tt.motion().homing.as_str().to_string();
                 s.homed = tt.homed();
                 s.angle = tt.angle();
+                s.tilt = tt.tilt();
                 s.connections += 1;
             });
             // 2. Serve commands until the line fails.
@@ -234,9 +251,12 @@ impl Actor {
                     let _ = reply.send(r);
                     e
                 }
-                Command::MoveTo(deg, reply) => {
+                Command::MoveTo(deg, tilt, reply) => {
                     self.ends.state.send_modify(|s| s.moving = true);
-                    let r = tt.move_to(deg).await;
+                    let r = match tilt {
+                        Some(t) => tt.move_to_tilted(deg, t).await,
+                        None => tt.move_to(deg).await,
+                    };
                     self.ends.state.send_modify(|s| s.moving = false);
                     self.publish(&tt);
                     let e = r.as_ref().err().cloned();
@@ -264,7 +284,8 @@ impl Actor {
         S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin,
     {
         let mut lost = false;
-        if let Some(e) = failure {
+        // A caller's bad argument (a target out of range) is refused before anything moves: not a fault.
+        if let Some(e) = failure.filter(|e| e.code != ErrorCode::InputBadArgument) {
             self.fault(e);
             match e.code {
                 ErrorCode::DeviceUnplugged => lost = true,
@@ -288,6 +309,7 @@ impl Actor {
         self.ends.state.send_modify(|s| {
             s.homed = tt.homed();
             s.angle = tt.angle();
+            s.tilt = tt.tilt();
             s.garbage_lines = self.garbage_base + tt.garbage_lines();
         });
     }
@@ -314,7 +336,7 @@ fn refuse(c: Command, port: &std::path::Path, why: Option<&Error>) {
         Command::Home(r) | Command::Stop(r) => {
             let _ = r.send(Err(e()));
         }
-        Command::MoveTo(_, r) => {
+        Command::MoveTo(_, _, r) => {
             let _ = r.send(Err(e()));
         }
     }

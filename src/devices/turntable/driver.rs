@@ -7,7 +7,8 @@
 //! more than it allows is `device.config`), then homes, unlocks or does nothing as the board needs
 //! ([`Homing::Auto`]). [`Turntable::move_to`] sends one absolute
 //! move (`G90 G1 X… F…`), waits for its `ok`, then polls `?` until the board reports `Idle` and checks the
-//! reported position against the target (`device.position`). Every wait has a deadline: a reply's is
+//! reported position against the target (`device.position`); a tilting table's [`Turntable::move_to_tilted`]
+//! moves the cradle on Y along the same straight path (`G1 X… Y…`), within the configured range. Every wait has a deadline: a reply's is
 //! [`TurntableSettings::reply_timeout`], a move's is derived from its distance, speed and acceleration, a
 //! homing cycle's is [`TurntableSettings::home_timeout`] (`device.timeout`). End of file or EIO on the line is
 //! `device.unplugged`; the caller drops the driver and reopens the port ([`super::transport::open_serial`]) with backoff, and a
@@ -21,7 +22,7 @@ use tokio::time::Instant;
 
 use super::protocol::{
     BoardSettings, MAX_REPLY_BYTES, MachineState, Reply, SOFT_RESET, STATUS_QUERY, StatusReport, alarm_text,
-    error_text, move_line, move_seconds, version_supported,
+    error_text, move_line, move_line_tilted, move_seconds, version_supported,
 };
 use crate::error::{Error, ErrorCode, Result};
 
@@ -70,6 +71,9 @@ pub struct TurntableSettings {
     pub position_tolerance: f64,
     /// Interval of `?` polls while a move runs.
     pub poll_interval: Duration,
+    /// A tilting table's cradle on Grbl's Y, in degrees: its allowed range (lowest, highest); `None`: a
+    /// single-axis table (a tilted move is `device.config`).
+    pub tilt: Option<(f64, f64)>,
 }
 
 impl Default for TurntableSettings {
@@ -83,6 +87,7 @@ impl Default for TurntableSettings {
             home_timeout: Duration::from_secs(60),
             position_tolerance: 0.01,
             poll_interval: Duration::from_millis(50),
+            tilt: None,
         }
     }
 }
@@ -168,6 +173,8 @@ pub struct MoveReport {
     pub reached: f64,
     /// Seconds from sending the move to `Idle`.
     pub seconds: f64,
+    /// Where the board reports the cradle (Y), degrees (0 on a single-axis table).
+    pub tilt: f64,
 }
 
 /// A connected turntable.
@@ -180,6 +187,7 @@ pub struct Turntable<S> {
     firmware: String,
     homed: bool,
     angle: f64,
+    tilt: f64,
     garbage: u64,
     name: String,
 }
@@ -202,6 +210,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
             firmware: String::new(),
             homed: false,
             angle: 0.0,
+            tilt: 0.0,
             garbage: 0,
             name: name.to_string(),
         };
@@ -229,7 +238,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
         }
         // 3. Locked (homing enabled, or an alarm before the reset)? Home or unlock.
         let status = t.status().await?;
-        t.angle = status.x;
+        (t.angle, t.tilt) = (status.x, status.y);
         if status.state == MachineState::Alarm {
             t.unlock_or_home().await?;
         } else {
@@ -284,6 +293,11 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
         self.angle
     }
 
+    /// The cradle's tilt as last reported, degrees (0 on a single-axis table).
+    pub fn tilt(&self) -> f64 {
+        self.tilt
+    }
+
     /// Lines from the board that parsed as nothing.
     pub fn garbage_lines(&self) -> u64 {
         self.garbage
@@ -297,24 +311,56 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
         match self.motion.homing {
             Homing::Home | Homing::Auto => {
                 self.command("$H\n", self.settings.home_timeout, "the homing cycle").await?;
-                self.angle = 0.0;
+                (self.angle, self.tilt) = (0.0, 0.0);
             }
             Homing::Unlock => {
                 self.command("$X\n", self.settings.reply_timeout, "the unlock").await?;
-                self.angle = self.status().await?.x;
+                let s = self.status().await?;
+                (self.angle, self.tilt) = (s.x, s.y);
             }
         }
         self.homed = true;
         Ok(())
     }
 
-    /// Turn the table to `degrees` (absolute), homing first if the zero is not established.
+    /// Turn the table to `degrees` (absolute), homing first if the zero is not established. The cradle of a
+    /// tilting table stays where it is.
     ///
     /// # Errors
     /// `input.bad-argument` for a non-finite target; `device.timeout` when the move does not finish within
     /// its deadline (a stalled table); `device.position` when the board stops off the target;
     /// `device.alarm`, `device.refused`, `device.unplugged`.
     pub async fn move_to(&mut self, degrees: f64) -> Result<MoveReport> {
+        self.move_axes(degrees, None).await
+    }
+
+    /// Turn the table to `degrees` and tilt the cradle to `tilt` (both absolute, degrees), along one straight
+    /// path (`G1 X… Y…`), homing first if the zero is not established.
+    ///
+    /// # Errors
+    /// As [`Turntable::move_to`]; `device.config` on a table with no tilt axis configured;
+    /// `input.bad-argument` for a tilt outside the configured range.
+    pub async fn move_to_tilted(&mut self, degrees: f64, tilt: f64) -> Result<MoveReport> {
+        let Some((lo, hi)) = self.settings.tilt else {
+            return Err(self.err(
+                ErrorCode::DeviceConfig,
+                "this turntable has no tilt axis: set tilt_min and tilt_max in [devices.turntable] for a cradle on Grbl's Y",
+            ));
+        };
+        if !(tilt.is_finite() && (lo..=hi).contains(&tilt)) {
+            return Err(Error::new(
+                ErrorCode::InputBadArgument,
+                format!(
+                    "a tilt of {tilt}° is outside the cradle's range {lo}° to {hi}° ([devices.turntable] tilt_min, tilt_max)"
+                ),
+            ));
+        }
+        self.move_axes(degrees, Some(tilt)).await
+    }
+
+    /// One absolute move: X to `degrees`, and Y to `tilt` when given. Waits for `Idle` within the move's
+    /// deadline (its straight path's length at the table's speed and acceleration) and checks both axes.
+    async fn move_axes(&mut self, degrees: f64, tilt: Option<f64>) -> Result<MoveReport> {
         if !degrees.is_finite() || degrees.abs() > 1e6 {
             return Err(Error::new(ErrorCode::InputBadArgument, format!("a turntable target of {degrees}°")));
         }
@@ -322,13 +368,19 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
             self.unlock_or_home().await?;
         }
         let start = Instant::now();
-        let allowed = self.motion.move_timeout(degrees - self.angle, self.settings.reply_timeout);
+        let path = (degrees - self.angle).hypot(tilt.map_or(0.0, |t| t - self.tilt));
+        let allowed = self.motion.move_timeout(path, self.settings.reply_timeout);
         let deadline = start + allowed;
-        self.command(&move_line(degrees, self.motion.speed * 60.0), self.settings.reply_timeout, "the move").await?;
+        let feed = self.motion.speed * 60.0;
+        let line = match tilt {
+            Some(t) => move_line_tilted(degrees, t, feed),
+            None => move_line(degrees, feed),
+        };
+        self.command(&line, self.settings.reply_timeout, "the move").await?;
         loop {
             tokio::time::sleep(self.settings.poll_interval).await;
             let s = self.status().await?;
-            self.angle = s.x;
+            (self.angle, self.tilt) = (s.x, s.y);
             match s.state {
                 MachineState::Idle => break,
                 MachineState::Alarm => return Err(self.err(ErrorCode::DeviceAlarm, "the board locked during the move")),
@@ -338,21 +390,27 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
                 return Err(self.err(
                     ErrorCode::DeviceTimeout,
                     format!(
-                        "the move to {degrees:.3}° did not finish within {:.1} s (stopped at {:.3}°, state {:?})",
+                        "the move to {degrees:.3}° did not finish within {:.1} s (stopped at {:.3}°, tilt {:.3}°, state {:?})",
                         allowed.as_secs_f64(),
                         s.x,
+                        s.y,
                         s.state
                     ),
                 ));
             }
         }
-        if (self.angle - degrees).abs() > self.settings.position_tolerance {
+        let tol = self.settings.position_tolerance;
+        if (self.angle - degrees).abs() > tol || tilt.is_some_and(|t| (self.tilt - t).abs() > tol) {
+            let asked = tilt.map_or(String::new(), |t| format!(" tilted {t:.4}°"));
             return Err(self.err(
                 ErrorCode::DevicePosition,
-                format!("the table stopped at {:.4}°, not at {degrees:.4}°", self.angle),
+                format!(
+                    "the table stopped at {:.4}° tilted {:.4}°, not at {degrees:.4}°{asked}",
+                    self.angle, self.tilt
+                ),
             ));
         }
-        Ok(MoveReport { target: degrees, reached: self.angle, seconds: start.elapsed().as_secs_f64() })
+        Ok(MoveReport { target: degrees, reached: self.angle, seconds: start.elapsed().as_secs_f64(), tilt: self.tilt })
     }
 
     /// Hold the table where it is (`!`), then reset the board so that the held move is dropped; the board's
@@ -367,7 +425,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Turntable<S> {
         let deadline = Instant::now() + self.settings.banner_timeout;
         while !matches!(self.read_reply(deadline, "the banner after a stop").await?, Reply::Banner(_)) {}
         let s = self.status().await?;
-        self.angle = s.x;
+        (self.angle, self.tilt) = (s.x, s.y);
         if s.state == MachineState::Alarm {
             self.homed = false;
         }

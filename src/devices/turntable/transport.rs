@@ -54,6 +54,8 @@ pub struct SimTurntable {
     link: PathBuf,
     /// The table's angle, degrees (`f64` bits), as the firmware last computed it.
     angle: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    /// The cradle's tilt (Grbl's Y), degrees (`f64` bits), likewise.
+    tilt: std::sync::Arc<std::sync::atomic::AtomicU64>,
     commands: mpsc::Sender<SimCommand>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -142,6 +144,8 @@ impl SimTurntable {
         let scale = if time_scale > 0.0 { time_scale } else { 1.0 };
         let angle = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0f64.to_bits()));
         let angle_out = angle.clone();
+        let tilt = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0f64.to_bits()));
+        let tilt_out = tilt.clone();
         // The board as the wall clock sees it: `scale` times faster, so that its `$$` holds in wall time.
         let settings = settings.faster(scale);
         let thread = std::thread::Builder::new().name("sim-turntable".into()).spawn(move || {
@@ -186,10 +190,11 @@ impl SimTurntable {
                 };
                 write_all(&p.master, &out);
                 angle_out.store(sim.position(now()).to_bits(), std::sync::atomic::Ordering::Relaxed);
+                tilt_out.store(sim.tilt(now()).to_bits(), std::sync::atomic::Ordering::Relaxed);
             }
             let _ = std::fs::remove_file(&link_owned);
         })?;
-        Ok(SimTurntable { link: link.to_path_buf(), angle, commands: tx, thread: Some(thread) })
+        Ok(SimTurntable { link: link.to_path_buf(), angle, tilt, commands: tx, thread: Some(thread) })
     }
 
     /// The link the driver opens.
@@ -206,6 +211,12 @@ impl SimTurntable {
     /// A reader of [`angle`](Self::angle) that other threads can keep.
     pub fn angle_source(&self) -> impl Fn() -> f64 + Send + Sync + 'static {
         let a = self.angle.clone();
+        move || f64::from_bits(a.load(std::sync::atomic::Ordering::Relaxed))
+    }
+
+    /// A reader of the cradle's tilt (Grbl's Y, degrees) that other threads can keep.
+    pub fn tilt_source(&self) -> impl Fn() -> f64 + Send + Sync + 'static {
+        let a = self.tilt.clone();
         move || f64::from_bits(a.load(std::sync::atomic::Ordering::Relaxed))
     }
 
