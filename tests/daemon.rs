@@ -978,10 +978,11 @@ fn the_rig_on_dbus_moves_fires_degrades_and_recovers_with_its_simulators() {
     // The same through the CLI (`scanstation rig`), on the system bus.
     let rig_cli =
         |args: &[&str]| Command::new(CLI).args(args).env("DBUS_SYSTEM_BUS_ADDRESS", &st.bus).output().unwrap();
-    let out = rig_cli(&["--json", "rig", "move", "120"]);
+    let out = rig_cli(&["--json", "rig", "move", "120", "--tilt", "-10"]);
     assert!(out.status.success(), "rig move: {}", String::from_utf8_lossy(&out.stderr));
     let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert!((j["reached"].as_f64().unwrap() - 120.0).abs() < 0.01, "{j}");
+    assert!((j["reached"].as_f64().unwrap() - 120.0).abs() < 0.01 && j["tilt"] == -10.0, "{j}");
+    assert_eq!(st.property("Turntable", TURNTABLE, "Tilt").as_deref(), Some("d -10"));
     let out = rig_cli(&["--json", "rig", "fire", "--channel", "2"]);
     assert!(out.status.success(), "rig fire: {}", String::from_utf8_lossy(&out.stderr));
     let out = rig_cli(&["--json", "rig", "status"]);

@@ -245,6 +245,9 @@ pub mod ops {
         if let Some(s) = o.step_deg {
             opts.insert(option_keys::STEP_DEG, Value::F64(s));
         }
+        if let Some(t) = &o.tilts {
+            opts.insert(option_keys::TILTS, Value::from(t.as_str()));
+        }
         if let Some(n) = &o.name {
             opts.insert(option_keys::NAME, Value::from(n.as_str()));
         }
@@ -265,6 +268,8 @@ pub mod ops {
         pub views: Option<u32>,
         /// Degrees between views.
         pub step_deg: Option<f64>,
+        /// A tilting table's rings (`TILT:VIEWS,…`).
+        pub tilts: Option<String>,
         /// The scan's name.
         pub name: Option<String>,
         /// An FEA spec (made absolute here).
@@ -320,12 +325,15 @@ pub mod ops {
             .await
     }
 
-    /// Turn the table to `degrees`; the angle reached.
+    /// Turn the table to `degrees` (and a tilting table's cradle to `tilt`); the angle reached.
     ///
     /// # Errors
     /// `daemon.*`, `device.*`.
-    pub async fn rig_move(conn: &Connection, degrees: f64) -> Result<f64> {
-        let opts: HashMap<&str, Value<'_>> = HashMap::new();
+    pub async fn rig_move(conn: &Connection, degrees: f64, tilt: Option<f64>) -> Result<f64> {
+        let mut opts: HashMap<&str, Value<'_>> = HashMap::new();
+        if let Some(t) = tilt {
+            opts.insert("tilt", Value::F64(t));
+        }
         rig_call(
             conn,
             crate::daemon::rig::TURNTABLE_PATH,

@@ -341,6 +341,10 @@ pub struct ScanArgs {
     /// Degrees between views.
     #[arg(long, value_parser = ranges::length)]
     pub step_deg: Option<f64>,
+    /// A tilting table's rings after the level one, `TILT:VIEWS,…` (e.g. `-25:8,-45:8,50:6`; "" for none).
+    /// Default: the station's `[scan] tilts`.
+    #[arg(long, allow_hyphen_values = true)]
+    pub tilts: Option<String>,
     /// The scan's name (its outbox directory's stem): letters, digits, '_', '-', '.'.
     #[arg(long)]
     pub name: Option<String>,
@@ -391,6 +395,9 @@ pub enum RigAction {
         /// Degrees (absolute, −1e6 to 1e6).
         #[arg(allow_negative_numbers = true)]
         degrees: f64,
+        /// Tilt a tilting table's cradle to this too, degrees (within its `TiltRange`).
+        #[arg(long, allow_negative_numbers = true)]
+        tilt: Option<f64>,
     },
     /// Fire the scanner and wait for its view.
     Fire {

@@ -61,6 +61,7 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                 let o = ops::ScanOptions {
                     views: a.views,
                     step_deg: a.step_deg,
+                    tilts: a.tilts.clone(),
                     name: a.name.clone(),
                     fea: a.fea.clone(),
                     job: job_options(a.vertices, a.tolerance, a.seed, a.accept_degraded),
@@ -126,12 +127,13 @@ async fn rig(conn: &zbus::Connection, action: &RigAction, json: bool) -> Result<
             ops::rig_home(conn).await?;
             serde_json::json!({ "homed": true, "seconds": started.elapsed().as_secs_f64() })
         }
-        RigAction::Move { degrees } => {
+        RigAction::Move { degrees, tilt } => {
             if !json && std::io::stderr().is_terminal() {
                 eprintln!("turning to {degrees}°…");
             }
-            let reached = ops::rig_move(conn, *degrees).await?;
-            serde_json::json!({ "target": degrees, "reached": reached, "seconds": started.elapsed().as_secs_f64() })
+            let reached = ops::rig_move(conn, *degrees, *tilt).await?;
+            let seconds = started.elapsed().as_secs_f64();
+            serde_json::json!({ "target": degrees, "tilt": tilt, "reached": reached, "seconds": seconds })
         }
         RigAction::Fire { channel } => {
             if !json && std::io::stderr().is_terminal() {
