@@ -6,7 +6,9 @@
 //! report), the job's `PeakMemory` and the daemon's peak RSS, and the solid's RMS to the true object.
 //!
 //! Needs `dbus-daemon`, `busctl` and `gdbus` (as the daemon tests). Run: `cargo bench --bench scan`
-//! (`SCANSTATION_SCAN_VIEWS` overrides the 12 views, `SCANSTATION_SCAN_VERTICES` the vertex count).
+//! (`SCANSTATION_SCAN_VIEWS` overrides the 12 views, `SCANSTATION_SCAN_VERTICES` the vertex count;
+//! `SCANSTATION_SCAN_TILTS=-25:8,-45:8,50:6` adds tilted rings, `SCANSTATION_SCAN_COVERAGE=0.99` views chosen
+//! where the surface is unseen, up to `SCANSTATION_SCAN_MAX_VIEWS`, 48 by default).
 
 #[path = "../tests/harness/mod.rs"]
 mod harness;
@@ -44,7 +46,18 @@ fn main() {
     let rss_idle = st.peak_rss_kib();
     let (v, n) = (views.to_string(), vertices.to_string());
     let t0 = Instant::now();
-    let job = start_scan(&st, &["3", "views", "u", &v, "name", "s", "spot", "vertices", "u", &n]);
+    let env = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
+    let (tilts, coverage) = (env("SCANSTATION_SCAN_TILTS"), env("SCANSTATION_SCAN_COVERAGE"));
+    let max_views = env("SCANSTATION_SCAN_MAX_VIEWS").unwrap_or("48".into());
+    let mut args: Vec<&str> = vec!["views", "u", &v, "name", "s", "spot", "vertices", "u", &n];
+    if let Some(t) = &tilts {
+        args.extend(["tilts", "s", t]);
+    }
+    if let Some(c) = &coverage {
+        args.extend(["coverage", "d", c, "max_views", "u", &max_views]);
+    }
+    let count = (args.len() / 3).to_string();
+    let job = start_scan(&st, &[&[count.as_str()][..], &args].concat());
     // Stage transitions, as a client sees them.
     let mut stages: Vec<(String, Duration)> = Vec::new();
     let done = loop {
@@ -70,7 +83,12 @@ fn main() {
     let fusion: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("spot.fusion.json")).unwrap()).unwrap();
 
-    println!("# scan of spot: {views} views, {vertices} control vertices (turntable ×1000, no exposure)");
+    let taken = fusion["views"].as_array().map_or(0, |v| v.len());
+    println!(
+        "# scan of spot: {views} level views, tilts {:?}, coverage target {:?}: {taken} views taken, {vertices} control vertices (turntable ×1000, no exposure)",
+        tilts.as_deref().unwrap_or(""),
+        coverage.as_deref().unwrap_or("")
+    );
     println!("| stage (Job.Stage) | from s | seconds |");
     println!("|---|---:|---:|");
     for (i, (name, at)) in stages.iter().enumerate() {
@@ -96,7 +114,21 @@ fn main() {
         rss_idle as f64 / 1024.0
     );
     println!(
-        "fusion: {} points, coverage {:.4}; solid {} faces",
-        fusion["fused_points"], fusion["coverage"]["share"], report["convert"]["brep"]["faces"]
+        "fusion: {} points, coverage {:.4}; solid {} faces; estimates {}",
+        fusion["fused_points"],
+        fusion["coverage"]["share"],
+        report["convert"]["brep"]["faces"],
+        fusion["next_views"]["estimates"]
     );
+    let out_cmp = std::process::Command::new(CLI)
+        .args([
+            "compare",
+            out.join("spot.solid.ply").to_str().unwrap(),
+            dir.join("truth.ply").to_str().unwrap(),
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    let cmp: serde_json::Value = serde_json::from_slice(&out_cmp.stdout).unwrap_or_default();
+    println!("solid ↔ true object: RMS {} % of the diagonal", cmp["symmetric"]["rms"]["pct_of_diagonal"]);
 }

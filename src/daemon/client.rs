@@ -248,6 +248,12 @@ pub mod ops {
         if let Some(t) = &o.tilts {
             opts.insert(option_keys::TILTS, Value::from(t.as_str()));
         }
+        if let Some(c) = o.coverage {
+            opts.insert(option_keys::COVERAGE, Value::F64(c));
+        }
+        if let Some(n) = o.max_views {
+            opts.insert(option_keys::MAX_VIEWS, Value::U32(n));
+        }
         if let Some(n) = &o.name {
             opts.insert(option_keys::NAME, Value::from(n.as_str()));
         }
@@ -270,6 +276,10 @@ pub mod ops {
         pub step_deg: Option<f64>,
         /// A tilting table's rings (`TILT:VIEWS,…`).
         pub tilts: Option<String>,
+        /// Choose views where the surface is unseen until this share is seen.
+        pub coverage: Option<f64>,
+        /// The most views, chosen ones included.
+        pub max_views: Option<u32>,
         /// The scan's name.
         pub name: Option<String>,
         /// An FEA spec (made absolute here).

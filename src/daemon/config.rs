@@ -51,6 +51,9 @@ struct RawScan {
     tilt_axis_point: Option<[f64; 3]>,
     tilt_axis_direction: Option<[f64; 3]>,
     tilts: Option<String>,
+    plate_radius: Option<f64>,
+    coverage: Option<f64>,
+    max_views: Option<u32>,
     views: Option<u32>,
     settle: Option<String>,
     view_file_timeout: Option<String>,
@@ -282,6 +285,14 @@ pub struct ScanConfig {
     pub tilt_axis: Option<([f64; 3], [f64; 3])>,
     /// A tilting table's rings after the level one when `StartScan` names none (`TILT:VIEWS,…`).
     pub tilts: Vec<crate::daemon::scan::plan::Ring>,
+    /// The table's plate radius, in the scanner's units (calibration): what lies beyond it is hidden from
+    /// below; `None`: the whole table plane hides (views from below the plane are never chosen).
+    pub plate_radius: Option<f64>,
+    /// Choose views where the surface is unseen until this share is seen, when `StartScan` names no
+    /// `coverage`; `None`: the plan only.
+    pub coverage: Option<f64>,
+    /// Most views of a scan, chosen ones included, when `StartScan` names no `max_views`.
+    pub max_views: u32,
     /// Views per scan when `StartScan` names none.
     pub views: u32,
     #[serde(with = "secs")]
@@ -714,6 +725,20 @@ fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, Confi
     };
     let tilts = crate::daemon::scan::plan::Ring::parse_list(t.tilts.as_deref().unwrap_or(""))
         .map_err(|m| err(&k("tilts"), m))?;
+    if let Some(r) = t.plate_radius
+        && !(r.is_finite() && r > 0.0)
+    {
+        return Err(err(&k("plate_radius"), format!("{r} is not a positive length")));
+    }
+    if let Some(c) = t.coverage
+        && !(c > 0.0 && c <= 1.0)
+    {
+        return Err(err(&k("coverage"), format!("{c} is not a share in (0, 1]")));
+    }
+    let max_views = t.max_views.unwrap_or(60);
+    if !(2..=720).contains(&max_views) {
+        return Err(err(&k("max_views"), format!("{max_views} is outside 2..=720")));
+    }
     if !tilts.is_empty() && tilt_axis.is_none() {
         return Err(err(
             &k("tilts"),
@@ -745,6 +770,9 @@ fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, Confi
         axis_direction: d.map(|v| v / len),
         tilt_axis,
         tilts,
+        plate_radius: t.plate_radius,
+        coverage: t.coverage,
+        max_views,
         views,
         settle: dur(&k("settle"), &t.settle, "300ms")?,
         view_file_timeout: dur(&k("view_file_timeout"), &t.view_file_timeout, "5s")?,
@@ -774,6 +802,10 @@ pub mod option_keys {
     pub const STEP_DEG: &str = "step_deg";
     /// A tilting table's rings after the level one, `TILT:VIEWS,…` (string).
     pub const TILTS: &str = "tilts";
+    /// Choose views where the surface is unseen until this share is seen (double, 0–1).
+    pub const COVERAGE: &str = "coverage";
+    /// Most views of a scan, chosen ones included (integer).
+    pub const MAX_VIEWS: &str = "max_views";
     /// A scan's name (string).
     pub const NAME: &str = "name";
     /// An FEA spec for a scan's solid, an absolute path (string).
@@ -781,7 +813,7 @@ pub mod option_keys {
     /// Every job's options ([`super::JobOptions`]).
     pub const JOB: [&str; 4] = [VERTICES, TOLERANCE, SEED, ACCEPT_DEGRADED];
     /// A scan's own options, beside [`JOB`].
-    pub const SCAN: [&str; 5] = [VIEWS, STEP_DEG, TILTS, NAME, FEA];
+    pub const SCAN: [&str; 7] = [VIEWS, STEP_DEG, TILTS, COVERAGE, MAX_VIEWS, NAME, FEA];
 }
 
 /// Per-job options: from a sidecar `NAME.job.toml` or the `a{sv}` of `SubmitFile`.

@@ -244,6 +244,8 @@ pub struct ManagerIface {
     pub default_views: u32,
     /// Tilted rings of a scan that names none (`[scan] tilts`).
     pub default_tilts: Vec<crate::daemon::scan::plan::Ring>,
+    /// The coverage target of a scan that names none (`[scan] coverage`).
+    pub default_coverage: Option<f64>,
 }
 
 /// Lock a view, also after a panic elsewhere (views hold plain values; a poisoned one is still consistent).
@@ -301,11 +303,12 @@ fn parse_options(options: &HashMap<String, OwnedValue>, known: &[&str]) -> Resul
 /// neither views nor step is given, `default_tilts` when `tilts` is not.
 fn parse_scan_options(
     options: &HashMap<String, OwnedValue>,
-    (default_views, default_tilts): (u32, &[crate::daemon::scan::plan::Ring]),
+    (default_views, default_tilts, default_coverage): (u32, &[crate::daemon::scan::plan::Ring], Option<f64>),
 ) -> Result<(crate::daemon::scan::ScanRequest, String, JobOptions), StationError> {
     let mut rest = HashMap::new();
     let (mut views, mut step, mut name, mut fea) = (None, None, "scan".to_string(), None);
     let mut rings = None;
+    let (mut coverage, mut max_views) = (default_coverage, None);
     for (k, v) in options {
         let bad =
             || StationError::InvalidArgument(format!("option {k:?} has the wrong type ({})", v.value_signature()));
@@ -325,6 +328,20 @@ fn parse_scan_options(
                 rings =
                     Some(crate::daemon::scan::plan::Ring::parse_list(&text()?).map_err(StationError::InvalidArgument)?);
             }
+            option_keys::COVERAGE => match &**v {
+                Value::F64(c) if *c > 0.0 && *c <= 1.0 => coverage = Some(*c),
+                Value::F64(c) => {
+                    return Err(StationError::InvalidArgument(format!("coverage: {c} is not a share in (0, 1]")));
+                }
+                _ => return Err(bad()),
+            },
+            option_keys::MAX_VIEWS => {
+                let n = int(v).ok_or_else(bad)?;
+                if !(2..=720).contains(&n) {
+                    return Err(StationError::InvalidArgument(format!("max_views: {n} is outside 2..=720")));
+                }
+                max_views = Some(n as u32);
+            }
             option_keys::FEA => {
                 let p = PathBuf::from(text()?);
                 if !p.is_absolute() {
@@ -342,6 +359,7 @@ fn parse_scan_options(
     request.fea = fea;
     // None named: the station's (`[scan] tilts`); an empty text: the level ring only.
     request.rings = rings.unwrap_or_else(|| default_tilts.to_vec());
+    (request.coverage, request.max_views) = (coverage, max_views);
     let known: Vec<&str> = option_keys::SCAN.into_iter().chain(option_keys::JOB).collect();
     let options = parse_options(&rest, &known)?;
     Ok((request, name, options))
@@ -379,7 +397,9 @@ pub mod manager_iface {
         /// Scan the object on the turntable: home, then at each of `views` stops (or every `step_deg`) move,
         /// settle and trigger the scanner, keep the view; then fuse the views and convert them as a submitted
         /// file. Options: `views` (u), `step_deg` (d), `tilts` (s: a tilting table's rings after the level one,
-        /// `TILT:VIEWS,…`, e.g. `-25:8,-45:8,50:6`; "" for none), `name` (s: the bundle's stem), `fea` (s: an FEA spec
+        /// `TILT:VIEWS,…`, e.g. `-25:8,-45:8,50:6`; "" for none), `coverage` (d: then views chosen where the
+        /// surface is unseen until this share is seen), `max_views` (u: the most views, chosen ones included),
+        /// `name` (s: the bundle's stem), `fea` (s: an FEA spec
         /// on the station, in table coordinates), and `vertices` (u), `tolerance` (d), `seed` (t),
         /// `accept_degraded` (b) as `SubmitFile`. The job object exists when this returns.
         async fn start_scan(
@@ -389,7 +409,8 @@ pub mod manager_iface {
             #[zbus(connection)] conn: &Connection,
         ) -> Result<OwnedObjectPath, StationError> {
             authorize(conn, &hdr, &self.access, "StartScan").await?;
-            let (request, name, options) = parse_scan_options(&options, (self.default_views, &self.default_tilts))?;
+            let (request, name, options) =
+                parse_scan_options(&options, (self.default_views, &self.default_tilts, self.default_coverage))?;
             let source = format!("dbus:{}", hdr.sender().map(|s| s.to_string()).unwrap_or_default());
             let id = ask(&self.tx, |reply| Command::StartScan { request, name, options, source, reply }).await??;
             Ok(job_path(&id))

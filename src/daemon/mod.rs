@@ -122,6 +122,7 @@ pub async fn run(cfg: Config) -> Result<(), StartError> {
                 access: access.clone(),
                 default_views: cfg.scan.as_ref().map_or(12, |s| s.views),
                 default_tilts: cfg.scan.as_ref().map_or(Vec::new(), |s| s.tilts.clone()),
+                default_coverage: cfg.scan.as_ref().and_then(|s| s.coverage),
             },
         )
         .await

@@ -124,16 +124,27 @@ fn write_fusion_report(
         .fused
         .as_ref()
         .map(|f| crate::pipeline::reconstruct::fused_coverage(&converted.solid_mesh.triangulate().0, f));
+    let gains = converted
+        .fused
+        .as_ref()
+        .map(|f| crate::pipeline::reconstruct::view_gains(&converted.solid_mesh.triangulate().0, f))
+        .unwrap_or_default();
     let per_view: Vec<serde_json::Value> = log
         .views
         .iter()
         .map(|v| {
             let fit = fusion.as_ref().and_then(|f| f.views.iter().find(|r| r.name == v.file));
+            let gain = gains.iter().find(|g| g.name == v.file);
+            let chosen = log.next_views.iter().find(|c| c.index == v.index);
             serde_json::json!({
                 "index": v.index,
                 "file": format!("{VIEWS_DIR}/{}", v.file),
                 "angle_deg": v.angle_deg,
                 "reached_deg": v.reached_deg,
+                "tilt_deg": v.tilt_deg,
+                "gain": gain.map(|g| g.gain),
+                "unique_gain": gain.map(|g| g.unique),
+                "chosen": chosen.map(|c| serde_json::json!({ "round": c.round, "predicted_gain": c.predicted_gain })),
                 "points": v.points,
                 "tries": v.tries,
                 "trigger_seq": v.seq,
@@ -157,6 +168,15 @@ fn write_fusion_report(
         },
         "planned_views": log.planned,
         "step_deg": b.scan.step_deg,
+        "tilt_axis": log.tilt_axis.map(|(p, d)| serde_json::json!({ "point": p, "direction": d, "frame": "scanner" })),
+        "rings": &b.scan.rings,
+        "next_views": {
+            "coverage_target": b.scan.coverage,
+            "max_views": b.scan.max_views.unwrap_or(b.cfg.scan.as_ref().map_or(0, |s| s.max_views)),
+            "chosen": &log.next_views,
+            "estimates": &log.estimates,
+            "end": &log.next_views_end,
+        },
         "views": per_view,
         "skipped": log.skipped,
         "capture": {

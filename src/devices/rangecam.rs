@@ -239,6 +239,12 @@ impl RangeCamera {
         x * x + y * y <= self.plate * self.plate
     }
 
+    /// The radius of the plate the object stands on ([`plate_radius`]), model units: what a station's
+    /// calibration measures of its table.
+    pub fn plate_radius(&self) -> f64 {
+        self.plate
+    }
+
     /// The settings.
     pub fn settings(&self) -> &CameraSettings {
         &self.settings

@@ -151,13 +151,25 @@ impl RigSim {
     }
 
     /// The station's calibration for this rig: a TOML `[scan]` fragment with the table's axis and the
-    /// cradle's tilt axis (Grbl's Y; the table at 0°, level) in the scanner's frame.
+    /// cradle's tilt axis (Grbl's Y; the table at 0°, level) in the scanner's frame, and the plate's radius.
     pub fn calibration_toml(&self) -> String {
         let (p, d) = self.camera.axis();
         let (tp, td) = self.camera.tilt_axis();
         format!(
-            "# The simulated rig's turntable axis and cradle (tilt) axis in the scanner's frame (scanstation sim rig).\n[scan]\naxis_point = [{}, {}, {}]\naxis_direction = [{}, {}, {}]\ntilt_axis_point = [{}, {}, {}]\ntilt_axis_direction = [{}, {}, {}]\n",
-            p[0], p[1], p[2], d[0], d[1], d[2], tp[0], tp[1], tp[2], td[0], td[1], td[2]
+            "# The simulated rig's turntable axis and cradle (tilt) axis in the scanner's frame (scanstation sim rig).\n[scan]\naxis_point = [{}, {}, {}]\naxis_direction = [{}, {}, {}]\ntilt_axis_point = [{}, {}, {}]\ntilt_axis_direction = [{}, {}, {}]\nplate_radius = {}\n",
+            p[0],
+            p[1],
+            p[2],
+            d[0],
+            d[1],
+            d[2],
+            tp[0],
+            tp[1],
+            tp[2],
+            td[0],
+            td[1],
+            td[2],
+            self.camera.plate_radius()
         )
     }
 

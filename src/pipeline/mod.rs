@@ -11,6 +11,7 @@ pub mod convert;
 pub mod fea;
 pub mod gates;
 pub mod memory;
+pub mod next_view;
 pub mod open_input;
 pub mod pictures;
 pub mod provenance;

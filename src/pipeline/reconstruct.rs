@@ -340,13 +340,19 @@ pub fn unseen_surface(solid: &TriMesh, counts: &[u16]) -> UnseenSurface {
 /// [`COVERAGE_SPACINGS`] point spacings of it), and how many views were kept: the coverage picture's data.
 /// Cost: O(N) to index each view's points, O(V) lookups per view (in parallel over the vertices).
 pub fn fused_seen_by(solid: &TriMesh, fused: &Fused) -> (Vec<u16>, u16) {
+    seen_within(solid, fused, COVERAGE_SPACINGS)
+}
+
+/// [`fused_seen_by`] with a view's point within `spacings` point spacings counting as seen (a smaller reach
+/// asks for denser sampling).
+pub fn seen_within(solid: &TriMesh, fused: &Fused, spacings: f64) -> (Vec<u16>, u16) {
     use crate::geometry::points::PointIndex;
     use crate::geometry::vec3::wide;
     use rayon::prelude::*;
     let f = &fused.report;
     let kept = fused.views.iter().zip(&f.poses).filter(|(v, _)| !f.rejected.contains(&v.name));
     let (placed, spacing) = placed_and_spacing(kept);
-    let radius = COVERAGE_SPACINGS * spacing;
+    let radius = spacings * spacing;
     let indices: Vec<PointIndex> = placed.iter().map(|p| PointIndex::new(p, 4.0)).collect();
     let counts = solid
         .positions
@@ -354,4 +360,63 @@ pub fn fused_seen_by(solid: &TriMesh, fused: &Fused) -> (Vec<u16>, u16) {
         .map(|&p| indices.iter().filter(|ix| ix.nearest_within(wide(p), radius).is_some()).count() as u16)
         .collect();
     (counts, placed.len() as u16)
+}
+
+/// What one view added to a scan's solid ([`view_gains`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ViewGain {
+    /// The view's file, as the scan set names it.
+    pub name: String,
+    /// The share of the solid's area this view saw first, the views taken in the scan set's order (0–1).
+    pub gain: f64,
+    /// The share of the solid's area only this view saw (0–1).
+    pub unique: f64,
+}
+
+/// Each kept view's gain on `solid`: the area it saw first, in the scan set's order (the capture's), and the
+/// area no other view saw; seen as [`fused_seen_by`] counts it (a point within [`COVERAGE_SPACINGS`]
+/// spacings of a vertex, each vertex weighing a third of the triangles around it). Rejected views gain
+/// nothing and are not listed. Cost: as [`fused_seen_by`].
+pub fn view_gains(solid: &TriMesh, fused: &Fused) -> Vec<ViewGain> {
+    use crate::geometry::points::PointIndex;
+    use crate::geometry::vec3::wide;
+    use rayon::prelude::*;
+    let f = &fused.report;
+    let kept: Vec<_> = fused.views.iter().zip(&f.poses).filter(|(v, _)| !f.rejected.contains(&v.name)).collect();
+    let (_, spacing) = placed_and_spacing(kept.iter().copied());
+    let radius = COVERAGE_SPACINGS * spacing;
+    let placed: Vec<Vec<[f32; 3]>> =
+        kept.iter().map(|(v, pose)| crate::geometry::io::scanset::placed(&v.points, pose)).collect();
+    let indices: Vec<PointIndex> = placed.iter().map(|p| PointIndex::new(p, 4.0)).collect();
+    let mut area = vec![0.0; solid.positions.len()];
+    let mut total = 0.0;
+    for (t, tri) in solid.triangles.iter().enumerate() {
+        let a = solid.triangle_area(t);
+        total += a;
+        for &v in tri {
+            area[v as usize] += a / 3.0;
+        }
+    }
+    // Per vertex: the first view that saw it, and whether it was the only one.
+    let seen: Vec<Option<(usize, bool)>> = solid
+        .positions
+        .par_iter()
+        .map(|&p| {
+            let mut who = indices.iter().enumerate().filter(|(_, ix)| ix.nearest_within(wide(p), radius).is_some());
+            let first = who.next()?.0;
+            Some((first, who.next().is_none()))
+        })
+        .collect();
+    let mut out: Vec<ViewGain> =
+        kept.iter().map(|(v, _)| ViewGain { name: v.name.clone(), gain: 0.0, unique: 0.0 }).collect();
+    for (v, s) in seen.iter().enumerate() {
+        if let Some((first, only)) = *s {
+            let share = if total > 0.0 { area[v] / total } else { 0.0 };
+            out[first].gain += share;
+            if only {
+                out[first].unique += share;
+            }
+        }
+    }
+    out
 }

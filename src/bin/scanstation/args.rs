@@ -345,6 +345,13 @@ pub struct ScanArgs {
     /// Default: the station's `[scan] tilts`.
     #[arg(long, allow_hyphen_values = true)]
     pub tilts: Option<String>,
+    /// After the plan, choose views where the surface is unseen until this share is seen (0 to 1, e.g.
+    /// 0.99). Default: the station's `[scan] coverage`.
+    #[arg(long)]
+    pub coverage: Option<f64>,
+    /// The most views in all, chosen ones included (2 to 720). Default: the station's `[scan] max_views`.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..=720))]
+    pub max_views: Option<u32>,
     /// The scan's name (its outbox directory's stem): letters, digits, '_', '-', '.'.
     #[arg(long)]
     pub name: Option<String>,

@@ -62,6 +62,8 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                     views: a.views,
                     step_deg: a.step_deg,
                     tilts: a.tilts.clone(),
+                    coverage: a.coverage,
+                    max_views: a.max_views,
                     name: a.name.clone(),
                     fea: a.fea.clone(),
                     job: job_options(a.vertices, a.tolerance, a.seed, a.accept_degraded),

@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use super::super::config::ScanConfig;
 use super::super::durable::{sync_dir, write_durable};
 use super::Rig;
+use super::next::{self, Chooser};
 use super::plan::{CAPTURE_LOG, CaptureLog, ScanRequest, SkippedView, Stop, TakenView};
 use super::policy::{Action, Device, Fault, Rules, Step, classify, next};
 use crate::devices::trigger::TriggerHandle;
@@ -44,6 +45,10 @@ pub struct CaptureJob<'a> {
     pub request: &'a ScanRequest,
     /// `[scan]`.
     pub cfg: &'a ScanConfig,
+    /// A tilting table's range (`[devices.turntable] tilt_min`, `tilt_max`); `None`: single-axis.
+    pub tilt_range: Option<(f64, f64)>,
+    /// Bytes the coverage estimates may use.
+    pub memory_budget: u64,
     /// The devices.
     pub rig: &'a Rig,
     /// Set when the job is cancelled.
@@ -104,7 +109,10 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
     let mut log = CaptureLog::load(job.dir).unwrap_or(CaptureLog {
         axis_point: cfg.axis_point,
         axis_direction: cfg.axis_direction,
-        tilt_axis: if job.request.tilts() { cfg.tilt_axis } else { None },
+        // The cradle's calibration for a tilted plan, and for views chosen on a tilting table.
+        tilt_axis: cfg
+            .tilt_axis
+            .filter(|_| job.request.tilts() || (job.request.coverage.is_some() && job.tilt_range.is_some())),
         planned: job.request.stops().len() as u32,
         ..Default::default()
     });
@@ -121,6 +129,33 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
 
     // 2. Every missing view, in plan order.
     take_stops(job, (table, trigger), &mut log, &stops, 0).await?;
+
+    // 3. Views chosen where the surface is unseen (chosen before a restart first), round by round.
+    let chooser = Chooser {
+        dir: job.dir,
+        request: job.request,
+        cfg,
+        tilt_range: job.tilt_range,
+        memory_budget: job.memory_budget,
+    };
+    loop {
+        for (index, stop) in next::pending(&log) {
+            take_stops(job, (table, trigger), &mut log, &[stop], index).await?;
+        }
+        if !log.next_views_end.is_empty() || job.request.coverage.is_none() {
+            break;
+        }
+        (job.progress)(
+            1.0,
+            "capture",
+            format!("capture/estimating the unseen surface after {} views", log.views.len()),
+        );
+        let more = next::round(&chooser, &mut log).await?;
+        save(job.dir, &log).await?;
+        if !more {
+            break;
+        }
+    }
     if log.views.len() < 2 {
         return Err(Error::new(
             ErrorCode::ReconstructViewsDisagree,

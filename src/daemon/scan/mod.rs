@@ -22,10 +22,12 @@
 
 //!
 //! The parts: [`plan`] (the request, the capture log, the poses), [`policy`] (what a fault leads to: one pure
-//! function with its unit tests), [`capture`] (the I/O loop that carries the steps out; blocking file work
+//! function with its unit tests), [`next`] (after the plan, views chosen where the surface is unseen, through
+//! [`crate::pipeline::next_view`]), [`capture`] (the I/O loop that carries the steps out; blocking file work
 //! off the async workers).
 
 pub mod capture;
+pub mod next;
 pub mod plan;
 pub mod policy;
 

@@ -72,6 +72,13 @@ pub struct ScanRequest {
     /// A tilting table's further rings, after the level one (`tilts`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub rings: Vec<Ring>,
+    /// After the planned views, views chosen where the surface is unseen until this share is seen (0–1);
+    /// `None`: the plan only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coverage: Option<f64>,
+    /// Most views in all, the chosen ones included (`None`: the station's `[scan] max_views`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_views: Option<u32>,
     /// An FEA spec to solve on the solid (a TOML file on the station; coordinates in the table frame).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fea: Option<PathBuf>,
@@ -115,7 +122,7 @@ impl ScanRequest {
         if f64::from(views - 1) * step_deg >= 360.0 - 1e-9 {
             return Err(format!("{views} views {step_deg}° apart go round more than once"));
         }
-        Ok(ScanRequest { views, step_deg, rings: Vec::new(), fea: None })
+        Ok(ScanRequest { views, step_deg, rings: Vec::new(), coverage: None, max_views: None, fea: None })
     }
 }
 
@@ -163,6 +170,36 @@ pub struct SkippedView {
     pub reason: String,
 }
 
+/// A view chosen where the surface was unseen.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ChosenView {
+    /// Its index in the plan.
+    pub index: u32,
+    /// Table angle, degrees.
+    pub angle_deg: f64,
+    /// Cradle tilt, degrees.
+    pub tilt_deg: f64,
+    /// The share of the surface it was predicted to see first.
+    pub predicted_gain: f64,
+    /// The round of choosing (1: after the plan).
+    pub round: u32,
+}
+
+/// One estimate of what the views taken so far saw.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CoverageEstimate {
+    /// Views taken when it was made.
+    pub views: u32,
+    /// The share of a coarse surface from them that they saw.
+    pub coverage: f64,
+    /// The same, each vertex counting half for one view and whole for two
+    /// ([`crate::pipeline::next_view::Estimate::seen_share`]): what the choosing raises to the target.
+    #[serde(default)]
+    pub seen_twice: f64,
+    /// Seconds it took.
+    pub seconds: f64,
+}
+
 /// `capture.json`: what the capture did so far (the truth a resumed scan goes on from).
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CaptureLog {
@@ -174,8 +211,17 @@ pub struct CaptureLog {
     /// direction; `None` for a single-axis scan.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tilt_axis: Option<(V3, V3)>,
-    /// Views planned.
+    /// Views planned (the plan's, then those chosen where the surface is unseen).
     pub planned: u32,
+    /// Views chosen where the surface was unseen, in order (their plan indices follow the plan's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub next_views: Vec<ChosenView>,
+    /// Each estimate of the unseen surface: after the plan, then after each round of chosen views.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub estimates: Vec<CoverageEstimate>,
+    /// Why the station chose no more views (`coverage reached`, `no view adds enough`, `the view budget`).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub next_views_end: String,
     /// Views taken, in plan order.
     pub views: Vec<TakenView>,
     /// Views skipped.

@@ -94,6 +94,8 @@ impl Station {
         let lock = self.rig_lock.clone();
         let pool = self.pool.clone();
         let dir = worker::input_path(&self.spool, &run.record);
+        let tilt_range = self.cfg.turntable.as_ref().and_then(|t| t.tilt);
+        let memory_budget = self.cfg.memory_budget;
         tokio::spawn(async move {
             let id = run.record.id.clone();
             let events = run.events.clone();
@@ -110,6 +112,8 @@ impl Station {
                 views: 0,
                 step_deg: 0.0,
                 rings: Vec::new(),
+                coverage: None,
+                max_views: None,
                 fea: None,
             });
             let result = {
@@ -122,6 +126,8 @@ impl Station {
                     dir: &dir,
                     request: &request,
                     cfg: &cfg,
+                    tilt_range,
+                    memory_budget,
                     rig: &rig,
                     cancel: &run.cancel,
                     progress: &progress,
