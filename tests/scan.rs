@@ -483,3 +483,55 @@ fn kill_9_during_capture_and_fusion_ten_times_keeps_every_view_once() {
         panic!("{q} was quarantined ({code}) although pipeline.resume is on\n{}", st.log());
     }
 }
+
+/// Issue 46: the faults hold on a tilting table with views chosen where the surface is unseen. A `kill -9`
+/// during the tilted ring, and one after the first chosen view was taken: the restarted capture re-homes,
+/// moves both axes again, takes the chosen views the log holds (not a new choice), and the scan publishes
+/// every view once.
+#[test]
+fn kill_9_during_a_tilted_ring_and_the_chosen_views_keeps_every_view_once() {
+    need("busctl", "systemd");
+    let dir = common::scratch("scan-kill9-tilt");
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let _rig = start_rig(&dir, 7);
+    let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, ""));
+    st.start();
+    let opts = ["6", "views", "u", "8", "tilts", "s", "-35:4", "coverage", "d", "0.99", "max_views", "u", "24"];
+    start_scan(&st, &[&opts[..], &["vertices", "u", "3000", "name", "s", "spot"]].concat());
+    // 1. In the tilted ring (views 8 to 11).
+    wait_views(&st, 10, Duration::from_secs(60));
+    st.kill9();
+    st.start();
+    // 2. After the first chosen view (the plan's 12 views, then at least one more).
+    let t = Instant::now();
+    let chosen_before = loop {
+        if let Some(log) = running_log(&st)
+            && log["views"].as_array().map_or(0, |a| a.len()) >= 13
+        {
+            break log["next_views"].clone();
+        }
+        assert!(t.elapsed() < Duration::from_secs(120), "no chosen view taken\n{}", st.log());
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    st.kill9();
+    st.start();
+    st.wait_done(1, Duration::from_secs(600));
+    let out = only_entry(&st.spool("outbox"));
+    let fusion = json(&out.join("spot.fusion.json"));
+    let idx = view_indices(&fusion, "the scan");
+    assert_eq!(idx, (0..idx.len() as u64).collect::<Vec<_>>(), "views once each, none missing");
+    let chosen = fusion["next_views"]["chosen"].as_array().unwrap();
+    let before = chosen_before.as_array().unwrap();
+    assert!(!before.is_empty() && chosen[..before.len()] == before[..], "the chosen views survive the kill");
+    assert_eq!(idx.len(), 12 + chosen.len(), "{}", fusion["next_views"]);
+    assert_eq!(fusion["capture"]["runs"], 3, "{}", fusion["capture"]);
+    let tilted = fusion["views"].as_array().unwrap().iter().filter(|v| v["tilt_deg"] == -35.0).count();
+    assert_eq!(tilted, 4, "the tilted ring once");
+    eprintln!(
+        "two kills: {} views, {} chosen, coverage {}, end {}",
+        idx.len(),
+        chosen.len(),
+        fusion["coverage"]["share"],
+        fusion["next_views"]["end"]
+    );
+}

@@ -171,8 +171,9 @@ impl Camera {
         Camera { eye: pose.apply([0.0; 3]), axes }
     }
 
-    /// Whether the scanner sees the point `p` with unit normal `n`.
-    fn sees(&self, (p, n): (V3, V3), est: &Estimate, bvh: &TriangleBvh, opts: &NextViewOptions) -> bool {
+    /// Whether the scanner sees the point `p` with unit normal `n` (`eps`: the offset off the surface the
+    /// occlusion ray starts at).
+    fn sees(&self, (p, n): (V3, V3), est: &Estimate, (bvh, eps): (&TriangleBvh, f64), opts: &NextViewOptions) -> bool {
         let d = sub(self.eye, p);
         let len = norm(d);
         let depth = dot(d, self.axes[2]);
@@ -195,7 +196,6 @@ impl Camera {
                 return false;
             }
         }
-        let eps = 1e-4 * est.diagonal();
         bvh.ray_first(add(p, scale(n, eps)), dir, eps, len).is_none()
     }
 }
@@ -231,6 +231,7 @@ pub fn choose(
     let need = opts.need.max(1);
     let unseen: Vec<usize> = (0..est.counts.len()).filter(|&v| est.counts[v] < need && est.area[v] > 0.0).collect();
     let bvh = TriangleBvh::new(&est.mesh);
+    let eps = 1e-4 * est.diagonal();
     let sees: Vec<Vec<usize>> = candidates
         .par_iter()
         .map(|&(a, t)| {
@@ -238,7 +239,7 @@ pub fn choose(
             (0..unseen.len())
                 .filter(|&i| {
                     let v = unseen[i];
-                    cam.sees((wide(est.mesh.positions[v]), normals[v]), est, &bvh, opts)
+                    cam.sees((wide(est.mesh.positions[v]), normals[v]), est, (&bvh, eps), opts)
                 })
                 .collect()
         })

@@ -478,6 +478,17 @@ pub fn start_rig(dir: &Path, seed: u64) -> Rig {
 
 /// [`start_rig`] with the turntable's time scale and the scanner's exposure (ms) given.
 pub fn start_rig_at(dir: &Path, seed: u64, time_scale: &str, exposure_ms: &str) -> Rig {
+    let spot = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply");
+    start_rig_holding(dir, seed, (time_scale, exposure_ms), (&spot, "y"))
+}
+
+/// [`start_rig_at`] holding `object` (a closed mesh; its up axis `y` or `z`).
+pub fn start_rig_holding(
+    dir: &Path,
+    seed: u64,
+    (time_scale, exposure_ms): (&str, &str),
+    (object, up): (&Path, &str),
+) -> Rig {
     let link = dir.join("ttyTurntable");
     let sock = dir.join("can.sock");
     let control = dir.join("rig.ctl");
@@ -485,7 +496,6 @@ pub fn start_rig_at(dir: &Path, seed: u64, time_scale: &str, exposure_ms: &str) 
     for p in [&link, &sock, &control, &calib] {
         let _ = std::fs::remove_file(p);
     }
-    let object = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply");
     let seed = seed.to_string();
     let s = sim(
         dir,
@@ -494,6 +504,8 @@ pub fn start_rig_at(dir: &Path, seed: u64, time_scale: &str, exposure_ms: &str) 
             "rig",
             "--object",
             object.to_str().unwrap(),
+            "--up",
+            up,
             "--link",
             link.to_str().unwrap(),
             "--bus",

@@ -73,7 +73,7 @@ pub async fn round(c: &Chooser<'_>, log: &mut CaptureLog) -> Result<bool, Error>
     let need = NextViewOptions::default().need;
     let (coverage, seen_twice) = (est.coverage, est.seen_share(need));
     let seconds = t.elapsed().as_secs_f64();
-    log.estimates.push(CoverageEstimate { views, coverage, seen_twice, seconds });
+    log.estimates.push(CoverageEstimate { views, coverage, seen_twice, seconds, choose_seconds: 0.0 });
     tracing::info!(views, coverage, seen_twice, "coverage estimated");
     if seen_twice >= target {
         return end(log, "coverage reached");
@@ -101,9 +101,13 @@ pub async fn round(c: &Chooser<'_>, log: &mut CaptureLog) -> Result<bool, Error>
         plate_radius: c.cfg.plate_radius,
         ..Default::default()
     };
+    let t = Instant::now();
     let picked = tokio::task::spawn_blocking(move || choose(&est, &cands, &pose_of, &opts))
         .await
         .map_err(|e| Error::internal(format!("choosing the next views failed: {e}")))?;
+    if let Some(e) = log.estimates.last_mut() {
+        e.choose_seconds = t.elapsed().as_secs_f64();
+    }
     if picked.is_empty() {
         return end(log, "no view adds enough");
     }

@@ -198,6 +198,9 @@ pub struct CoverageEstimate {
     pub seen_twice: f64,
     /// Seconds it took.
     pub seconds: f64,
+    /// Seconds choosing the next views took after it (0 when none were chosen).
+    #[serde(default)]
+    pub choose_seconds: f64,
 }
 
 /// `capture.json`: what the capture did so far (the truth a resumed scan goes on from).

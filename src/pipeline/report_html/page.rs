@@ -180,7 +180,10 @@ pub fn scan(b: &Bundle) -> String {
                         p("/index"),
                         p("/file"),
                         p("/angle_deg"),
+                        p("/tilt_deg"),
                         p("/points"),
+                        p("/gain"),
+                        p("/chosen/round"),
                         p("/status"),
                         p("/residual_before_refinement/residual_rms"),
                         p("/residual_after_refinement/residual_rms"),
@@ -189,7 +192,18 @@ pub fn scan(b: &Bundle) -> String {
                 .collect()
         })
         .unwrap_or_default();
-    let head = ["view", "file", "angle, deg", "points", "status", "residual before", "residual after"];
+    let head = [
+        "view",
+        "file",
+        "angle, deg",
+        "tilt, deg",
+        "points",
+        "gain (share first seen)",
+        "chosen in round",
+        "status",
+        "residual before",
+        "residual after",
+    ];
     let mut body = table("views", &head, &rows);
     let p = |ptr: &str| cell(f.pointer(ptr).unwrap_or(&Value::Null));
     body.push_str(&facts(&[
@@ -198,6 +212,10 @@ pub fn scan(b: &Bundle) -> String {
         (
             "largest unseen patch (share, at)",
             format!("{} at {}", p("/unseen/largest_patch_share"), p("/unseen/largest_patch_at")),
+        ),
+        (
+            "views chosen where the surface was unseen (target, end)",
+            format!("{} ({})", p("/next_views/coverage_target"), p("/next_views/end")),
         ),
         ("fusion", p("/decision")),
         (

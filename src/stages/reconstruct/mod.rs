@@ -10,6 +10,7 @@
 
 pub mod extract;
 pub mod fusion;
+pub mod global;
 pub mod normals;
 pub mod poisson;
 pub mod project;
