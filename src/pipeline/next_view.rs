@@ -124,25 +124,8 @@ pub fn estimate(dir: &Path, memory_budget: u64) -> Result<Estimate> {
             frustum[1] = frustum[1].max(f64::from(p[1]).abs() / z);
         }
     }
-    let area = vertex_areas(&mesh);
+    let area = super::reconstruct::vertex_area_shares(&mesh);
     Ok(Estimate { counts, mesh, area, coverage, frustum })
-}
-
-/// Per vertex, a third of the area of each triangle around it, as a share of the whole.
-fn vertex_areas(mesh: &TriMesh) -> Vec<f64> {
-    let mut area = vec![0.0; mesh.positions.len()];
-    let mut total = 0.0;
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        let a = mesh.triangle_area(t);
-        total += a;
-        for &v in tri {
-            area[v as usize] += a / 3.0;
-        }
-    }
-    if total > 0.0 {
-        area.iter_mut().for_each(|a| *a /= total);
-    }
-    area
 }
 
 /// Area-weighted vertex normals (unit; zero where undefined).
@@ -299,7 +282,7 @@ mod tests {
         use crate::geometry::pose::axis_angle;
         let mesh = crate::geometry::shapes::icosphere(1.0, 4, [0.0, 0.0, 1.0]);
         let counts: Vec<u16> = mesh.positions.iter().map(|p| if p[2] >= 0.5 { 2 } else { 0 }).collect();
-        let area = vertex_areas(&mesh);
+        let area = crate::pipeline::reconstruct::vertex_area_shares(&mesh);
         let unseen_area: f64 = (0..counts.len()).filter(|&v| counts[v] == 0).map(|v| area[v]).sum();
         let est = Estimate { mesh, counts, area, coverage: 1.0 - unseen_area, frustum: [0.3, 0.3] };
         assert!((est.seen_share(2) - est.coverage).abs() < 1e-12);

@@ -388,15 +388,7 @@ pub fn view_gains(solid: &TriMesh, fused: &Fused) -> Vec<ViewGain> {
     let placed: Vec<Vec<[f32; 3]>> =
         kept.iter().map(|(v, pose)| crate::geometry::io::scanset::placed(&v.points, pose)).collect();
     let indices: Vec<PointIndex> = placed.iter().map(|p| PointIndex::new(p, 4.0)).collect();
-    let mut area = vec![0.0; solid.positions.len()];
-    let mut total = 0.0;
-    for (t, tri) in solid.triangles.iter().enumerate() {
-        let a = solid.triangle_area(t);
-        total += a;
-        for &v in tri {
-            area[v as usize] += a / 3.0;
-        }
-    }
+    let area = vertex_area_shares(solid);
     // Per vertex: the first view that saw it, and whether it was the only one.
     let seen: Vec<Option<(usize, bool)>> = solid
         .positions
@@ -411,7 +403,7 @@ pub fn view_gains(solid: &TriMesh, fused: &Fused) -> Vec<ViewGain> {
         kept.iter().map(|(v, _)| ViewGain { name: v.name.clone(), gain: 0.0, unique: 0.0 }).collect();
     for (v, s) in seen.iter().enumerate() {
         if let Some((first, only)) = *s {
-            let share = if total > 0.0 { area[v] / total } else { 0.0 };
+            let share = area[v];
             out[first].gain += share;
             if only {
                 out[first].unique += share;
@@ -419,4 +411,22 @@ pub fn view_gains(solid: &TriMesh, fused: &Fused) -> Vec<ViewGain> {
         }
     }
     out
+}
+
+/// Per vertex of `mesh`, a third of the area of each triangle around it, as a share of the whole (summing to
+/// 1; all zero for a mesh with no area).
+pub fn vertex_area_shares(mesh: &TriMesh) -> Vec<f64> {
+    let mut area = vec![0.0; mesh.positions.len()];
+    let mut total = 0.0;
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        let a = mesh.triangle_area(t);
+        total += a;
+        for &v in tri {
+            area[v as usize] += a / 3.0;
+        }
+    }
+    if total > 0.0 {
+        area.iter_mut().for_each(|a| *a /= total);
+    }
+    area
 }

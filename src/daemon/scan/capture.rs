@@ -189,7 +189,15 @@ async fn take_stops(
         (job.progress)(share(log), "capture", format!("capture/view {n} of {} at {at}", log.planned));
         let reached = move_to(job, table, log, stop).await?;
         tokio::time::sleep(job.cfg.settle).await;
-        match trigger_view(job, trigger, log, index, (stop, reached)).await? {
+        let outcome = match trigger_view(job, trigger, log, index, (stop, reached)).await? {
+            // A chosen view predicted surface where the scanner saw none (the prediction does not know the
+            // projector, nor the plate's exact edge): a miss of the choice, not of the rig. Named, skipped.
+            ViewOutcome::GaveUp(e) if e.code == ErrorCode::DeviceEmptyView && index >= first_chosen(log) => {
+                ViewOutcome::Skipped(Error::new(e.code, format!("{} (a chosen view: skipped)", e.message)))
+            }
+            o => o,
+        };
+        match outcome {
             ViewOutcome::Taken(v) => log.views.push(v),
             ViewOutcome::GaveUp(e) => {
                 save(job.dir, log).await?;
@@ -212,6 +220,11 @@ async fn take_stops(
         (job.progress)(share(log), "capture", format!("capture/{} of {} views", log.views.len(), log.planned));
     }
     Ok(())
+}
+
+/// The plan index of the first view chosen where the surface was unseen (`u32::MAX` when none was).
+fn first_chosen(log: &CaptureLog) -> u32 {
+    log.next_views.first().map_or(u32::MAX, |v| v.index)
 }
 
 /// A stop in words: `30.0°`, or `30.0° tilted -25.0°`.
