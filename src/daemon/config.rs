@@ -9,6 +9,7 @@ use serde::Deserialize;
 
 use sha2::{Digest, Sha256};
 
+use crate::daemon::scan::plan;
 use crate::devices::turntable::Homing;
 
 /// A configuration error: the key (dotted, e.g. `limits.memory_budget`) and why it was refused.
@@ -687,6 +688,23 @@ fn trigger_config(t: RawTrigger, dur: &DurOf, err: &ErrOf) -> Result<TriggerConf
     })
 }
 
+/// A calibrated axis (`[scan] KEY_point`, `KEY_direction`): a finite point and a non-zero finite direction,
+/// returned normalised; the error names the key.
+fn calibrated_axis(
+    (point, d): ([f64; 3], [f64; 3]),
+    (point_key, direction_key): (&str, &str),
+    err: &ErrOf,
+) -> Result<([f64; 3], [f64; 3]), ConfigError> {
+    if point.iter().any(|v| !v.is_finite()) {
+        return Err(err(&format!("scan.{point_key}"), "three finite numbers".into()));
+    }
+    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    if !(len.is_finite() && len > 1e-9) {
+        return Err(err(&format!("scan.{direction_key}"), "a non-zero vector of finite numbers".into()));
+    }
+    Ok((point, d.map(|v| v / len)))
+}
+
 fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, ConfigError> {
     let k = |key: &str| format!("scan.{key}");
     let capture_dir =
@@ -697,48 +715,25 @@ fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, Confi
     let axis_point =
         t.axis_point.ok_or_else(|| err(&k("axis_point"), "required (the calibrated table centre)".into()))?;
     let d = t.axis_direction.ok_or_else(|| err(&k("axis_direction"), "required (the calibrated axis)".into()))?;
-    if axis_point.iter().any(|v| !v.is_finite()) {
-        return Err(err(&k("axis_point"), "three finite numbers".into()));
-    }
-    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-    if !(len.is_finite() && len > 1e-9) {
-        return Err(err(&k("axis_direction"), "a non-zero vector of finite numbers".into()));
-    }
+    let (axis_point, axis_direction) = calibrated_axis((axis_point, d), ("axis_point", "axis_direction"), err)?;
     let views = t.views.unwrap_or(12);
     if !(1..=360).contains(&views) {
         return Err(err(&k("views"), format!("{views} is outside 1..=360")));
     }
     let tilt_axis = match (t.tilt_axis_point, t.tilt_axis_direction) {
         (None, None) => None,
-        (Some(p), Some(d)) => {
-            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            if p.iter().any(|v| !v.is_finite()) {
-                return Err(err(&k("tilt_axis_point"), "three finite numbers".into()));
-            }
-            if !(len.is_finite() && len > 1e-9) {
-                return Err(err(&k("tilt_axis_direction"), "a non-zero vector of finite numbers".into()));
-            }
-            Some((p, d.map(|v| v / len)))
-        }
+        (Some(p), Some(d)) => Some(calibrated_axis((p, d), ("tilt_axis_point", "tilt_axis_direction"), err)?),
         (Some(_), None) => return Err(err(&k("tilt_axis_direction"), "required with tilt_axis_point".into())),
         (None, Some(_)) => return Err(err(&k("tilt_axis_point"), "required with tilt_axis_direction".into())),
     };
-    let tilts = crate::daemon::scan::plan::Ring::parse_list(t.tilts.as_deref().unwrap_or(""))
-        .map_err(|m| err(&k("tilts"), m))?;
+    let tilts = plan::Ring::parse_list(t.tilts.as_deref().unwrap_or("")).map_err(|m| err(&k("tilts"), m))?;
     if let Some(r) = t.plate_radius
         && !(r.is_finite() && r > 0.0)
     {
         return Err(err(&k("plate_radius"), format!("{r} is not a positive length")));
     }
-    if let Some(c) = t.coverage
-        && !(c > 0.0 && c <= 1.0)
-    {
-        return Err(err(&k("coverage"), format!("{c} is not a share in (0, 1]")));
-    }
-    let max_views = t.max_views.unwrap_or(60);
-    if !(2..=720).contains(&max_views) {
-        return Err(err(&k("max_views"), format!("{max_views} is outside 2..=720")));
-    }
+    let coverage = t.coverage.map(plan::check_coverage).transpose().map_err(|m| err(&k("coverage"), m))?;
+    let max_views = plan::check_max_views(u64::from(t.max_views.unwrap_or(60))).map_err(|m| err(&k("max_views"), m))?;
     if !tilts.is_empty() && tilt_axis.is_none() {
         return Err(err(
             &k("tilts"),
@@ -767,11 +762,11 @@ fn scan_config(t: RawScan, dur: &DurOf, err: &ErrOf) -> Result<ScanConfig, Confi
     Ok(ScanConfig {
         capture_dir,
         axis_point,
-        axis_direction: d.map(|v| v / len),
+        axis_direction,
         tilt_axis,
         tilts,
         plate_radius: t.plate_radius,
-        coverage: t.coverage,
+        coverage,
         max_views,
         views,
         settle: dur(&k("settle"), &t.settle, "300ms")?,

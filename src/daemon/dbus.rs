@@ -307,6 +307,8 @@ fn parse_scan_options(
 ) -> Result<(crate::daemon::scan::ScanRequest, String, JobOptions), StationError> {
     let mut rest = HashMap::new();
     let (mut views, mut step, mut name, mut fea) = (None, None, "scan".to_string(), None);
+    use crate::daemon::scan::plan::{check_coverage, check_max_views};
+    let invalid = |key: &str, m: String| StationError::InvalidArgument(format!("{key}: {m}"));
     let mut rings = None;
     let (mut coverage, mut max_views) = (default_coverage, None);
     for (k, v) in options {
@@ -329,18 +331,11 @@ fn parse_scan_options(
                     Some(crate::daemon::scan::plan::Ring::parse_list(&text()?).map_err(StationError::InvalidArgument)?);
             }
             option_keys::COVERAGE => match &**v {
-                Value::F64(c) if *c > 0.0 && *c <= 1.0 => coverage = Some(*c),
-                Value::F64(c) => {
-                    return Err(StationError::InvalidArgument(format!("coverage: {c} is not a share in (0, 1]")));
-                }
+                Value::F64(c) => coverage = Some(check_coverage(*c).map_err(|m| invalid("coverage", m))?),
                 _ => return Err(bad()),
             },
             option_keys::MAX_VIEWS => {
-                let n = int(v).ok_or_else(bad)?;
-                if !(2..=720).contains(&n) {
-                    return Err(StationError::InvalidArgument(format!("max_views: {n} is outside 2..=720")));
-                }
-                max_views = Some(n as u32);
+                max_views = Some(check_max_views(int(v).ok_or_else(bad)?).map_err(|m| invalid("max_views", m))?);
             }
             option_keys::FEA => {
                 let p = PathBuf::from(text()?);

@@ -120,15 +120,11 @@ fn write_fusion_report(
 ) -> Result<(PathBuf, crate::geometry::io::FileDigest), Error> {
     let report = &converted.report;
     let fusion = report.reconstruct.as_ref().and_then(|r| r.fusion.clone());
-    let coverage = converted
-        .fused
-        .as_ref()
-        .map(|f| crate::pipeline::reconstruct::fused_coverage(&converted.solid_mesh.triangulate().0, f));
-    let gains = converted
-        .fused
-        .as_ref()
-        .map(|f| crate::pipeline::reconstruct::view_gains(&converted.solid_mesh.triangulate().0, f))
-        .unwrap_or_default();
+    // The solid's triangles, once, for its coverage and the views' gains.
+    let measured = converted.fused.as_ref().map(|f| (converted.solid_mesh.triangulate().0, f));
+    let coverage = measured.as_ref().map(|(solid, f)| crate::pipeline::reconstruct::fused_coverage(solid, f));
+    let gains =
+        measured.as_ref().map(|(solid, f)| crate::pipeline::reconstruct::view_gains(solid, f)).unwrap_or_default();
     let per_view: Vec<serde_json::Value> = log
         .views
         .iter()

@@ -24,7 +24,7 @@ use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::io::ReadOptions;
 use crate::geometry::mesh::{Geometry, TriMesh};
 use crate::geometry::pose::Pose;
-use crate::geometry::vec3::{V3, add, cross, dot, norm, scale, sub, wide};
+use crate::geometry::vec3::{V3, add, dot, norm, scale, sub, wide};
 use crate::stages::reconstruct::fusion::FuseOptions;
 use crate::stages::reconstruct::{ReconstructOptions, reconstruct};
 
@@ -128,19 +128,6 @@ pub fn estimate(dir: &Path, memory_budget: u64) -> Result<Estimate> {
     Ok(Estimate { counts, mesh, area, coverage, frustum })
 }
 
-/// Area-weighted vertex normals (unit; zero where undefined).
-fn vertex_normals(mesh: &TriMesh) -> Vec<V3> {
-    let mut n = vec![[0.0; 3]; mesh.positions.len()];
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        let [a, b, c] = mesh.corners(t);
-        let f = cross(sub(b, a), sub(c, a));
-        for &v in tri {
-            n[v as usize] = add(n[v as usize], f);
-        }
-    }
-    n.into_iter().map(|v| if norm(v) > 0.0 { scale(v, 1.0 / norm(v)) } else { v }).collect()
-}
-
 /// The scanner at one stop, in the surface's frame.
 struct Camera {
     eye: V3,
@@ -190,15 +177,6 @@ impl Estimate {
         let need = need.max(1);
         self.counts.iter().zip(&self.area).map(|(&c, &a)| a * f64::from(c.min(need)) / f64::from(need)).sum()
     }
-
-    /// The surface's bounding-box diagonal.
-    fn diagonal(&self) -> f64 {
-        let mut b = crate::geometry::vec3::Aabb::EMPTY;
-        for &p in &self.mesh.positions {
-            b.add(wide(p));
-        }
-        b.diagonal()
-    }
 }
 
 /// Pick the next views among `candidates` (turn, tilt: degrees; `pose_of` gives a stop's pose, scanner frame
@@ -210,11 +188,13 @@ pub fn choose(
     pose_of: &(dyn Fn(f64, f64) -> Pose + Sync),
     opts: &NextViewOptions,
 ) -> Vec<NextView> {
-    let normals = vertex_normals(&est.mesh);
+    let positions: Vec<V3> = est.mesh.positions.iter().map(|&p| wide(p)).collect();
+    let faces: Vec<Vec<u32>> = est.mesh.triangles.iter().map(|t| t.to_vec()).collect();
+    let normals = crate::geometry::polygon::vertex_normals(&positions, &faces);
     let need = opts.need.max(1);
     let unseen: Vec<usize> = (0..est.counts.len()).filter(|&v| est.counts[v] < need && est.area[v] > 0.0).collect();
     let bvh = TriangleBvh::new(&est.mesh);
-    let eps = 1e-4 * est.diagonal();
+    let eps = 1e-4 * est.mesh.bbox().diagonal();
     let sees: Vec<Vec<usize>> = candidates
         .par_iter()
         .map(|&(a, t)| {

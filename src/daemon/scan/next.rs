@@ -7,7 +7,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use super::plan::{CaptureLog, ChosenView, CoverageEstimate, ScanRequest, Stop, tilted_view_pose, view_pose};
+use super::plan::{CaptureLog, ChosenView, CoverageEstimate, ScanRequest, Stop, stop_pose};
 use crate::daemon::config::ScanConfig;
 use crate::error::Error;
 use crate::pipeline::next_view::{NextViewOptions, candidates, choose, estimate};
@@ -69,9 +69,14 @@ pub async fn round(c: &Chooser<'_>, log: &mut CaptureLog) -> Result<bool, Error>
     let est = tokio::task::spawn_blocking(move || estimate(&dir, budget))
         .await
         .map_err(|e| Error::internal(format!("the coverage estimate failed: {e}")))??;
+    let opts = NextViewOptions {
+        target,
+        budget: (max_views - log.planned) as usize,
+        plate_radius: c.cfg.plate_radius,
+        ..Default::default()
+    };
     let views = log.views.len() as u32;
-    let need = NextViewOptions::default().need;
-    let (coverage, seen_twice) = (est.coverage, est.seen_share(need));
+    let (coverage, seen_twice) = (est.coverage, est.seen_share(opts.need));
     let seconds = t.elapsed().as_secs_f64();
     log.estimates.push(CoverageEstimate { views, coverage, seen_twice, seconds, choose_seconds: 0.0 });
     tracing::info!(views, coverage, seen_twice, "coverage estimated");
@@ -90,17 +95,8 @@ pub async fn round(c: &Chooser<'_>, log: &mut CaptureLog) -> Result<bool, Error>
             .into_iter()
             .filter(|s| !taken(s))
             .collect();
-    let (p, d, tilt) = (log.axis_point, log.axis_direction, log.tilt_axis);
-    let pose_of = move |a: f64, t: f64| match tilt {
-        Some(axis) if t != 0.0 => tilted_view_pose(p, d, axis, a, t),
-        _ => view_pose(p, d, a),
-    };
-    let opts = NextViewOptions {
-        target,
-        budget: (max_views - log.planned) as usize,
-        plate_radius: c.cfg.plate_radius,
-        ..Default::default()
-    };
+    let (axis, tilt) = ((log.axis_point, log.axis_direction), log.tilt_axis);
+    let pose_of = move |angle_deg: f64, tilt_deg: f64| stop_pose(axis, tilt, Stop { angle_deg, tilt_deg });
     let t = Instant::now();
     let picked = tokio::task::spawn_blocking(move || choose(&est, &cands, &pose_of, &opts))
         .await

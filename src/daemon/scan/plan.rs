@@ -53,6 +53,22 @@ impl Ring {
     }
 }
 
+/// A coverage target (`coverage`): a share in (0, 1].
+///
+/// # Errors
+/// A message naming the value.
+pub fn check_coverage(c: f64) -> Result<f64, String> {
+    if c > 0.0 && c <= 1.0 { Ok(c) } else { Err(format!("{c} is not a share in (0, 1]")) }
+}
+
+/// A view budget (`max_views`): 2 to 720 views.
+///
+/// # Errors
+/// A message naming the value.
+pub fn check_max_views(n: u64) -> Result<u32, String> {
+    if (2..=720).contains(&n) { Ok(n as u32) } else { Err(format!("{n} is outside 2..=720")) }
+}
+
 /// One stop of a plan: where the table turns and tilts to.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Stop {
@@ -289,16 +305,22 @@ pub fn tilted_view_pose(point: V3, direction: V3, tilt: (V3, V3), angle_deg: f64
     table_frame(point, direction).then_after(&back)
 }
 
+/// The pose of a stop (scanner frame → table frame) on a table calibrated with `axis` (a point and a
+/// direction) and, when it tilts, `tilt_axis`: [`tilted_view_pose`] for a tilted stop, [`view_pose`] for a
+/// level one.
+pub fn stop_pose((point, direction): (V3, V3), tilt_axis: Option<(V3, V3)>, stop: Stop) -> Pose {
+    match tilt_axis {
+        Some(tilt) if stop.tilt_deg != 0.0 => tilted_view_pose(point, direction, tilt, stop.angle_deg, stop.tilt_deg),
+        _ => view_pose(point, direction, stop.angle_deg),
+    }
+}
+
 impl CaptureLog {
     /// The pose of a view of this log (its angle and tilt, the log's calibration): scanner frame → table
-    /// frame.
+    /// frame ([`stop_pose`]).
     pub fn pose_of(&self, v: &TakenView) -> Pose {
-        match self.tilt_axis {
-            Some(tilt) if v.tilt_deg != 0.0 => {
-                tilted_view_pose(self.axis_point, self.axis_direction, tilt, v.angle_deg, v.tilt_deg)
-            }
-            _ => view_pose(self.axis_point, self.axis_direction, v.angle_deg),
-        }
+        let stop = Stop { angle_deg: v.angle_deg, tilt_deg: v.tilt_deg };
+        stop_pose((self.axis_point, self.axis_direction), self.tilt_axis, stop)
     }
 }
 
