@@ -28,7 +28,9 @@
 use std::f64::consts::PI;
 
 use crate::geometry::bvh::TriangleBvh;
+use crate::geometry::hull::resting_faces;
 use crate::geometry::mesh::TriMesh;
+use crate::geometry::pose::{Pose, axis_angle};
 use crate::geometry::sampling::Rng;
 use crate::geometry::vec3::{Aabb, V3, add, cross, dot, norm, scale, sub, wide};
 
@@ -173,6 +175,9 @@ pub struct RangeCamera {
     diagonal: f64,
     /// The table top's radius: the plate the object stands on ([`plate_radius`]).
     plate: f64,
+    /// Mixed into every draw's key: 0 as first placed, the turn-over's seed after one (so a second pass's
+    /// views draw other noise than the first pass's at the same stops).
+    placing: u64,
 }
 
 impl RangeCamera {
@@ -221,7 +226,18 @@ impl RangeCamera {
         let upv = cross(back, right);
         let projector = add(eye, scale(right, settings.baseline_rel * distance));
         let plate = plate_radius(&object, height);
-        Ok(RangeCamera { settings, object, bvh, eye, axes: [right, upv, back], projector, distance, diagonal, plate })
+        Ok(RangeCamera {
+            settings,
+            object,
+            bvh,
+            eye,
+            axes: [right, upv, back],
+            projector,
+            distance,
+            diagonal,
+            plate,
+            placing: 0,
+        })
     }
 
     /// Whether the ray `from + t·dir`, 0 < t ≤ `far`, crosses the table top: the plate the object stands
@@ -286,6 +302,54 @@ impl RangeCamera {
         (p, d)
     }
 
+    /// The object turned over, as a person does between two passes: it rests on the most stable face of its
+    /// hull ([`resting_faces`]) that is turned more than 60° from the face it stands on now, turned about the
+    /// table's axis by a seeded angle and set down a seeded distance (up to 5 % of its diagonal) off the axis.
+    /// The rig (camera, projector, plate, axes) stays. Returns the camera over the turned object and the
+    /// motion from this table frame to the new one (what the station is not told).
+    ///
+    /// # Errors
+    /// A message when the object has no other face it can rest on (a ball), or no hull.
+    pub fn turned_over(&self, seed: u64) -> Result<(RangeCamera, Pose), String> {
+        let rests = resting_faces(&self.object)?;
+        let down = [0.0, 0.0, -1.0];
+        let rest = rests.iter().find(|r| dot(r.normal, down) < 0.5).ok_or_else(|| {
+            format!(
+                "the object has no other face to rest on ({} stable faces, none turned more than 60° from the one it stands on)",
+                rests.len()
+            )
+        })?;
+        // Rotate the facet's normal onto "down", then about the axis by the seeded angle.
+        let n = rest.normal;
+        let axis = cross(n, down);
+        let tip = if norm(axis) > 1e-9 {
+            axis_angle(scale(axis, 1.0 / norm(axis)), dot(n, down).clamp(-1.0, 1.0).acos())
+        } else {
+            axis_angle([1.0, 0.0, 0.0], std::f64::consts::PI)
+        };
+        let mut rng = Rng::new(seed ^ 0x7E24_0BE2);
+        let yaw = axis_angle([0.0, 0.0, 1.0], 2.0 * PI * rng.next_f64());
+        let turn =
+            Pose { rotation: yaw, translation: [0.0; 3] }.then_after(&Pose { rotation: tip, translation: [0.0; 3] });
+        let mut b = Aabb::EMPTY;
+        self.object.positions.iter().for_each(|&p| b.add(turn.apply(wide(p))));
+        let (r, phi) = (0.05 * self.diagonal * rng.next_f64(), 2.0 * PI * rng.next_f64());
+        let shift =
+            [r * phi.cos() - (b.min[0] + b.max[0]) / 2.0, r * phi.sin() - (b.min[1] + b.max[1]) / 2.0, -b.min[2]];
+        let motion = Pose { rotation: turn.rotation, translation: shift };
+        let positions = self.object.positions.iter().map(|&p| motion.apply(wide(p)).map(|c| c as f32)).collect();
+        let object = TriMesh { positions, triangles: self.object.triangles.clone() };
+        let bvh = TriangleBvh::new(&object);
+        let camera = RangeCamera {
+            settings: self.settings.clone(),
+            object,
+            bvh,
+            placing: self.placing.wrapping_add(seed | 1),
+            ..*self
+        };
+        Ok((camera, motion))
+    }
+
     /// One range image with the table at `angle_deg` (the object turned by that angle about the axis,
     /// right-handed): the measured points in the camera frame, row by row. Cost: one or two ray casts per
     /// pixel, O(log F) each.
@@ -319,7 +383,8 @@ impl RangeCamera {
         let ramp_start = (s.grazing_deg - 20.0).max(0.0).to_radians().cos();
         // Tilt 0 keeps the keys (and so the views) of a single-axis table.
         let key = (angle_deg * 1000.0).round() as i64 as u64
-            ^ ((tilt_deg * 1000.0).round() as i64 as u64).wrapping_mul(0x94D0_49BB_1331_11EB);
+            ^ ((tilt_deg * 1000.0).round() as i64 as u64).wrapping_mul(0x94D0_49BB_1331_11EB)
+            ^ self.placing.wrapping_mul(0xBF58_476D_1CE4_E5B9);
         let mut out = Vec::new();
         for j in 0..s.height {
             for i in 0..s.width {
@@ -380,7 +445,6 @@ fn gaussian(rng: &mut Rng) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::pose::Pose;
 
     /// A closed axis-aligned box, outward triangles.
     fn cube(h: f32) -> TriMesh {
@@ -460,6 +524,43 @@ mod tests {
         }
         assert_eq!(cam.capture_tilted(30.0, 0.0), cam.capture(30.0), "tilt 0 is the single-axis view");
         assert!(on_top[4] > on_top[0], "tilted 90° toward the camera, the top faces it: {on_top:?}");
+    }
+
+    /// A 1 × 2 × 4 box standing on its small face, turned over, lies on a big face (the most stable one),
+    /// on the table (its lowest point at 0), off the axis by at most 5 % of its diagonal; noise-free views of
+    /// it, placed about the same axis and moved back by the motion, lie on the first placing's truth.
+    #[test]
+    fn a_turned_over_object_rests_on_another_face_at_a_pose_not_told() {
+        let s = CameraSettings { noise_rel: 0.0, width: 64, height: 48, ..Default::default() };
+        let mut tall = cube(1.0);
+        tall.positions.iter_mut().for_each(|p| *p = [p[0] * 0.5, p[1], p[2] * 2.0]);
+        let cam = RangeCamera::new(&tall, Up::Z, s).expect("camera");
+        let (turned, motion) = cam.turned_over(7).expect("turned over");
+        let t = turned.truth();
+        let zmin = t.positions.iter().map(|p| p[2]).fold(f32::MAX, f32::min);
+        let zmax = t.positions.iter().map(|p| p[2]).fold(f32::MIN, f32::max);
+        assert!(zmin.abs() < 1e-5 && (zmax - 1.0).abs() < 1e-5, "lies on a 2 × 4 face: z {zmin}..{zmax}");
+        let c = t.bbox();
+        let off = ((c.min[0] + c.max[0]) / 2.0).hypot((c.min[1] + c.max[1]) / 2.0);
+        assert!(off <= 0.05 * cam.diagonal + 1e-9, "{off}");
+        assert_eq!(turned.axis(), cam.axis(), "the rig stays");
+        let truth = TriangleBvh::new(&cam.truth());
+        let (point, direction) = cam.axis();
+        // Camera frame (table at 0°) → table frame.
+        let to_table = |q: V3| {
+            add(cam.eye, add(add(scale(cam.axes[0], q[0]), scale(cam.axes[1], q[1])), scale(cam.axes[2], q[2])))
+        };
+        for angle in [0.0, 120.0, 240.0] {
+            let view = turned.capture(angle);
+            assert!(view.len() > 100, "{angle}: {} points", view.len());
+            let pose = crate::geometry::pose::Pose::turntable(point, direction, angle).expect("pose");
+            let worst = view
+                .iter()
+                .map(|&p| truth.distance(motion.inverse_apply(to_table(pose.apply(wide(p))))))
+                .fold(0.0, f64::max);
+            assert!(worst < 1e-4, "{angle}: a point is {worst} from the truth");
+        }
+        assert!(cam.turned_over(8).unwrap().1 != motion, "another seed, another pose");
     }
 
     /// Noise-free views, placed by the turntable pose about the reported axis, land on the truth.

@@ -111,8 +111,15 @@ pub struct RigSim {
     pub table: SimTurntable,
     /// The simulated scanner node.
     pub node: SimScanner,
-    /// The range camera (the object, its axis, its truth).
+    /// The range camera as the rig started (the object as first placed, its axis, its truth: the frame a
+    /// scan's first pass is fused in).
     pub camera: Arc<RangeCamera>,
+    /// The camera over the object as it lies now (after `turn-over`s).
+    current: Arc<std::sync::RwLock<Arc<RangeCamera>>>,
+    /// Turn-overs so far.
+    turns: std::sync::atomic::AtomicU64,
+    /// The motion from the first placing's table frame to the object's now.
+    motion: std::sync::RwLock<crate::geometry::pose::Pose>,
 }
 
 impl RigSim {
@@ -130,9 +137,11 @@ impl RigSim {
         let table = SimTurntable::spawn(SimSettings::default(), link, *time_scale)
             .map_err(|e| format!("cannot start the simulated turntable at {}: {e}", link.display()))?;
         let (angle, tilt) = (table.angle_source(), table.tilt_source());
-        let (cam, dir) = (camera.clone(), s.capture.clone());
+        let current = Arc::new(std::sync::RwLock::new(camera.clone()));
+        let (now, dir) = (current.clone(), s.capture.clone());
         let views = ViewSource(Arc::new(move |seq: u16| {
             let (at, tilted) = (angle(), tilt());
+            let cam = now.read().unwrap_or_else(|p| p.into_inner()).clone();
             let cloud = PointCloud { positions: cam.capture_tilted(at, tilted), normals: None, colors: None };
             let path = dir.join(format!("view-{seq:05}.ply"));
             let note = format!("simulated range image at table angle {at:.4} deg, tilt {tilted:.4} deg");
@@ -147,7 +156,14 @@ impl RigSim {
         let (bus, settings) = s.node;
         let node = start_node(&bus, ScannerSettings { views: Some(views), ..settings })
             .map_err(|e| format!("cannot start the simulated scanner node on {bus}: {e}"))?;
-        Ok(RigSim { table, node, camera })
+        Ok(RigSim {
+            table,
+            node,
+            camera,
+            current,
+            turns: std::sync::atomic::AtomicU64::new(0),
+            motion: std::sync::RwLock::new(crate::geometry::pose::Pose::IDENTITY),
+        })
     }
 
     /// The station's calibration for this rig: a TOML `[scan]` fragment with the table's axis and the
@@ -173,11 +189,46 @@ impl RigSim {
         )
     }
 
-    /// Carry out one command line, the turntable's or the scanner's; `Ok(false)` for `quit`.
+    /// Turn the object over, as an operator does between two passes ([`RangeCamera::turned_over`]): it
+    /// rests on another stable face, turned and shifted by `seed`'s draws. Returns the motion from the first
+    /// placing's table frame to the new one (what the station is not told; tests compare it).
+    ///
+    /// # Errors
+    /// A message when the object has no other face to rest on.
+    pub fn turn_over(&self, seed: u64) -> Result<crate::geometry::pose::Pose, String> {
+        let mut now = self.current.write().unwrap_or_else(|p| p.into_inner());
+        let (turned, motion) = now.turned_over(seed)?;
+        // From the first placing: the motion so far, then this one.
+        let (_, before) = self.placing();
+        *now = Arc::new(turned);
+        self.turns.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let total = motion.then_after(&before);
+        *self.motion.write().unwrap_or_else(|p| p.into_inner()) = total;
+        Ok(total)
+    }
+
+    /// Turn-overs so far, and the motion from the first placing's table frame to the object's now.
+    pub fn placing(&self) -> (u64, crate::geometry::pose::Pose) {
+        (self.turns.load(std::sync::atomic::Ordering::Relaxed), *self.motion.read().unwrap_or_else(|p| p.into_inner()))
+    }
+
+    /// Carry out one command line, the rig's (`turn-over [SEED]`), the turntable's or the scanner's;
+    /// `Ok(false)` for `quit`.
     ///
     /// # Errors
     /// A message naming both command sets when the line is neither's.
     pub async fn command(&self, line: &str) -> Result<bool, String> {
+        let mut words = line.split_whitespace();
+        if words.next() == Some("turn-over") {
+            let seed = match words.next() {
+                Some(w) => w.parse::<u64>().map_err(|_| format!("turn-over: {w:?} is not a seed (a whole number)"))?,
+                None => self.turns.load(std::sync::atomic::Ordering::Relaxed) + 1,
+            };
+            let motion = self.turn_over(seed)?;
+            let (deg, dist) = motion.difference(&crate::geometry::pose::Pose::IDENTITY);
+            tracing::info!(seed, turned_deg = deg, moved = dist, "the object is turned over");
+            return Ok(true);
+        }
         match (turntable_command(line), scanner_command(line)) {
             (Ok(SimCommand::Stop), _) | (_, Ok(ScannerFault::Quit)) => Ok(false),
             (Ok(c), _) => {
@@ -189,7 +240,7 @@ impl RigSim {
                 Ok(true)
             }
             (Err(_), Err(_)) => Err(format!(
-                "unknown command {:?} (turntable: unplug, replug, drop-reply, error N, alarm N, stall; scanner: silence MS, emcy CODE, drop-view [N], busy [N], garbage N, bus-off MS; quit)",
+                "unknown command {:?} (rig: turn-over [SEED]; turntable: unplug, replug, drop-reply, error N, alarm N, stall; scanner: silence MS, emcy CODE, drop-view [N], busy [N], garbage N, bus-off MS; quit)",
                 line.trim()
             )),
         }

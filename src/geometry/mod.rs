@@ -4,6 +4,7 @@
 pub mod bvh;
 pub mod cellhash;
 pub mod decimate;
+pub mod hull;
 pub mod intersect;
 pub mod io;
 pub mod linalg;

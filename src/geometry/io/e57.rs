@@ -107,6 +107,8 @@ pub fn read_e57(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
                 point_count: points.len(),
                 points,
                 scanner: Some([0.0; 3]),
+                pass: 1,
+                table_frame: false,
             });
         }
         if views.iter().all(|v| v.points.is_empty()) {

@@ -34,6 +34,9 @@ pub use super::view::{MAX_VIEWS, View, placed};
 /// The manifest's file name inside a scan-set directory.
 pub const MANIFEST: &str = "scanset.toml";
 
+/// Most passes in one scan set (the object turned over between two).
+pub const MAX_PASSES: u32 = 16;
+
 /// Largest `.conf` or manifest file, bytes.
 pub const MAX_CONF_BYTES: u64 = 1 << 20;
 
@@ -98,6 +101,11 @@ struct Views<'a> {
 
 impl Views<'_> {
     fn push(&mut self, name: &str, pose: Pose, loc: Location) -> Result<()> {
+        self.push_in(name, pose, (1, false), loc)
+    }
+
+    /// [`Views::push`] for a view of `pass`, in a table frame or not.
+    fn push_in(&mut self, name: &str, pose: Pose, (pass, table_frame): (u32, bool), loc: Location) -> Result<()> {
         let bad = |m: String| Error::new(ErrorCode::InputBadRecord, m).in_file(self.path).at(loc);
         if self.views.len() >= MAX_VIEWS {
             return Err(bad(format!("more than {MAX_VIEWS} views")));
@@ -119,7 +127,16 @@ impl Views<'_> {
                 .at(loc));
         }
         let points = read_geometry(&file, self.options)?.positions().to_vec();
-        self.views.push(View { name: name.to_string(), file, pose, point_count: points.len(), points, scanner: None });
+        self.views.push(View {
+            name: name.to_string(),
+            file,
+            pose,
+            point_count: points.len(),
+            points,
+            scanner: None,
+            pass,
+            table_frame,
+        });
         Ok(())
     }
 
@@ -175,6 +192,9 @@ pub fn read_conf(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
 #[serde(deny_unknown_fields)]
 struct Manifest {
     axis: Option<Axis>,
+    /// Each pass's common frame is its turntable's table frame (z up, the table top at z = 0).
+    #[serde(default)]
+    table_frame: bool,
     #[serde(default)]
     view: Vec<ManifestView>,
 }
@@ -194,6 +214,8 @@ struct ManifestView {
     translation: Option<V3>,
     quaternion: Option<[f64; 4]>,
     angle_deg: Option<f64>,
+    /// The view's pass (1 when not given).
+    pass: Option<u32>,
 }
 
 /// Read a `scanset.toml` manifest (see the module docs) and every view it lists.
@@ -240,7 +262,19 @@ pub fn read_manifest(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
             }
         }
         .map_err(bad)?;
-        views.push(&v.file, pose, loc)?;
+        let pass = v.pass.unwrap_or(1);
+        if !(1..=MAX_PASSES).contains(&pass) {
+            return Err(bad(format!("pass {pass} is outside 1..={MAX_PASSES}")));
+        }
+        views.push_in(&v.file, pose, (pass, manifest.table_frame), loc)?;
+    }
+    let passes: std::collections::BTreeSet<u32> = views.views.iter().map(|v| v.pass).collect();
+    if let Some(missing) = (1..=passes.last().copied().unwrap_or(1)).find(|p| !passes.contains(p)) {
+        return Err(Error::new(
+            ErrorCode::InputBadRecord,
+            format!("pass {missing} has no view, but a later pass has: passes are numbered 1, 2, … in order"),
+        )
+        .in_file(path));
     }
     views.finish()
 }
@@ -250,11 +284,28 @@ pub fn read_manifest(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
 /// # Errors
 /// `resource.output` when the file cannot be written.
 pub fn write_manifest(path: &Path, views: &[(String, Pose)]) -> Result<()> {
+    let listed: Vec<(String, Pose, u32)> = views.iter().map(|(n, p)| (n.clone(), *p, 1)).collect();
+    write_manifest_passes(path, &listed, false)
+}
+
+/// [`write_manifest`] for views of several passes (`(file, pose within its pass, pass)`), each pass's
+/// common frame a table frame when `table_frame` (the station's scans).
+///
+/// # Errors
+/// `resource.output` when the file cannot be written.
+pub fn write_manifest_passes(path: &Path, views: &[(String, Pose, u32)], table_frame: bool) -> Result<()> {
     let mut s = String::from("# scan set: one [[view]] per range scan, its pose view frame -> common frame\n");
-    for (name, pose) in views {
+    if table_frame {
+        s += "# each pass's common frame is its table frame: z up the axis, the table top at z = 0\ntable_frame = true\n";
+    }
+    for (name, pose, pass) in views {
         let r = &pose.rotation;
         let t = pose.translation;
-        s += &format!("\n[[view]]\nfile = {}\nmatrix = [\n", toml_string(name));
+        s += &format!("\n[[view]]\nfile = {}\n", toml_string(name));
+        if *pass != 1 {
+            s += &format!("pass = {pass}\n");
+        }
+        s += "matrix = [\n";
         for i in 0..3 {
             s += &format!("  [{:?}, {:?}, {:?}, {:?}],\n", r[i][0], r[i][1], r[i][2], t[i]);
         }

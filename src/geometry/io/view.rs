@@ -26,6 +26,12 @@ pub struct View {
     /// Where the scanner stood in the view's frame, when known (E57: the origin); `None`: far along +z
     /// (the scanner looks down −z, Stanford's convention and the station's).
     pub scanner: Option<V3>,
+    /// Its pass (1, 2, …): views of one pass share a common frame; the frames of two passes (the object
+    /// turned over between them) are unknown to each other, and fusion finds them by their geometry.
+    pub pass: u32,
+    /// Whether its pass's common frame is a turntable's table frame (z up the axis, the table top at
+    /// z = 0): the object rests on that plane, and no point of it lies below it.
+    pub table_frame: bool,
 }
 
 impl View {

@@ -2,6 +2,8 @@
 //! merged into one oriented cloud.
 //!
 //! Steps ([`fuse`]):
+//! 0. a scan set of several passes (the object turned over between them) has each later pass found in the
+//!    first pass's frame by its geometry ([`super::passes`]), or refused naming the pass;
 //! 1. each view's normals are estimated within the view (PCA over its own neighbours, in its own frame) and
 //!    turned toward its scanner (the view's +z, or its scanner's position where known: E57; see
 //!    [`crate::geometry::io::scanset`]);
@@ -103,6 +105,9 @@ pub struct FusionReport {
     pub poses: Vec<Pose>,
     /// Points dropped from the fused cloud for low relative confidence ([`DROP_CONFIDENCE`]).
     pub low_confidence_dropped: usize,
+    /// Each later pass's alignment onto the first (empty for a scan set of one pass).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub passes: Vec<super::passes::PassReport>,
 }
 
 /// A view whose residual exceeds this many times the median, or whose overlap is below 1/this of the
@@ -282,11 +287,12 @@ pub fn fuse(views: &[View], opts: &FuseOptions) -> Result<(PointCloud, FusionRep
             confidence: &confidence[k],
         })
         .collect();
-    // 2. The fit at the given poses.
-    let given_poses: Vec<Pose> = views.iter().map(|v| v.pose).collect();
+    let noise = (spreads.iter().map(|s| s * s).sum::<f64>() / spreads.len() as f64).sqrt();
+    // 2. Later passes found in the first's frame (a scan set of one pass: the poses as given), then the fit
+    //    at those poses.
+    let (given_poses, passes) = super::passes::align_passes(views, &normals, noise)?;
     let given = register::fits(&clouds, &given_poses, OVERLAP_SPACINGS);
     let (given_rms, given_pairs) = pooled(&given);
-    let noise = (spreads.iter().map(|s| s * s).sum::<f64>() / spreads.len() as f64).sqrt();
     let movable = movable_views(&given, noise);
     // 3. Refinement, kept only when it fits measurably better.
     let (mut poses, mut used, mut refined_fits, mut registration, mut refined_rms) =
@@ -398,6 +404,7 @@ pub fn fuse(views: &[View], opts: &FuseOptions) -> Result<(PointCloud, FusionRep
             rejected,
             poses,
             low_confidence_dropped,
+            passes,
         },
     ))
 }

@@ -12,6 +12,7 @@ pub mod extract;
 pub mod fusion;
 pub mod global;
 pub mod normals;
+pub mod passes;
 pub mod poisson;
 pub mod project;
 pub mod refine;
