@@ -8,8 +8,9 @@
 //! Needs `dbus-daemon`, `busctl` and `gdbus` (as the daemon tests). Run: `cargo bench --bench scan`
 //! (`SCANSTATION_SCAN_VIEWS` overrides the 12 views, `SCANSTATION_SCAN_VERTICES` the vertex count;
 //! `SCANSTATION_SCAN_TILTS=-25:8,-45:8,50:6` adds tilted rings, `SCANSTATION_SCAN_COVERAGE=0.99` views chosen
-//! where the surface is unseen, up to `SCANSTATION_SCAN_MAX_VIEWS`, 48 by default; `SCANSTATION_SCAN_OBJECT`
-//! and `SCANSTATION_SCAN_UP` scan another closed mesh).
+//! where the surface is unseen, up to `SCANSTATION_SCAN_MAX_VIEWS`, 48 by default; `SCANSTATION_SCAN_PASSES=2`
+//! takes the plan twice, the simulated rig turning the object over when the job asks (`turn-over`, then
+//! `Continue()`); `SCANSTATION_SCAN_OBJECT` and `SCANSTATION_SCAN_UP` scan another closed mesh).
 
 #[path = "../tests/harness/mod.rs"]
 mod harness;
@@ -31,7 +32,7 @@ fn main() {
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply"));
     let up = std::env::var("SCANSTATION_SCAN_UP").unwrap_or("y".into());
-    let _rig = start_rig_holding(&dir, 7, ("1000", "0"), (&object, &up));
+    let rig = start_rig_holding(&dir, 7, ("1000", "0"), (&object, &up));
     let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, "settle = \"0ms\""));
     st.start();
     // The rig connected before the clock starts.
@@ -62,6 +63,11 @@ fn main() {
     if let Some(c) = &coverage {
         args.extend(["coverage", "d", c, "max_views", "u", &max_views]);
     }
+    let passes = env("SCANSTATION_SCAN_PASSES");
+    if let Some(p) = &passes {
+        args.extend(["passes", "u", p]);
+    }
+    let mut turned = 0;
     let count = (args.len() / 3).to_string();
     let job = start_scan(&st, &[&[count.as_str()][..], &args].concat());
     // Stage transitions, as a client sees them.
@@ -72,6 +78,16 @@ fn main() {
         let name = stage.trim_start_matches("s ").trim_matches('"').to_string();
         if stages.last().is_none_or(|(s, _)| *s != name) && !name.is_empty() {
             stages.push((name, t0.elapsed()));
+        }
+        // Asked to turn the object over: the rig does it, then Continue().
+        let asked = st.property("Job", &job, "OperatorAction").unwrap_or_default();
+        if asked.len() > 4 {
+            turned += 1;
+            rig.send(&format!("turn-over {turned}"));
+            std::thread::sleep(Duration::from_millis(50));
+            let out = st.busctl(&["call", NAME, &job, "org.scanstation.Station1.Job", "Continue"]);
+            assert!(out.status.success(), "Continue: {}", String::from_utf8_lossy(&out.stderr));
+            stages.push((format!("capture (pass {})", turned + 1), t0.elapsed()));
         }
         if state.contains("succeeded") || state.contains("failed") || state.contains("cancelled") {
             break (state, t0.elapsed());
@@ -105,10 +121,11 @@ fn main() {
 
     let taken = fusion["views"].as_array().map_or(0, |v| v.len());
     println!(
-        "# scan of {}: {views} level views, tilts {:?}, coverage target {:?}: {taken} views taken, {vertices} control vertices (turntable ×1000, no exposure)",
+        "# scan of {}: {views} level views, tilts {:?}, coverage target {:?}, passes {}: {taken} views taken, {vertices} control vertices (turntable ×1000, no exposure)",
         object.display(),
         tilts.as_deref().unwrap_or(""),
-        coverage.as_deref().unwrap_or("")
+        coverage.as_deref().unwrap_or(""),
+        passes.as_deref().unwrap_or("1")
     );
     println!("| stage (Job.Stage) | from s | seconds |");
     println!("|---|---:|---:|");
@@ -141,6 +158,9 @@ fn main() {
         report["convert"]["brep"]["faces"],
         fusion["next_views"]["estimates"]
     );
+    if let Some(p) = fusion["passes"]["aligned"].as_array().filter(|p| !p.is_empty()) {
+        println!("passes aligned: {}", serde_json::Value::Array(p.clone()));
+    }
     let out_cmp = std::process::Command::new(CLI)
         .args([
             "compare",

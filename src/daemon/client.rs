@@ -41,6 +41,8 @@ pub trait Manager {
 #[proxy(interface = "org.scanstation.Station1.Job", default_service = "org.scanstation.Station1", gen_blocking = false)]
 pub trait Job {
     fn cancel(&self) -> zbus::Result<()>;
+    #[zbus(name = "Continue")]
+    fn proceed(&self) -> zbus::Result<()>;
     #[zbus(signal)]
     fn completed(&self, result: String, error_code: String, message: String) -> zbus::Result<()>;
 }
@@ -254,6 +256,9 @@ pub mod ops {
         if let Some(n) = o.max_views {
             opts.insert(option_keys::MAX_VIEWS, Value::U32(n));
         }
+        if let Some(n) = o.passes {
+            opts.insert(option_keys::PASSES, Value::U32(n));
+        }
         if let Some(n) = &o.name {
             opts.insert(option_keys::NAME, Value::from(n.as_str()));
         }
@@ -280,6 +285,8 @@ pub mod ops {
         pub coverage: Option<f64>,
         /// The most views, chosen ones included.
         pub max_views: Option<u32>,
+        /// Passes, the object turned over between two.
+        pub passes: Option<u32>,
         /// The scan's name.
         pub name: Option<String>,
         /// An FEA spec (made absolute here).
@@ -376,6 +383,15 @@ pub mod ops {
     pub async fn cancel(conn: &Connection, id: &str) -> Result<()> {
         let job = JobProxy::builder(conn).path(job_path(id)).map_err(bus_err)?.build().await.map_err(bus_err)?;
         job.cancel().await.map_err(bus_err)
+    }
+
+    /// Tell a scan waiting for a person (the object turned over between two passes) that it is done.
+    ///
+    /// # Errors
+    /// `daemon.*` (`org.scanstation.Station1.Error.NotWaiting` when the job is not waiting).
+    pub async fn proceed(conn: &Connection, id: &str) -> Result<()> {
+        let job = JobProxy::builder(conn).path(job_path(id)).map_err(bus_err)?.build().await.map_err(bus_err)?;
+        job.proceed().await.map_err(bus_err)
     }
 
     /// Follow signals of the station (one job when `id` is given, until its `Completed`; all jobs

@@ -801,6 +801,8 @@ pub mod option_keys {
     pub const COVERAGE: &str = "coverage";
     /// Most views of a scan, chosen ones included (integer).
     pub const MAX_VIEWS: &str = "max_views";
+    /// A scan's passes, the object turned over between two (integer, 1–4).
+    pub const PASSES: &str = "passes";
     /// A scan's name (string).
     pub const NAME: &str = "name";
     /// An FEA spec for a scan's solid, an absolute path (string).
@@ -808,7 +810,7 @@ pub mod option_keys {
     /// Every job's options ([`super::JobOptions`]).
     pub const JOB: [&str; 4] = [VERTICES, TOLERANCE, SEED, ACCEPT_DEGRADED];
     /// A scan's own options, beside [`JOB`].
-    pub const SCAN: [&str; 7] = [VIEWS, STEP_DEG, TILTS, COVERAGE, MAX_VIEWS, NAME, FEA];
+    pub const SCAN: [&str; 8] = [VIEWS, STEP_DEG, TILTS, COVERAGE, MAX_VIEWS, PASSES, NAME, FEA];
 }
 
 /// Per-job options: from a sidecar `NAME.job.toml` or the `a{sv}` of `SubmitFile`.

@@ -47,6 +47,8 @@ pub enum StationError {
     NotFound(String),
     /// The job is already finished.
     NotCancelable(String),
+    /// `Continue()` on a job that is not waiting for a person.
+    NotWaiting(String),
     /// Intake is paused.
     IntakePaused(String),
     /// The caller may read but not change anything.
@@ -69,6 +71,13 @@ pub enum Command {
         source: String,
         /// The new job's id, or why not.
         reply: oneshot::Sender<Result<JobId, StationError>>,
+    },
+    /// `Continue()`: a scan waiting for a person goes on.
+    Continue {
+        /// The job.
+        id: String,
+        /// Done, or why not.
+        reply: oneshot::Sender<Result<(), StationError>>,
     },
     /// `StartScan`: a scan session on the rig.
     StartScan {
@@ -307,10 +316,10 @@ fn parse_scan_options(
 ) -> Result<(crate::daemon::scan::ScanRequest, String, JobOptions), StationError> {
     let mut rest = HashMap::new();
     let (mut views, mut step, mut name, mut fea) = (None, None, "scan".to_string(), None);
-    use crate::daemon::scan::plan::{check_coverage, check_max_views};
+    use crate::daemon::scan::plan::{check_coverage, check_max_views, check_passes};
     let invalid = |key: &str, m: String| StationError::InvalidArgument(format!("{key}: {m}"));
     let mut rings = None;
-    let (mut coverage, mut max_views) = (default_coverage, None);
+    let (mut coverage, mut max_views, mut passes, mut coverage_given) = (default_coverage, None, 1, false);
     for (k, v) in options {
         let bad =
             || StationError::InvalidArgument(format!("option {k:?} has the wrong type ({})", v.value_signature()));
@@ -331,12 +340,16 @@ fn parse_scan_options(
                     Some(crate::daemon::scan::plan::Ring::parse_list(&text()?).map_err(StationError::InvalidArgument)?);
             }
             option_keys::COVERAGE => match &**v {
-                Value::F64(c) => coverage = Some(check_coverage(*c).map_err(|m| invalid("coverage", m))?),
+                Value::F64(c) => {
+                    coverage = Some(check_coverage(*c).map_err(|m| invalid("coverage", m))?);
+                    coverage_given = true;
+                }
                 _ => return Err(bad()),
             },
             option_keys::MAX_VIEWS => {
                 max_views = Some(check_max_views(int(v).ok_or_else(bad)?).map_err(|m| invalid("max_views", m))?);
             }
+            option_keys::PASSES => passes = check_passes(int(v).ok_or_else(bad)?).map_err(|m| invalid("passes", m))?,
             option_keys::FEA => {
                 let p = PathBuf::from(text()?);
                 if !p.is_absolute() {
@@ -354,7 +367,17 @@ fn parse_scan_options(
     request.fea = fea;
     // None named: the station's (`[scan] tilts`); an empty text: the level ring only.
     request.rings = rings.unwrap_or_else(|| default_tilts.to_vec());
-    (request.coverage, request.max_views) = (coverage, max_views);
+    (request.coverage, request.max_views, request.passes) = (coverage, max_views, passes);
+    if passes > 1 {
+        // Views are chosen within one pass's frame; a scan of several passes takes its plan in each.
+        if coverage_given {
+            return Err(invalid(
+                "coverage",
+                "views chosen where the surface is unseen need a scan of one pass (passes = 1); with passes, plan the views (views, tilts)".into(),
+            ));
+        }
+        request.coverage = None;
+    }
     let known: Vec<&str> = option_keys::SCAN.into_iter().chain(option_keys::JOB).collect();
     let options = parse_options(&rest, &known)?;
     Ok((request, name, options))
@@ -394,7 +417,9 @@ pub mod manager_iface {
         /// file. Options: `views` (u), `step_deg` (d), `tilts` (s: a tilting table's rings after the level one,
         /// `TILT:VIEWS,…`, e.g. `-25:8,-45:8,50:6`; "" for none), `coverage` (d: then views chosen where the
         /// surface is unseen until this share is seen), `max_views` (u: the most views, chosen ones included),
-        /// `name` (s: the bundle's stem), `fea` (s: an FEA spec
+        /// `passes` (u, 1–4: the plan taken once per pass; before each pass after the first the job asks a
+        /// person to turn the object over, `OperatorActionRequired` on the job, and waits for its
+        /// `Continue()`; the passes are aligned by their geometry), `name` (s: the bundle's stem), `fea` (s: an FEA spec
         /// on the station, in table coordinates), and `vertices` (u), `tolerance` (d), `seed` (t),
         /// `accept_degraded` (b) as `SubmitFile`. The job object exists when this returns.
         async fn start_scan(
@@ -535,6 +560,8 @@ pub struct JobView {
     pub error_code: String,
     /// Property `Outputs` (kind → path).
     pub outputs: BTreeMap<String, String>,
+    /// Property `OperatorAction`: what a person is asked to do now ("" when nothing).
+    pub operator_action: String,
 }
 
 /// The `Outputs` kind of a job's HTML report (property `ReportFile`).
@@ -576,6 +603,31 @@ pub mod job_iface {
             let id = lock(&self.view).id.clone();
             ask(&self.tx, |reply| Command::Cancel { id, reply }).await?
         }
+
+        /// Tell a scan waiting for a person (`OperatorAction` not empty: the object to be turned over between
+        /// two passes) that it is done: the scan goes on with the next pass. Fails with `NotWaiting` when
+        /// the job is not waiting.
+        async fn r#continue(
+            &self,
+            #[zbus(header)] hdr: Header<'_>,
+            #[zbus(connection)] conn: &Connection,
+        ) -> Result<(), StationError> {
+            authorize(conn, &hdr, &self.access, "Continue").await?;
+            let id = lock(&self.view).id.clone();
+            ask(&self.tx, |reply| Command::Continue { id, reply }).await?
+        }
+
+        /// What a person is asked to do before the scan goes on (turn the object over for the next pass,
+        /// then call `Continue()`); "" when nothing.
+        #[zbus(property)]
+        fn operator_action(&self) -> String {
+            lock(&self.view).operator_action.clone()
+        }
+
+        /// A scan waits for a person: `what` says what to do (turn the object over for the next pass); call
+        /// `Continue()` once it is done. Also in the property `OperatorAction` until then.
+        #[zbus(signal)]
+        pub async fn operator_action_required(emitter: &SignalEmitter<'_>, what: &str) -> zbus::Result<()>;
 
         #[zbus(property(emits_changed_signal = "const"))]
         fn id(&self) -> String {

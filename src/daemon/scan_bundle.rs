@@ -138,6 +138,7 @@ fn write_fusion_report(
                 "angle_deg": v.angle_deg,
                 "reached_deg": v.reached_deg,
                 "tilt_deg": v.tilt_deg,
+                "pass": v.pass,
                 "gain": gain.map(|g| g.gain),
                 "unique_gain": gain.map(|g| g.unique),
                 "chosen": chosen.map(|c| serde_json::json!({ "round": c.round, "predicted_gain": c.predicted_gain })),
@@ -166,6 +167,11 @@ fn write_fusion_report(
         "step_deg": b.scan.step_deg,
         "tilt_axis": log.tilt_axis.map(|(p, d)| serde_json::json!({ "point": p, "direction": d, "frame": "scanner" })),
         "rings": &b.scan.rings,
+        "passes": {
+            "planned": b.scan.passes,
+            "turned_over": &log.turned_over,
+            "aligned": fusion.as_ref().map(|f| &f.passes),
+        },
         "next_views": {
             "coverage_target": b.scan.coverage,
             "max_views": b.scan.max_views.unwrap_or(b.cfg.scan.as_ref().map_or(0, |s| s.max_views)),

@@ -75,6 +75,13 @@ pub enum WorkerEvent {
         /// The phase, `stage/phase`.
         message: String,
     },
+    /// A scan asks a person to act (`Some(what)`: turn the object over), or no longer (`None`).
+    Operator {
+        /// The job.
+        id: JobId,
+        /// What to do.
+        what: Option<String>,
+    },
     /// The job ended.
     Done {
         /// The job.
@@ -111,6 +118,8 @@ pub struct JobRun {
     pub preset_error: Option<Error>,
     /// Set to stop the job at its next checkpoint.
     pub cancel: Arc<AtomicBool>,
+    /// Notified by `Continue()`: the person asked to act has done it.
+    pub proceed: Arc<tokio::sync::Notify>,
     /// µs of the last progress report (the watchdog only pets while this moves).
     pub heartbeat: Arc<AtomicU64>,
     /// Where progress and the outcome go.

@@ -352,6 +352,10 @@ pub struct ScanArgs {
     /// The most views in all, chosen ones included (2 to 720). Default: the station's `[scan] max_views`.
     #[arg(long, value_parser = clap::value_parser!(u32).range(2..=720))]
     pub max_views: Option<u32>,
+    /// Passes (1 to 4): the plan taken once per pass; before each pass after the first the scan waits for
+    /// the object to be turned over and `scanstation continue JOB`.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4))]
+    pub passes: Option<u32>,
     /// The scan's name (its outbox directory's stem): letters, digits, '_', '-', '.'.
     #[arg(long)]
     pub name: Option<String>,
@@ -419,6 +423,17 @@ pub enum RigAction {
 #[derive(Args)]
 pub struct CancelArgs {
     pub id: String,
+    #[arg(long)]
+    pub session: bool,
+}
+
+#[cfg(feature = "daemon")]
+/// Arguments of `scanstation continue`.
+#[derive(Args)]
+pub struct ContinueArgs {
+    /// The job (id or object path).
+    pub id: String,
+    /// Use the session bus.
     #[arg(long)]
     pub session: bool,
 }

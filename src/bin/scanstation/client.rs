@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use scanstation::Error;
 
 use crate::Command;
-use crate::args::{CancelArgs, JobsArgs, RigAction, RigArgs, StatusArgs, WatchArgs};
+use crate::args::{CancelArgs, ContinueArgs, JobsArgs, RigAction, RigArgs, StatusArgs, WatchArgs};
 use crate::print::{print_json, report_error};
 
 /// Runs a client command against the station's bus; exit status 1 when a followed job failed.
@@ -64,6 +64,7 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                     tilts: a.tilts.clone(),
                     coverage: a.coverage,
                     max_views: a.max_views,
+                    passes: a.passes,
                     name: a.name.clone(),
                     fea: a.fea.clone(),
                     job: job_options(a.vertices, a.tolerance, a.seed, a.accept_degraded),
@@ -76,6 +77,14 @@ pub fn run(command: &Command, json: bool) -> ExitCode {
                 ops::cancel(&conn, id).await?;
                 if json {
                     print_json(&serde_json::json!({ "cancelled": ops::job_path(id) }));
+                }
+                Ok(true)
+            }
+            Command::Continue(ContinueArgs { id, session }) => {
+                let conn = ops::connect(*session).await?;
+                ops::proceed(&conn, id).await?;
+                if json {
+                    print_json(&serde_json::json!({ "continued": ops::job_path(id) }));
                 }
                 Ok(true)
             }

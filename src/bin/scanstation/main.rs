@@ -96,6 +96,9 @@ enum Command {
     /// Cancel a job (by id or object path).
     #[cfg(feature = "daemon")]
     Cancel(CancelArgs),
+    /// Tell a scan waiting for a person (the object turned over for its next pass) that it is done.
+    #[cfg(feature = "daemon")]
+    Continue(ContinueArgs),
     /// Follow progress: one job until it finishes, or every job until interrupted. A progress bar on a
     /// terminal, JSON lines otherwise (or with --json).
     #[cfg(feature = "daemon")]
@@ -191,6 +194,7 @@ fn main() -> ExitCode {
         | Command::Submit(_)
         | Command::Scan(_)
         | Command::Cancel(_)
+        | Command::Continue(_)
         | Command::Watch(_)
         | Command::Rig(_) => {
             return client::run(&cli.command, json);

@@ -30,8 +30,11 @@ pub fn persist(dir: &Path, log: &CaptureLog) -> Result<(), Error> {
     let json = serde_json::to_vec_pretty(log).unwrap_or_default();
     write_durable(&log_path, &json).map_err(|e| io(&log_path, e))?;
     if !log.views.is_empty() {
-        let listed: Vec<(String, Pose)> = log.views.iter().map(|v| (v.file.clone(), log.pose_of(v))).collect();
-        crate::geometry::io::scanset::write_manifest(&dir.join(crate::geometry::io::scanset::MANIFEST), &listed)?;
+        // Each view posed within its pass's table frame; the passes' frames are found by fusion.
+        let listed: Vec<(String, Pose, u32)> =
+            log.views.iter().map(|v| (v.file.clone(), log.pose_of(v), v.pass)).collect();
+        let manifest = dir.join(crate::geometry::io::scanset::MANIFEST);
+        crate::geometry::io::scanset::write_manifest_passes(&manifest, &listed, true)?;
         sync_dir(dir).map_err(|e| io(dir, e))?;
     }
     Ok(())
@@ -55,6 +58,10 @@ pub struct CaptureJob<'a> {
     pub cancel: &'a AtomicBool,
     /// Progress: (share of the capture done 0–1, stage `home` or `capture`, message).
     pub progress: &'a (dyn Fn(f64, &'static str, String) + Send + Sync),
+    /// A person is asked to act (`Some(what)`: turn the object over), or no longer (`None`).
+    pub operator: &'a (dyn Fn(Option<String>) + Send + Sync),
+    /// Notified when the person has acted (`Continue()`).
+    pub proceed: &'a tokio::sync::Notify,
 }
 
 fn cancelled() -> Error {
@@ -127,8 +134,20 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
         home(job, table, &mut log).await?;
     }
 
-    // 2. Every missing view, in plan order.
-    take_stops(job, (table, trigger), &mut log, &stops, 0).await?;
+    // 2. Every missing view, in plan order, pass by pass; before each pass after the first, a person turns
+    //    the object over (asked once: a restart after the confirmation does not ask again), and the table
+    //    is homed again (it may have been turned by hand meanwhile).
+    let passes = job.request.passes.max(1) as usize;
+    let per_pass = stops.len() / passes;
+    for pass in 1..=passes {
+        let first = (pass - 1) * per_pass;
+        let missing = (first..first + per_pass).any(|i| !log.has(i as u32));
+        if pass > 1 && missing && !log.turned_over.iter().any(|t| t.0 == pass as u32) {
+            turn_over(job, &mut log, pass as u32).await?;
+            home(job, table, &mut log).await?;
+        }
+        take_stops(job, (table, trigger), &mut log, &stops[first..first + per_pass], first as u32).await?;
+    }
 
     // 3. Views chosen where the surface is unseen (chosen before a restart first), round by round.
     let chooser = Chooser {
@@ -163,6 +182,39 @@ pub async fn capture(job: &CaptureJob<'_>) -> Result<CaptureLog, Error> {
         ));
     }
     Ok(log)
+}
+
+/// Ask a person to turn the object over before `pass` (`OperatorActionRequired`; the wait journaled in
+/// `capture.json`), and wait for `Continue()` or a cancel, keeping the heartbeat.
+async fn turn_over(job: &CaptureJob<'_>, log: &mut CaptureLog, pass: u32) -> Result<(), Error> {
+    let what = format!(
+        "turn the object over for pass {pass} of {}: rest it on another face, anywhere on the table top, then call Continue() on this job",
+        job.request.passes
+    );
+    log.waiting_for_pass = Some(pass);
+    save(job.dir, log).await?;
+    tracing::info!(pass, "waiting for a person to turn the object over");
+    let share = ((log.views.len() + log.skipped.len()) as f64 / f64::from(log.planned.max(1))).min(1.0);
+    (job.operator)(Some(what.clone()));
+    let mut tick = tokio::time::interval(Duration::from_millis(250));
+    loop {
+        tokio::select! {
+            () = job.proceed.notified() => break,
+            _ = tick.tick() => {
+                if job.cancel.load(Ordering::Relaxed) {
+                    (job.operator)(None);
+                    return Err(cancelled());
+                }
+                (job.progress)(share, "capture", format!("capture/waiting: {what}"));
+            }
+        }
+    }
+    (job.operator)(None);
+    log.waiting_for_pass = None;
+    log.turned_over.push((pass, crate::daemon::journal::now_usec()));
+    save(job.dir, log).await?;
+    tracing::info!(pass, "the object is turned over; the capture goes on");
+    Ok(())
 }
 
 /// Take the views of `stops` (plan indices from `first`) that `log` does not hold, in order: move, settle,
@@ -211,8 +263,8 @@ async fn take_stops(
             ViewOutcome::Skipped(e) => {
                 let reason = format!("[{}] {}", e.code.as_str(), e.message);
                 tracing::warn!(view = index, %reason, "view skipped");
-                let (angle_deg, tilt_deg) = (stop.angle_deg, stop.tilt_deg);
-                log.skipped.push(SkippedView { index, angle_deg, tilt_deg, reason });
+                let (angle_deg, tilt_deg, pass) = (stop.angle_deg, stop.tilt_deg, stop.pass);
+                log.skipped.push(SkippedView { index, angle_deg, tilt_deg, pass, reason });
             }
         }
         log.views.sort_by_key(|v| v.index);
@@ -229,10 +281,11 @@ fn first_chosen(log: &CaptureLog) -> u32 {
 
 /// A stop in words: `30.0°`, or `30.0° tilted -25.0°`.
 fn where_text(stop: &Stop) -> String {
+    let pass = if stop.pass > 1 { format!(" (pass {})", stop.pass) } else { String::new() };
     if stop.tilt_deg == 0.0 {
-        format!("{:.1}°", stop.angle_deg)
+        format!("{:.1}°{pass}", stop.angle_deg)
     } else {
-        format!("{:.1}° tilted {:.1}°", stop.angle_deg, stop.tilt_deg)
+        format!("{:.1}° tilted {:.1}°{pass}", stop.angle_deg, stop.tilt_deg)
     }
 }
 
@@ -263,6 +316,7 @@ async fn trigger_view(
                     angle_deg: stop.angle_deg,
                     reached_deg: reached,
                     tilt_deg: stop.tilt_deg,
+                    pass: stop.pass,
                     seq: report.seq,
                     points: report.points,
                     tries: lost + 1,

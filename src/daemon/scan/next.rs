@@ -40,7 +40,7 @@ pub fn pending(log: &CaptureLog) -> Vec<(u32, Stop)> {
     log.next_views
         .iter()
         .filter(|v| !log.has(v.index))
-        .map(|v| (v.index, Stop { angle_deg: v.angle_deg, tilt_deg: v.tilt_deg }))
+        .map(|v| (v.index, Stop { angle_deg: v.angle_deg, tilt_deg: v.tilt_deg, pass: 1 }))
         .collect()
 }
 
@@ -96,7 +96,7 @@ pub async fn round(c: &Chooser<'_>, log: &mut CaptureLog) -> Result<bool, Error>
             .filter(|s| !taken(s))
             .collect();
     let (axis, tilt) = ((log.axis_point, log.axis_direction), log.tilt_axis);
-    let pose_of = move |angle_deg: f64, tilt_deg: f64| stop_pose(axis, tilt, Stop { angle_deg, tilt_deg });
+    let pose_of = move |angle_deg: f64, tilt_deg: f64| stop_pose(axis, tilt, Stop { angle_deg, tilt_deg, pass: 1 });
     let t = Instant::now();
     let picked = tokio::task::spawn_blocking(move || choose(&est, &cands, &pose_of, &opts))
         .await

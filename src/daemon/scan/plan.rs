@@ -69,13 +69,38 @@ pub fn check_max_views(n: u64) -> Result<u32, String> {
     if (2..=720).contains(&n) { Ok(n as u32) } else { Err(format!("{n} is outside 2..=720")) }
 }
 
-/// One stop of a plan: where the table turns and tilts to.
+/// One stop of a plan: where the table turns and tilts to, in which pass.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Stop {
     /// The table angle, degrees.
     pub angle_deg: f64,
     /// The cradle's tilt, degrees (0: level).
     pub tilt_deg: f64,
+    /// The pass (1, 2, …: the object turned over before each after the first).
+    pub pass: u32,
+}
+
+/// A scan's passes: 1 to [`MAX_PASSES`].
+pub const MAX_PASSES: u32 = 4;
+
+/// A number of passes (`passes`): 1 to [`MAX_PASSES`].
+///
+/// # Errors
+/// A message naming the value.
+pub fn check_passes(n: u64) -> Result<u32, String> {
+    if (1..=u64::from(MAX_PASSES)).contains(&n) {
+        Ok(n as u32)
+    } else {
+        Err(format!("{n} is outside 1..={MAX_PASSES}"))
+    }
+}
+
+fn one() -> u32 {
+    1
+}
+
+fn is_one(n: &u32) -> bool {
+    *n == 1
 }
 
 /// What `StartScan` asked for.
@@ -98,15 +123,24 @@ pub struct ScanRequest {
     /// An FEA spec to solve on the solid (a TOML file on the station; coordinates in the table frame).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fea: Option<PathBuf>,
+    /// Passes: the plan's stops are taken once per pass, the object turned over by a person (or the
+    /// simulated rig) between two (`OperatorActionRequired`, then `Continue()`).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub passes: u32,
 }
 
 impl ScanRequest {
-    /// The plan's stops, in order: the level ring's, then each tilted ring's.
+    /// The plan's stops, in order, pass by pass: the level ring's, then each tilted ring's.
     pub fn stops(&self) -> Vec<Stop> {
-        let level = (0..self.views).map(|i| Stop { angle_deg: f64::from(i) * self.step_deg, tilt_deg: 0.0 });
+        (1..=self.passes.max(1)).flat_map(|pass| self.stops_of(pass)).collect()
+    }
+
+    /// The stops of one pass: the level ring's, then each tilted ring's.
+    fn stops_of(&self, pass: u32) -> Vec<Stop> {
+        let level = (0..self.views).map(|i| Stop { angle_deg: f64::from(i) * self.step_deg, tilt_deg: 0.0, pass });
         let tilted = self.rings.iter().flat_map(|r| {
             let step = 360.0 / f64::from(r.views);
-            (0..r.views).map(move |i| Stop { angle_deg: (f64::from(i) + 0.5) * step, tilt_deg: r.tilt_deg })
+            (0..r.views).map(move |i| Stop { angle_deg: (f64::from(i) + 0.5) * step, tilt_deg: r.tilt_deg, pass })
         });
         level.chain(tilted).collect()
     }
@@ -138,7 +172,7 @@ impl ScanRequest {
         if f64::from(views - 1) * step_deg >= 360.0 - 1e-9 {
             return Err(format!("{views} views {step_deg}° apart go round more than once"));
         }
-        Ok(ScanRequest { views, step_deg, rings: Vec::new(), coverage: None, max_views: None, fea: None })
+        Ok(ScanRequest { views, step_deg, rings: Vec::new(), coverage: None, max_views: None, fea: None, passes: 1 })
     }
 }
 
@@ -162,6 +196,9 @@ pub struct TakenView {
     /// The cradle's tilt asked, degrees (0: level, and in logs of single-axis scans).
     #[serde(default)]
     pub tilt_deg: f64,
+    /// Its pass (1 in logs written before passes).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub pass: u32,
     /// The trigger's sequence number.
     pub seq: u16,
     /// Points in the view.
@@ -182,6 +219,9 @@ pub struct SkippedView {
     /// The cradle's tilt, degrees.
     #[serde(default)]
     pub tilt_deg: f64,
+    /// Its pass.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub pass: u32,
     /// Why (the last error, with its code).
     pub reason: String,
 }
@@ -253,6 +293,13 @@ pub struct CaptureLog {
     pub replugs: u32,
     /// Triggers sent again for views that did not arrive.
     pub retries: u32,
+    /// The pass whose turn-over a person is asked for now (`OperatorActionRequired`), until `Continue()`;
+    /// a restarted scan asks again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub waiting_for_pass: Option<u32>,
+    /// Passes whose turn-over was confirmed (`Continue()`), with when (µs since the epoch).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub turned_over: Vec<(u32, u64)>,
 }
 
 impl CaptureLog {
@@ -319,7 +366,7 @@ impl CaptureLog {
     /// The pose of a view of this log (its angle and tilt, the log's calibration): scanner frame → table
     /// frame ([`stop_pose`]).
     pub fn pose_of(&self, v: &TakenView) -> Pose {
-        let stop = Stop { angle_deg: v.angle_deg, tilt_deg: v.tilt_deg };
+        let stop = Stop { angle_deg: v.angle_deg, tilt_deg: v.tilt_deg, pass: v.pass };
         stop_pose((self.axis_point, self.axis_direction), self.tilt_axis, stop)
     }
 }
@@ -342,9 +389,15 @@ mod tests {
         r.rings = rings;
         let stops = r.stops();
         assert_eq!(stops.len(), 14);
-        assert_eq!(stops[3], Stop { angle_deg: 270.0, tilt_deg: 0.0 });
-        assert_eq!(stops[4], Stop { angle_deg: 22.5, tilt_deg: -25.0 });
-        assert_eq!(stops[13], Stop { angle_deg: 270.0, tilt_deg: 50.0 });
+        assert_eq!(stops[3], Stop { angle_deg: 270.0, tilt_deg: 0.0, pass: 1 });
+        assert_eq!(stops[4], Stop { angle_deg: 22.5, tilt_deg: -25.0, pass: 1 });
+        assert_eq!(stops[13], Stop { angle_deg: 270.0, tilt_deg: 50.0, pass: 1 });
+        r.passes = 2;
+        let stops = r.stops();
+        assert_eq!(stops.len(), 28, "each pass takes the plan");
+        assert_eq!(stops[14], Stop { angle_deg: 0.0, tilt_deg: 0.0, pass: 2 });
+        assert_eq!(stops[27], Stop { angle_deg: 270.0, tilt_deg: 50.0, pass: 2 });
+        assert_eq!(check_passes(0).unwrap_err(), "0 is outside 1..=4");
     }
 
     /// A point on the object, seen from a tilted stop and placed by the log's pose, lands where the level
@@ -362,6 +415,7 @@ mod tests {
             angle_deg,
             reached_deg: angle_deg,
             tilt_deg,
+            pass: 1,
             seq: 0,
             points: 0,
             tries: 1,

@@ -34,6 +34,7 @@ impl Station {
             result: rec.result().into(),
             error_code: rec.error_code.clone(),
             outputs: rec.outputs.clone(),
+            operator_action: String::new(),
         };
         let id = rec.id.clone();
         self.jobs.insert(
@@ -43,6 +44,7 @@ impl Station {
                 view: Arc::new(Mutex::new(view)),
                 iface: None,
                 cancel: Arc::new(AtomicBool::new(false)),
+                proceed: Arc::new(tokio::sync::Notify::new()),
                 preset_error,
                 last_emit: None,
                 emitted_progress: 0.0,
@@ -78,6 +80,7 @@ impl Station {
                 spool: self.spool.clone(),
                 preset_error: job.preset_error.clone(),
                 cancel: job.cancel.clone(),
+                proceed: job.proceed.clone(),
                 heartbeat: self.heartbeat.clone(),
                 events: self.worker_tx.clone(),
                 stage: stages_of(&job.rec)[0],
@@ -138,6 +141,7 @@ impl Station {
                     job.emitted_progress = progress;
                 }
             }
+            WorkerEvent::Operator { id, what } => self.operator(&id, what).await,
             WorkerEvent::Done { id, outcome } => self.finish(&id, outcome).await,
         }
     }
@@ -199,6 +203,37 @@ impl Station {
             let _ = g.thumbnail_changed(em).await;
         }
         self.announce(id).await;
+    }
+
+    /// A scan's request to a person (`Some(what)`), or its end: property `OperatorAction`, and the signal
+    /// `OperatorActionRequired` when asked.
+    async fn operator(&mut self, id: &JobId, what: Option<String>) {
+        let Some(job) = self.jobs.get_mut(id) else { return };
+        if job.rec.state.is_terminal() {
+            return;
+        }
+        lock(&job.view).operator_action = what.clone().unwrap_or_default();
+        if let Some(r) = &job.iface {
+            let g = r.get().await;
+            let em = r.signal_emitter();
+            let _ = g.operator_action_changed(em).await;
+            if let Some(what) = &what {
+                let _ = JobIface::operator_action_required(em, what).await;
+            }
+        }
+    }
+
+    /// `Continue()`: the person asked to act has done it.
+    pub(super) async fn proceed(&mut self, id: &str) -> Result<(), StationError> {
+        let jid = JobId::parse(id).ok_or_else(|| StationError::NotFound(format!("no job {id}")))?;
+        let Some(job) = self.jobs.get(&jid) else { return Err(StationError::NotFound(format!("no job {id}"))) };
+        if job.rec.state.is_terminal() || lock(&job.view).operator_action.is_empty() {
+            return Err(StationError::NotWaiting(format!("job {id} is not waiting for a person")));
+        }
+        job.proceed.notify_one();
+        tracing::info!(job_id = %jid, "continue: the person has acted");
+        self.operator(&jid, None).await;
+        Ok(())
     }
 
     pub(super) async fn cancel(&mut self, id: &str) -> Result<(), StationError> {

@@ -37,6 +37,7 @@ struct Job {
     view: Arc<Mutex<JobView>>,
     iface: Option<InterfaceRef<JobIface>>,
     cancel: Arc<AtomicBool>,
+    proceed: Arc<tokio::sync::Notify>,
     preset_error: Option<Error>,
     last_emit: Option<Instant>,
     emitted_progress: f64,
@@ -284,6 +285,9 @@ impl Station {
             }
             Command::Cancel { id, reply } => {
                 let _ = reply.send(self.cancel(&id).await);
+            }
+            Command::Continue { id, reply } => {
+                let _ = reply.send(self.proceed(&id).await);
             }
             Command::SetPaused { paused, reply } => {
                 self.paused = paused;

@@ -108,6 +108,10 @@ impl Station {
                 let fraction = if s == "home" { 0.0 } else { HOME_END + share * (CAPTURE_END - HOME_END) };
                 let _ = events.send(WorkerEvent::Progress { id: id.clone(), fraction, stage: s, message });
             };
+            let operator = |what: Option<String>| {
+                let _ = events.send(WorkerEvent::Operator { id: id.clone(), what });
+            };
+            let proceed = run.proceed.clone();
             let request = run.record.scan.clone().unwrap_or(ScanRequest {
                 views: 0,
                 step_deg: 0.0,
@@ -115,6 +119,7 @@ impl Station {
                 coverage: None,
                 max_views: None,
                 fea: None,
+                passes: 1,
             });
             let result = {
                 // One scan at a time on the rig.
@@ -131,6 +136,8 @@ impl Station {
                     rig: &rig,
                     cancel: &run.cancel,
                     progress: &progress,
+                    operator: &operator,
+                    proceed: &proceed,
                 };
                 scan::capture(&job).await
             };

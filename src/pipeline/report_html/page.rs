@@ -181,6 +181,7 @@ pub fn scan(b: &Bundle) -> String {
                         p("/file"),
                         p("/angle_deg"),
                         p("/tilt_deg"),
+                        p("/pass"),
                         p("/points"),
                         p("/gain"),
                         p("/chosen/round"),
@@ -197,6 +198,7 @@ pub fn scan(b: &Bundle) -> String {
         "file",
         "angle, deg",
         "tilt, deg",
+        "pass",
         "points",
         "gain (share first seen)",
         "chosen in round",
@@ -205,6 +207,30 @@ pub fn scan(b: &Bundle) -> String {
         "residual after",
     ];
     let mut body = table("views", &head, &rows);
+    // Each later pass: how it was found in the first's frame.
+    let passes: Vec<Vec<String>> = f
+        .pointer("/passes/aligned")
+        .and_then(Value::as_array)
+        .map(|ps| {
+            ps.iter()
+                .map(|a| {
+                    let p = |ptr: &str| cell(a.pointer(ptr).unwrap_or(&Value::Null));
+                    vec![
+                        p("/pass"),
+                        p("/views"),
+                        p("/turned_deg"),
+                        p("/overlap"),
+                        p("/residual_rms"),
+                        p("/residual_limit"),
+                    ]
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    if !passes.is_empty() {
+        let head = ["pass", "views", "turned over, deg", "overlap", "residual", "residual limit"];
+        body.push_str(&table("passes", &head, &passes));
+    }
     let p = |ptr: &str| cell(f.pointer(ptr).unwrap_or(&Value::Null));
     body.push_str(&facts(&[
         ("coverage (share of the surface seen)", p("/coverage/share")),
