@@ -10,7 +10,9 @@
 //! `SCANSTATION_SCAN_TILTS=-25:8,-45:8,50:6` adds tilted rings, `SCANSTATION_SCAN_COVERAGE=0.99` views chosen
 //! where the surface is unseen, up to `SCANSTATION_SCAN_MAX_VIEWS`, 48 by default; `SCANSTATION_SCAN_PASSES=2`
 //! takes the plan twice, the simulated rig turning the object over when the job asks (`turn-over`, then
-//! `Continue()`); `SCANSTATION_SCAN_OBJECT` and `SCANSTATION_SCAN_UP` scan another closed mesh).
+//! `Continue()`); `SCANSTATION_SCAN_OBJECT` and `SCANSTATION_SCAN_UP` scan another closed mesh;
+//! `SCANSTATION_SCAN_SEED` the rig's noise seed, 7 by default; `SCANSTATION_SCAN_KEEP=DIR` copies the
+//! published bundle there).
 
 #[path = "../tests/harness/mod.rs"]
 mod harness;
@@ -32,7 +34,8 @@ fn main() {
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply"));
     let up = std::env::var("SCANSTATION_SCAN_UP").unwrap_or("y".into());
-    let rig = start_rig_holding(&dir, 7, ("1000", "0"), (&object, &up));
+    let seed: u64 = std::env::var("SCANSTATION_SCAN_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(7);
+    let rig = start_rig_holding(&dir, seed, ("1000", "0"), (&object, &up));
     let mut st = Station::new(&dir, &bus, false, &scan_config(&dir, "settle = \"0ms\""));
     st.start();
     // The rig connected before the clock starts.
@@ -172,4 +175,11 @@ fn main() {
         .unwrap();
     let cmp: serde_json::Value = serde_json::from_slice(&out_cmp.stdout).unwrap_or_default();
     println!("solid ↔ true object: RMS {} % of the diagonal", cmp["symmetric"]["rms"]["pct_of_diagonal"]);
+    if let Ok(keep) = std::env::var("SCANSTATION_SCAN_KEEP") {
+        let keep = Path::new(&keep);
+        std::fs::create_dir_all(keep).unwrap();
+        for f in ["spot.step", "spot.solid.ply", "spot.fusion.json"] {
+            std::fs::copy(out.join(f), keep.join(f)).unwrap();
+        }
+    }
 }

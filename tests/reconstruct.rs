@@ -459,6 +459,13 @@ fn scan_set_manifests_are_checked() {
         (format!("[[view]]\nfile = \"../v0.ply\"\nmatrix = {id}\n"), ErrorCode::InputBadRecord, 1, "relative path"),
         (format!("[[view]]\nfile = \"gone.ply\"\nmatrix = {id}\n"), ErrorCode::InputNotFound, 1, "missing"),
         (String::from("# nothing\n"), ErrorCode::InputNoGeometry, 0, "no views"),
+        (format!("[[view]]\nfile = \"v0.ply\"\npass = 0\nmatrix = {id}\n"), ErrorCode::InputBadRecord, 1, "pass 0"),
+        (
+            format!("[[view]]\nfile = \"v0.ply\"\npass = 3\nmatrix = {id}\n"),
+            ErrorCode::InputBadRecord,
+            0,
+            "pass 1 has no view",
+        ),
     ];
     for (body, code, line, says) in cases {
         std::fs::write(dir.join("scanset.toml"), &body).unwrap();
@@ -691,7 +698,7 @@ fn a_turned_over_second_pass_is_found_and_another_object_refused() {
     let mut listed = rig_pass(&cam, &dir, "a", 12, 1);
     let (turned, motion) = cam.turned_over(3).unwrap();
     listed.extend(rig_pass(&turned, &dir, "b", 12, 2));
-    write_manifest_passes(&&dir.join("scanset.toml"), &listed, true).unwrap();
+    write_manifest_passes(&dir.join("scanset.toml"), &listed, true).unwrap();
     let views = read_scan_set(&dir, &Default::default()).unwrap();
     assert_eq!(views.iter().filter(|v| v.pass == 2 && v.table_frame).count(), 12);
     let t0 = std::time::Instant::now();
@@ -717,14 +724,17 @@ fn a_turned_over_second_pass_is_found_and_another_object_refused() {
     assert!(deg < 0.2 && dist < 0.001 * diag, "pass 2 found off by {deg}° and {dist}");
     assert!(pass.turned_deg > 60.0, "turned over: {}", pass.turned_deg);
     assert!(rms < 0.001 * diag, "the fused cloud lies {rms} from spot");
+    let (again, report_again) = fuse(&views, &FuseOptions::default()).unwrap();
+    assert!(again == cloud, "the same views give the same fused cloud");
+    assert_eq!(report_again.passes[0].motion, pass.motion, "and the same pass found");
     // A second pass of another object, a torus of spot's size, is refused naming the pass.
     let torus = scanstation::geometry::shapes::torus(0.3 * diag, 0.1 * diag, 96, 48);
     let other = RangeCamera::new(&torus, Up::Z, settings.clone()).unwrap();
     let mut wrong = rig_pass(&cam, &dir, "a", 12, 1);
     wrong.extend(rig_pass(&other, &dir, "c", 12, 2));
-    write_manifest_passes(&&dir.join("scanset.toml"), &wrong, true).unwrap();
+    write_manifest_passes(&dir.join("scanset.toml"), &wrong, true).unwrap();
     let views = read_scan_set(&dir, &Default::default()).unwrap();
-    let e = fuse(&views, &FuseOptions::default()).err().expect("a pass of another object is refused");
+    let e = fuse(&views, &FuseOptions::default()).expect_err("a pass of another object is refused");
     eprintln!("spot then a torus: {e}");
     assert_eq!(e.code, ErrorCode::ReconstructViewsDisagree, "{e}");
     assert!(e.message.contains("pass 2 (12 views)"), "{e}");
@@ -737,7 +747,7 @@ fn a_turned_over_second_pass_is_found_and_another_object_refused() {
     wrong.extend(rig_pass(&sibling.turned_over(3).unwrap().0, &dir, "d", 12, 2));
     write_manifest_passes(&dir.join("scanset.toml"), &wrong, true).unwrap();
     let views = read_scan_set(&dir, &Default::default()).unwrap();
-    let e = fuse(&views, &FuseOptions::default()).err().expect("a pass of a larger sibling is refused");
+    let e = fuse(&views, &FuseOptions::default()).expect_err("a pass of a larger sibling is refused");
     eprintln!("spot then spot 15 % larger: {e}");
     assert_eq!(e.code, ErrorCode::ReconstructViewsDisagree, "{e}");
     assert!(e.message.contains("pass 2 (12 views)"), "{e}");

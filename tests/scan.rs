@@ -621,8 +621,8 @@ fn two_passes_turned_over_in_between_complete_the_object() {
 
 /// Issue 46: faults across passes. A `kill -9` in pass 1, and one while the job waits for the turn-over:
 /// each restarted capture re-homes and goes on from its log, asks for the turn-over again (it was not
-/// confirmed), and after `Continue()` takes pass 2 (a view lost there is triggered again); every view of
-/// both passes is published once.
+/// confirmed), and after `Continue()` takes pass 2 (a view lost there is triggered again, the table
+/// unplugged there is waited for); every view of both passes is published once.
 #[test]
 fn kill_9_across_passes_and_a_lost_view_keep_every_view_once() {
     need("busctl", "systemd");
@@ -648,6 +648,11 @@ fn kill_9_across_passes_and_a_lost_view_keep_every_view_once() {
     std::thread::sleep(Duration::from_millis(100));
     let out = st.cli(&["continue", &job]);
     assert!(out.status.success(), "continue: {}", String::from_utf8_lossy(&out.stderr));
+    // 3. The table unplugged and back during pass 2 (views 10 to 19).
+    wait_views(&st, 13, Duration::from_secs(60));
+    rig.send("unplug");
+    std::thread::sleep(Duration::from_millis(1500));
+    rig.send("replug");
     st.wait_done(1, Duration::from_secs(600));
     let out = only_entry(&st.spool("outbox"));
     let fusion = json(&out.join("spot.fusion.json"));
@@ -657,6 +662,11 @@ fn kill_9_across_passes_and_a_lost_view_keep_every_view_once() {
     assert!(
         fusion["capture"]["retries"].as_u64().unwrap() >= 1,
         "the lost view was triggered again: {}",
+        fusion["capture"]
+    );
+    assert!(
+        fusion["capture"]["replugs"].as_u64().unwrap() >= 1,
+        "the table came back in pass 2: {}",
         fusion["capture"]
     );
     assert_eq!(fusion["passes"]["turned_over"].as_array().map(Vec::len), Some(1), "{}", fusion["passes"]);

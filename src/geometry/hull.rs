@@ -97,7 +97,7 @@ pub fn convex_hull(points: &[V3]) -> Result<Vec<[u32; 3]>, String> {
     }
     // 2. Every other point, in a fixed shuffled order (sorted inputs would make the hull grow slowly).
     let mut order: Vec<u32> = (0..points.len() as u32).filter(|i| !t.contains(i)).collect();
-    let mut rng = Rng::new(0x48_554C_4C);
+    let mut rng = Rng::new(0x4855_4C4C);
     for k in (1..order.len()).rev() {
         order.swap(k, (rng.next_f64() * (k + 1) as f64) as usize % (k + 1));
     }

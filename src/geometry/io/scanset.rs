@@ -13,7 +13,10 @@
 //! 2. **A `scanset.toml` manifest** ([`MANIFEST`]): one `[[view]]` table per view with its `file` and one pose
 //!    form: `matrix` (4×4, row-major, view → common frame), `translation` + `quaternion` (`[x, y, z, w]`,
 //!    the rotation itself: `R(q)·p + t`, unlike `.conf`), or `angle_deg`, a turntable angle about the
-//!    `[axis]` table's `point` and `direction` (see [`Pose::turntable`]). What the station's own scans write.
+//!    `[axis]` table's `point` and `direction` (see [`Pose::turntable`]); optionally its `pass` (1, 2, …:
+//!    the object turned over between passes, each pass's poses in its own frame, fusion finds the frames),
+//!    and at the top `table_frame = true` when each pass's frame is its turntable's table frame (z up, the
+//!    table top at z = 0). What the station's own scans write.
 //! 3. **An E57 file** ([`super::e57`]): each point cloud a view, the scanner at its frame's origin.
 //! 4. **A directory** holding one of them (`scanset.toml` first, else its only `.conf` file): what the daemon
 //!    takes when a scan set is renamed into its inbox in one step.
@@ -269,7 +272,7 @@ pub fn read_manifest(path: &Path, options: &ReadOptions) -> Result<Vec<View>> {
         views.push_in(&v.file, pose, (pass, manifest.table_frame), loc)?;
     }
     let passes: std::collections::BTreeSet<u32> = views.views.iter().map(|v| v.pass).collect();
-    if let Some(missing) = (1..=passes.last().copied().unwrap_or(1)).find(|p| !passes.contains(p)) {
+    if let Some(missing) = (1..=passes.last().copied().unwrap_or(0)).find(|p| !passes.contains(p)) {
         return Err(Error::new(
             ErrorCode::InputBadRecord,
             format!("pass {missing} has no view, but a later pass has: passes are numbered 1, 2, … in order"),
