@@ -152,7 +152,83 @@ pub enum ErrorCode {
     /// Quality gate: an open input's cap bulges past its rim's plane by more than the rim's own
     /// non-planarity and the accuracy goal.
     QualityCapBulge,
+    /// The job ran past its time limit (a cluster's `--time`).
+    ResourceTime,
+    /// The cluster node running the job failed, again after one resubmission.
+    ClusterNodeFailed,
+    /// The cluster job was cancelled outside the station (`scancel` by someone else, an administrator).
+    ClusterCancelled,
+    /// The cluster refused the job or it ended in a way the station cannot map (sbatch failed, a boot
+    /// failure, the node program crashed); the message gives the scheduler's words.
+    ClusterFailed,
 }
+
+/// Every code, in declaration order (for [`ErrorCode::parse`]).
+pub const ALL_CODES: [ErrorCode; 60] = {
+    use ErrorCode::*;
+    [
+        InputNotFound,
+        InputIo,
+        InputEmpty,
+        InputUnknownFormat,
+        InputBadHeader,
+        InputTruncated,
+        InputBadNumber,
+        InputBadRecord,
+        InputBadIndex,
+        InputBadFace,
+        InputNonFinite,
+        InputAbsurdCount,
+        InputNoGeometry,
+        InputBadArgument,
+        RepairFailed,
+        RemeshInputNotClosed,
+        RemeshFailed,
+        SurfaceBadNet,
+        SurfaceFitDiverged,
+        BrepInvalid,
+        FeaBadSpec,
+        FeaOpenSurface,
+        FeaEmptySelection,
+        FeaSingular,
+        FeaNotConverged,
+        InputDuplicate,
+        InputTooLarge,
+        InputDecompressionBomb,
+        ReconstructTooFewPoints,
+        ReconstructDegenerate,
+        ReconstructFailed,
+        ReconstructViewsDisagree,
+        InputBadNormal,
+        ResourceMemoryBudget,
+        ResourceOutput,
+        InternalBug,
+        DaemonUnavailable,
+        DaemonRefused,
+        Cancelled,
+        Interrupted,
+        DeviceUnplugged,
+        DeviceWrongFirmware,
+        DeviceTimeout,
+        DeviceAlarm,
+        DeviceRefused,
+        DevicePosition,
+        DeviceConfig,
+        DeviceBusOff,
+        DeviceLost,
+        DeviceEmergency,
+        DeviceEmptyView,
+        QualitySelfIntersecting,
+        QualityFolded,
+        QualityVolume,
+        QualityRms,
+        QualityCapBulge,
+        ResourceTime,
+        ClusterNodeFailed,
+        ClusterCancelled,
+        ClusterFailed,
+    ]
+};
 
 impl ErrorCode {
     /// The stable dotted code, e.g. `input.truncated`.
@@ -214,7 +290,16 @@ impl ErrorCode {
             ErrorCode::QualityVolume => "quality.volume",
             ErrorCode::QualityRms => "quality.rms",
             ErrorCode::QualityCapBulge => "quality.cap-bulge",
+            ErrorCode::ResourceTime => "resource.time",
+            ErrorCode::ClusterNodeFailed => "cluster.node-failed",
+            ErrorCode::ClusterCancelled => "cluster.cancelled",
+            ErrorCode::ClusterFailed => "cluster.failed",
         }
+    }
+
+    /// The code whose string form is `s` ([`ErrorCode::as_str`]).
+    pub fn parse(s: &str) -> Option<ErrorCode> {
+        ALL_CODES.iter().copied().find(|c| c.as_str() == s)
     }
 
     /// The class this code belongs to.
@@ -226,6 +311,10 @@ impl ErrorCode {
             | ErrorCode::InputTooLarge
             | ErrorCode::Cancelled
             | ErrorCode::Interrupted
+            | ErrorCode::ResourceTime
+            | ErrorCode::ClusterNodeFailed
+            | ErrorCode::ClusterCancelled
+            | ErrorCode::ClusterFailed
             | ErrorCode::DaemonUnavailable => ErrorClass::Resource,
             ErrorCode::InternalBug | ErrorCode::BrepInvalid => ErrorClass::Internal,
             ErrorCode::QualitySelfIntersecting
@@ -353,5 +442,24 @@ impl Error {
     /// The class of this error.
     pub fn class(&self) -> ErrorClass {
         self.code.class()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every code parses back from its string form, and no two share one.
+    #[test]
+    fn codes_round_trip_through_their_strings() {
+        let mut seen = std::collections::HashSet::new();
+        for c in ALL_CODES {
+            assert_eq!(ErrorCode::parse(c.as_str()), Some(c));
+            assert!(seen.insert(c.as_str()), "{c} twice");
+        }
+        // The list holds every variant: as many as `as_str` has arms.
+        let arms = include_str!("error.rs").matches(concat!("=", "> \"")).count();
+        assert_eq!(arms, ALL_CODES.len(), "as_str has {arms} arms");
+        assert_eq!(ErrorCode::parse("no.such"), None);
     }
 }

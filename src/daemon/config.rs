@@ -41,6 +41,8 @@ struct Raw {
     #[serde(default)]
     devices: RawDevices,
     scan: Option<RawScan>,
+    #[serde(default)]
+    executor: super::executor::RawExecutor,
 }
 
 #[derive(Deserialize)]
@@ -250,6 +252,12 @@ pub struct Config {
     pub trigger: Option<TriggerConfig>,
     /// Scan sessions (`[scan]`; none by default: `StartScan` is then refused).
     pub scan: Option<ScanConfig>,
+    /// Where conversions run (`[executor]`; local by default).
+    pub executor: super::executor::ExecutorConfig,
+    /// The text this configuration was parsed from, and the file it names in errors (a cluster job's node
+    /// parses the same text: the same configuration and digest).
+    #[serde(skip)]
+    pub source: (String, String),
 }
 
 /// What a scan does when a view never arrives ([`ScanConfig::on_lost_view`]).
@@ -372,7 +380,7 @@ pub struct TriggerConfig {
     pub view_timeout: Duration,
 }
 
-mod secs {
+pub(crate) mod secs {
     pub fn serialize<S: serde::Serializer>(d: &std::time::Duration, s: S) -> Result<S::Ok, S::Error> {
         s.serialize_f64(d.as_secs_f64())
     }
@@ -584,6 +592,11 @@ impl Config {
             turntable,
             trigger,
             scan,
+            executor: super::executor::parse(raw.executor, &|key, v, default| {
+                parse_duration(v.as_deref().unwrap_or(default)).map_err(|r| (key.to_string(), r))
+            })
+            .map_err(|(key, reason)| err(&key, reason))?,
+            source: (text.to_string(), file.to_string()),
         })
     }
 

@@ -146,6 +146,19 @@ pub struct JobRecord {
     /// A scan session (`StartScan`): what to capture. Its input is then the scan directory in `work/<id>/`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scan: Option<super::scan::ScanRequest>,
+    /// Its conversion on a Slurm cluster (`[executor] kind = "slurm"`): the cluster's job id, journaled as
+    /// soon as `sbatch` returns it, so a restarted daemon follows that job instead of submitting again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cluster: Option<ClusterRun>,
+}
+
+/// A job's conversion on a Slurm cluster.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ClusterRun {
+    /// Slurm's job id of the current submission.
+    pub slurm_id: u64,
+    /// Submissions so far (2 after a node failure was resubmitted once).
+    pub submissions: u32,
 }
 
 impl JobRecord {
@@ -178,6 +191,7 @@ impl JobRecord {
             peak_memory: 0,
             announced: false,
             scan: None,
+            cluster: None,
         }
     }
 

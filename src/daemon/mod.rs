@@ -16,9 +16,11 @@
 //! - [`notify`]: sd_notify and the watchdog.
 
 pub mod client;
+pub mod cluster;
 pub mod config;
 pub mod dbus;
 pub mod durable;
+pub mod executor;
 pub mod journal;
 pub mod notify;
 pub mod rig;
@@ -47,6 +49,10 @@ pub enum StartError {
     /// A spool directory that cannot be used.
     #[error(transparent)]
     Spool(#[from] spool::SpoolError),
+    /// `[executor] kind = "slurm"`, but the cluster cannot run the station's jobs (no Slurm commands, or a
+    /// spool the nodes do not see).
+    #[error("executor.kind = \"slurm\": {0}")]
+    Cluster(String),
     /// The state directory (journal) cannot be used.
     #[error("state directory {path}: {reason}")]
     State {
@@ -92,6 +98,10 @@ pub enum StartError {
 pub async fn run(cfg: Config) -> Result<(), StartError> {
     let cfg = Arc::new(cfg);
     let spool = spool::Spool::open(&cfg.spool)?;
+    if cfg.executor.kind == executor::ExecutorKind::Slurm {
+        let found = cluster::check_shared_spool(&cfg.spool, &cfg.executor).map_err(StartError::Cluster)?;
+        tracing::info!(%found, "conversions run on the Slurm cluster");
+    }
     let journal = journal::Journal::open(&cfg.state)
         .map_err(|e| StartError::State { path: cfg.state.display().to_string(), reason: e.to_string() })?;
     let (bus_name, builder) = match cfg.bus {

@@ -82,6 +82,13 @@ pub enum WorkerEvent {
         /// What to do.
         what: Option<String>,
     },
+    /// A job's conversion was submitted to the cluster (journal its Slurm id).
+    Cluster {
+        /// The job.
+        id: JobId,
+        /// The submission.
+        run: super::journal::ClusterRun,
+    },
     /// The job ended.
     Done {
         /// The job.
@@ -132,7 +139,8 @@ pub struct JobRun {
     pub capture: Option<super::scan::CaptureLog>,
 }
 
-struct Reporter<'a> {
+/// A job's progress and cancel flag as the conversion chain sees them.
+pub struct Reporter<'a> {
     run: &'a JobRun,
     state: Mutex<(f64, &'static str)>,
     /// The overall range the conversion chain's 0–1 maps to.
@@ -178,6 +186,19 @@ impl Progress for Reporter<'_> {
     }
 }
 
+/// Start [`run`] in `span`: on the CPU `pool`, or, when conversions run on a cluster (where a job mostly
+/// waits), on a thread of its own, so the pool's size does not bound the jobs on the cluster.
+pub fn start(pool: &rayon::ThreadPool, job: JobRun, span: tracing::Span) {
+    if job.cfg.executor.kind == super::executor::ExecutorKind::Slurm {
+        let spawned = std::thread::Builder::new().name("cluster-job".into()).spawn(move || span.in_scope(|| run(job)));
+        if let Err(e) = spawned {
+            tracing::error!(error = %e, "cannot start a thread for a cluster job");
+        }
+    } else {
+        pool.spawn(move || span.in_scope(|| run(job)));
+    }
+}
+
 /// Run the job to its end (success, error, or cancellation) and report [`WorkerEvent::Done`].
 pub fn run(job: JobRun) {
     let meter = StageMeter::start();
@@ -216,7 +237,33 @@ fn io_err(what: &str, path: &Path, e: std::io::Error) -> Error {
     Error::new(ErrorCode::ResourceOutput, format!("{what} {}: {e}", path.display()))
 }
 
+/// What a conversion left in the outbox's part directory, before its manifest: the bundle's files and their
+/// digests, taken as they were written. What a cluster node hands back in its `result.json`.
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct Produced {
+    /// (kind, path) of every file of the bundle, in the manifest's order.
+    pub files: Vec<(String, PathBuf)>,
+    /// Size and SHA-256 of the files whose digest was taken as they were written.
+    pub digests: BTreeMap<PathBuf, (u64, String)>,
+    /// A scan's views in its manifest.
+    pub views_manifest: Option<serde_json::Value>,
+}
+
+/// Convert the job's input and publish its bundle: here ([`produce`]) or on the cluster
+/// ([`produce_on_cluster`]), then [`publish`] on the station.
 fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<String, String>, Error> {
+    let produced = match job.cfg.executor.kind {
+        super::executor::ExecutorKind::Local => produce(job, rep)?,
+        super::executor::ExecutorKind::Slurm => produce_on_cluster(job, rep)?,
+    };
+    publish(job, &produced)
+}
+
+/// The conversion and every file of the bundle but its manifest, in `outbox/.<stem>-<id>.part/`.
+///
+/// # Errors
+/// The chain's; a quality gate's (the report written beside the artifacts).
+pub fn produce(job: &JobRun, rep: &Reporter<'_>) -> Result<Produced, Error> {
     let rec = &job.record;
     let stem = rec.stem();
     let input = input_path(&job.spool, rec);
@@ -302,19 +349,36 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
     let (page, page_digest) = crate::pipeline::report_html::write_report_html(&part)?;
     written.insert(page.clone(), page_digest);
     files.push((super::dbus::REPORT_HTML, page));
+    let mut digests: BTreeMap<PathBuf, (u64, String)> =
+        written.into_iter().map(|(p, d)| (p, (d.bytes, d.sha256))).collect();
+    for (p, d) in [
+        (&step, &converted.digests.step),
+        (&report.solid_mesh_file, &converted.digests.solid_mesh),
+        (&report.error_map_file, &converted.digests.error_map),
+    ] {
+        digests.insert(p.clone(), (d.bytes, d.sha256.clone()));
+    }
+    let files = files.into_iter().map(|(k, p)| (k.to_string(), p)).collect();
+    Ok(Produced { files, digests, views_manifest: extra.views_manifest })
+}
+
+/// Publish what [`produce`] left: each file synced, the manifest (every file's size and hash), then one
+/// rename of the part directory into the outbox. The outputs, kind → path.
+///
+/// # Errors
+/// `resource.output`.
+fn publish(job: &JobRun, produced: &Produced) -> Result<BTreeMap<String, String>, Error> {
+    let rec = &job.record;
+    let stem = rec.stem();
+    let part = job.spool.outbox_part(&stem, &rec.id);
+    let files = &produced.files;
     let mut manifest_files = serde_json::Map::new();
-    for (kind, p) in &files {
+    for (kind, p) in files {
         let f = std::fs::File::open(p).map_err(|e| io_err("cannot reopen", p, e))?;
         f.sync_all().map_err(|e| io_err("cannot fsync", p, e))?;
         // The digests of the files the conversion and this job wrote were taken as they were written.
-        let digest = match *kind {
-            "step" => Some(&converted.digests.step),
-            "solid-mesh" => Some(&converted.digests.solid_mesh),
-            "error-map" => Some(&converted.digests.error_map),
-            _ => written.get(p),
-        };
-        let (bytes, sha256) = match digest {
-            Some(d) => (d.bytes, d.sha256.clone()),
+        let (bytes, sha256) = match produced.digests.get(p) {
+            Some(d) => d.clone(),
             None => (f.metadata().map(|m| m.len()).unwrap_or(0), crate::pipeline::provenance::sha256_file(p)?),
         };
         manifest_files.insert(
@@ -326,7 +390,7 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
             }),
         );
     }
-    if let Some(views) = &extra.views_manifest {
+    if let Some(views) = &produced.views_manifest {
         manifest_files.insert("views".into(), views.clone());
     }
     let manifest = serde_json::json!({
@@ -345,10 +409,10 @@ fn convert_and_publish(job: &JobRun, rep: &Reporter<'_>) -> Result<BTreeMap<Stri
     let public = job.spool.outbox_dir(&stem, &rec.id);
     publish_dir(&part, &public).map_err(|e| io_err("cannot publish", &public, e))?;
     let mut outputs = BTreeMap::new();
-    for (kind, p) in files.iter().map(|(k, p)| (k.to_string(), p)).chain([("manifest".to_string(), &manifest_path)]) {
+    for (kind, p) in files.iter().map(|(k, p)| (k.clone(), p)).chain([("manifest".to_string(), &manifest_path)]) {
         outputs.insert(kind, public.join(p.file_name().unwrap_or_default()).display().to_string());
     }
-    if extra.views_manifest.is_some() {
+    if produced.views_manifest.is_some() {
         outputs.insert("views".into(), public.join(super::scan_bundle::VIEWS_DIR).display().to_string());
     }
     Ok(outputs)
@@ -463,4 +527,145 @@ pub fn quarantine_record(
         o.insert(super::dbus::THUMBNAIL.to_string(), public.join(t).display().to_string());
     }
     Ok(o)
+}
+
+/// What a cluster node needs to convert a job exactly as the station would: its record and the station's
+/// configuration text (`job.json` in the job's [`super::cluster::DIR`]).
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct NodeJob {
+    /// The job's record.
+    pub record: JobRecord,
+    /// The station's configuration file's text, and its name.
+    pub config: (String, String),
+}
+
+/// What a cluster node hands back (`result.json`).
+#[derive(serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NodeResult {
+    /// The bundle's files, before the manifest.
+    Produced(Produced),
+    /// The conversion's error, and the stage it ended in.
+    Failed {
+        /// Its stable code.
+        code: String,
+        /// Its message.
+        message: String,
+        /// Its hint.
+        hint: Option<String>,
+        /// The stage.
+        stage: String,
+    },
+}
+
+/// [`produce`] on the Slurm cluster (`[executor] kind = "slurm"`, [`super::cluster`]): the job submitted
+/// (or followed, after a restart) and its progress handed on; the node's [`Produced`].
+fn produce_on_cluster(job: &JobRun, rep: &Reporter<'_>) -> Result<Produced, Error> {
+    let rec = &job.record;
+    let work = job.spool.work_dir(&rec.id);
+    let dir = work.join(super::cluster::DIR);
+    let spec = NodeJob { record: rec.clone(), config: job.cfg.source.clone() };
+    let stages = stages_of(rec);
+    let progress = |fraction: f64, stage: &str, message: &str| {
+        let stage = stages.iter().copied().find(|s| *s == stage).unwrap_or(job.stage);
+        rep.send(fraction, stage, message.to_string());
+    };
+    let journal = |run: &super::journal::ClusterRun| {
+        let _ = job.events.send(WorkerEvent::Cluster { id: rec.id.clone(), run: run.clone() });
+    };
+    let follow = super::cluster::Follow {
+        dir: &dir,
+        work: &work,
+        name: format!("scanstation-{}", rec.id),
+        exec: &job.cfg.executor,
+        mem_bytes: job.cfg.memory_budget,
+        known: rec.cluster.clone(),
+        cancel: &job.cancel,
+        progress: &progress,
+        journal: &journal,
+    };
+    let value = super::cluster::run(&follow, &serde_json::to_value(&spec).unwrap_or_default())?;
+    let result: NodeResult = serde_json::from_value(value).map_err(|e| {
+        Error::new(ErrorCode::ClusterFailed, format!("the cluster node's result is not one this station reads: {e}"))
+    })?;
+    match result {
+        NodeResult::Produced(p) => Ok(p),
+        NodeResult::Failed { code, message, hint, stage } => {
+            let stage = stages.iter().copied().find(|s| *s == stage).unwrap_or(job.stage);
+            rep.send(0.0, stage, format!("{stage}/failed on the cluster"));
+            let code = ErrorCode::parse(&code).unwrap_or(ErrorCode::ClusterFailed);
+            let e = Error::new(code, message);
+            Err(match hint {
+                Some(h) => e.with_hint(h),
+                None => e,
+            })
+        }
+    }
+}
+
+/// The node's side of a cluster job (`scanstation cluster-run DIR`, DIR the job's [`super::cluster::DIR`]):
+/// read `job.json`, convert as the station would ([`produce`], into the same part directory of the shared
+/// spool), append progress to `progress.log`, write `result.json`.
+///
+/// # Errors
+/// Only when `job.json` cannot be read or `result.json` not written; the conversion's own errors go into
+/// `result.json`.
+pub fn cluster_run(dir: &Path) -> Result<(), Error> {
+    use std::io::Write;
+    let job_file = dir.join("job.json");
+    let bytes = std::fs::read(&job_file)
+        .map_err(|e| Error::new(ErrorCode::InputNotFound, format!("{}: {e}", job_file.display())))?;
+    let spec: NodeJob = serde_json::from_slice(&bytes)
+        .map_err(|e| Error::new(ErrorCode::InputBadRecord, format!("{}: {e}", job_file.display())))?;
+    let cfg = Config::parse(&spec.config.0, &spec.config.1)
+        .map_err(|e| Error::new(ErrorCode::InputBadArgument, format!("the station's configuration: {e}")))?;
+    let spool = Spool::open(&cfg.spool).map_err(|e| {
+        Error::new(ErrorCode::ResourceOutput, format!("the spool on this node: {} ({})", e.path, e.reason))
+    })?;
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let log_path = dir.join("progress.log");
+    let mut log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .map_err(|e| io_err("cannot open", &log_path, e))?;
+    let writer = std::thread::spawn(move || {
+        while let Some(ev) = rx.blocking_recv() {
+            if let WorkerEvent::Progress { fraction, stage, message, .. } = ev {
+                let _ = writeln!(log, "{fraction}\t{stage}\t{}", message.replace(['\t', '\n'], " "));
+            }
+        }
+    });
+    let stage0 = stages_of(&spec.record)[0];
+    let run = JobRun {
+        config_digest: cfg.digest(),
+        cfg: Arc::new(cfg),
+        record: spec.record,
+        spool,
+        preset_error: None,
+        cancel: Arc::new(AtomicBool::new(false)),
+        proceed: Arc::new(tokio::sync::Notify::new()),
+        heartbeat: Arc::new(AtomicU64::new(0)),
+        events: tx,
+        stage: if stage0 == "home" { "fuse" } else { stage0 },
+        capture: None,
+    };
+    let span = if run.record.scan.is_some() { (CAPTURE_END, FEA_AT) } else { (0.0, PUBLISH_AT) };
+    let reporter = Reporter { run: &run, state: Mutex::new((span.0, "")), span };
+    let result = match produce(&run, &reporter) {
+        Ok(p) => NodeResult::Produced(p),
+        Err(e) => NodeResult::Failed {
+            code: e.code.as_str().to_string(),
+            message: e.message.clone(),
+            hint: e.hint.clone(),
+            stage: reporter.state.lock().map(|s| s.1).ok().filter(|s| !s.is_empty()).unwrap_or(run.stage).to_string(),
+        },
+    };
+    drop(reporter);
+    drop(run);
+    let _ = writer.join();
+    let out = dir.join("result.json");
+    write_durable(&out, serde_json::to_string_pretty(&result).unwrap_or_default().as_bytes())
+        .map_err(|e| io_err("cannot write", &out, e))?;
+    Ok(())
 }

@@ -110,6 +110,8 @@ pub struct Station {
     pub config: PathBuf,
     pub bus: String,
     pub system: bool,
+    /// Extra environment for the daemon (`SLURM_CONF` for the cluster tests).
+    pub env: Vec<(String, String)>,
 }
 
 impl Drop for Station {
@@ -152,7 +154,7 @@ compare_samples = 5000
             ),
         )
         .unwrap();
-        Station { child: None, dir: dir.to_path_buf(), config, bus: bus.address.clone(), system }
+        Station { child: None, dir: dir.to_path_buf(), config, bus: bus.address.clone(), system, env: Vec::new() }
     }
 
     /// A station whose config sets `limits.memory_budget` to `mib` MiB.
@@ -188,6 +190,7 @@ compare_samples = 5000
             .arg("--config")
             .arg(&self.config)
             .env(var, &self.bus)
+            .envs(self.env.iter().map(|(k, v)| (k.as_str(), v.as_str())))
             .stdout(Stdio::null())
             .stderr(log)
             .spawn()

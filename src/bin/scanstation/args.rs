@@ -439,6 +439,14 @@ pub struct ContinueArgs {
 }
 
 #[cfg(feature = "daemon")]
+/// Arguments of `scanstation cluster-run`.
+#[derive(Args)]
+pub struct ClusterRunArgs {
+    /// The job's cluster directory on the shared spool (`work/<id>/.slurm`, holding `job.json`).
+    pub dir: PathBuf,
+}
+
+#[cfg(feature = "daemon")]
 /// Arguments of `scanstation watch`.
 #[derive(Args)]
 pub struct WatchArgs {

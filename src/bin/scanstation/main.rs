@@ -99,6 +99,11 @@ enum Command {
     /// Tell a scan waiting for a person (the object turned over for its next pass) that it is done.
     #[cfg(feature = "daemon")]
     Continue(ContinueArgs),
+    /// The cluster node's side of a station job (`[executor] kind = "slurm"`: what `sbatch` runs): convert
+    /// the job in DIR (`work/<id>/.slurm`) as the station would, progress to DIR/progress.log, the outcome to
+    /// DIR/result.json.
+    #[cfg(feature = "daemon")]
+    ClusterRun(ClusterRunArgs),
     /// Follow progress: one job until it finishes, or every job until interrupted. A progress bar on a
     /// terminal, JSON lines otherwise (or with --json).
     #[cfg(feature = "daemon")]
@@ -188,6 +193,12 @@ fn main() -> ExitCode {
         Command::Sim(SimCommand::Trigger(a)) => return sim::run_trigger(a),
         #[cfg(feature = "daemon")]
         Command::Sim(SimCommand::Rig(a)) => return sim::run_rig(a),
+        #[cfg(feature = "daemon")]
+        Command::ClusterRun(a) => scanstation::daemon::worker::cluster_run(&a.dir).map(|()| {
+            if json {
+                print::print_json(&serde_json::json!({ "result": a.dir.join("result.json") }));
+            }
+        }),
         #[cfg(feature = "daemon")]
         Command::Status(_)
         | Command::Jobs(_)

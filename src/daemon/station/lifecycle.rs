@@ -92,7 +92,7 @@ impl Station {
             if job.rec.scan.is_some() && job.preset_error.is_none() {
                 self.spawn_scan(run);
             } else {
-                self.pool.spawn(move || span.in_scope(|| worker::run(run)));
+                worker::start(&self.pool, run, span);
             }
             self.running.push(id);
         }
@@ -142,6 +142,14 @@ impl Station {
                 }
             }
             WorkerEvent::Operator { id, what } => self.operator(&id, what).await,
+            WorkerEvent::Cluster { id, run } => {
+                let Some(job) = self.jobs.get_mut(&id) else { return };
+                tracing::info!(job_id = %id, slurm_id = run.slurm_id, submissions = run.submissions, "on the cluster");
+                job.rec.cluster = Some(run);
+                if let Err(e) = self.journal.save(&job.rec) {
+                    tracing::error!(job_id = %id, error = %e, "cannot persist the job record");
+                }
+            }
             WorkerEvent::Done { id, outcome } => self.finish(&id, outcome).await,
         }
     }

@@ -23,6 +23,11 @@ use super::super::spool::{self, Spool};
 use super::super::worker::{self, stages_of};
 use crate::error::ErrorCode;
 
+/// Whether `p` is an outbox part directory (`outbox/.<stem>-<id>.part`), not a quarantine's.
+fn is_outbox_part(p: &Path) -> bool {
+    p.parent().and_then(|d| d.file_name()).is_some_and(|n| n == "outbox")
+}
+
 /// What the spool holds for one job with a record.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SpoolFacts {
@@ -165,7 +170,10 @@ pub fn plan(
             }
             continue;
         }
-        actions.extend(f.half_built.into_iter().map(Action::RemoveDir));
+        // A conversion on the cluster goes on while the station is down: its bundle's part directory is the
+        // node's to finish (the job is followed again below).
+        let on_cluster = rec.cluster.is_some();
+        actions.extend(f.half_built.into_iter().filter(|p| !(on_cluster && is_outbox_part(p))).map(Action::RemoveDir));
         if let Some(manifest) = f.manifest {
             rec.state = JobState::Succeeded;
             rec.finish_usec = now_usec;
@@ -188,7 +196,7 @@ pub fn plan(
             rec.message = "the claimed input vanished from work/".into();
             rec.finish_usec = now_usec;
             actions.push(Action::Restore { rec, save: true, queue: false });
-        } else if rec.state == JobState::Running && !resume {
+        } else if rec.state == JobState::Running && !resume && !on_cluster {
             actions.push(Action::Quarantine(rec));
         } else {
             rec.state = JobState::Queued;
@@ -279,6 +287,7 @@ mod tests {
             peak_memory: 0,
             announced: false,
             scan: None,
+            cluster: None,
         }
     }
 
@@ -317,6 +326,26 @@ mod tests {
         assert_eq!((shown.state, save, queue), (JobState::Succeeded, false, false));
         r.announced = true;
         assert_eq!(one(r.clone(), SpoolFacts::default(), true), vec![Action::RemoveDir(work(&r.id))]);
+    }
+
+    /// A job converting on the cluster when the station died keeps its outbox part directory (the node is
+    /// writing it) and is followed again, even with `resume` off; its quarantine part is removed.
+    #[test]
+    fn a_job_on_the_cluster_keeps_its_part_directory_and_is_followed_again() {
+        let mut r = rec("A", JobState::Running);
+        r.cluster = Some(crate::daemon::journal::ClusterRun { slurm_id: 7, submissions: 1 });
+        let parts = vec![PathBuf::from("/spool/outbox/.scan-A.part"), PathBuf::from("/spool/quarantine/.scan-A.part")];
+        let f = SpoolFacts { half_built: parts.clone(), ..present() };
+        let a = one(r.clone(), f.clone(), false);
+        assert!(!a.contains(&Action::RemoveDir(parts[0].clone())), "{a:#?}");
+        assert!(a.contains(&Action::RemoveDir(parts[1].clone())), "{a:#?}");
+        let (back, _, queue) = restored(&a);
+        assert!(queue && back.cluster.is_some(), "{a:#?}");
+        // Not on the cluster: both go, and with resume off it is quarantined.
+        r.cluster = None;
+        let a = one(r, f, false);
+        assert!(a.contains(&Action::RemoveDir(parts[0].clone())), "{a:#?}");
+        assert!(a.iter().any(|x| matches!(x, Action::Quarantine(_))), "{a:#?}");
     }
 
     #[test]

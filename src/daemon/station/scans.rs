@@ -87,7 +87,7 @@ impl Station {
                 "the station's [scan] section is gone (config reloaded without it)",
             ));
             let span = tracing::info_span!("job", job_id = %run.record.id);
-            self.pool.spawn(move || span.in_scope(|| worker::run(run)));
+            worker::start(&self.pool, run, span);
             return;
         };
         let rig = self.rig.clone();
@@ -155,7 +155,7 @@ impl Station {
                 }
             }
             let span = tracing::info_span!("job", job_id = %run.record.id);
-            pool.spawn(move || span.in_scope(|| worker::run(run)));
+            worker::start(&pool, run, span);
         });
     }
 }
