@@ -208,6 +208,18 @@ fn kill_9_while_the_cluster_converts_follows_the_same_job() {
     let job = submit(&st, &spot, 3000);
     let id = job_id(&job);
     let slurm_id = cluster.wait_running(&id, Duration::from_secs(60));
+    // Progress on D-Bus comes from the node's progress file, as a local job's from its worker.
+    let t = Instant::now();
+    let progress = loop {
+        let p = st.property("Job", &job, "Progress").unwrap_or_default();
+        let v: f64 = p.trim_start_matches("d ").parse().unwrap_or(0.0);
+        if v > 0.05 {
+            break v;
+        }
+        assert!(t.elapsed() < Duration::from_secs(60), "no progress from the cluster: {p}\n{}", st.log());
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let stage = st.property("Job", &job, "Stage").unwrap_or_default();
     st.kill9();
     st.start();
     st.wait_done(1, Duration::from_secs(300));
@@ -218,7 +230,9 @@ fn kill_9_while_the_cluster_converts_follows_the_same_job() {
     assert_eq!(done.len(), 1, "one submission: {done:?}");
     assert!(done[0].starts_with(&format!("{slurm_id}|COMPLETED")), "{done:?}");
     assert!(st.log().contains("following the cluster job submitted before"), "{}", st.log());
-    eprintln!("kill -9 during cluster job {slurm_id}: followed after the restart; sacct: {done:?}");
+    eprintln!(
+        "kill -9 during cluster job {slurm_id} (Progress {progress:.3}, Stage {stage}): followed after the restart; sacct: {done:?}"
+    );
 }
 
 /// A job cancelled outside the station (`scancel`) fails with `cluster.cancelled`, its input in quarantine;
@@ -293,4 +307,34 @@ fn a_node_that_dies_is_retried_once_then_the_job_fails() {
     assert_eq!(done.len(), 2, "two submissions, both NODE_FAIL: {done:?}");
     assert!(done.iter().all(|l| l.ends_with("NODE_FAIL")), "{done:?}");
     eprintln!("node killed twice: resubmitted after {resubmitted:?}, failed after {failed:?}; sacct {done:?}");
+}
+
+/// A scan session captures on the station (the simulated rig as its own process) and converts on the
+/// cluster: the bundle holds the views, the fusion report and the solid, as a local scan's does.
+#[test]
+fn a_scan_captures_here_and_converts_on_the_cluster() {
+    let _turn = TURN.lock().unwrap_or_else(|p| p.into_inner());
+    need("busctl", "systemd");
+    let dir = common::scratch("cluster-scan");
+    let cluster = Cluster::start(&dir);
+    let bus = start_bus(&dir, OPEN_POLICY);
+    let _rig = start_rig(&dir, 7);
+    let extra = format!(
+        "{}[executor]\nkind = \"slurm\"\npartition = \"scan\"\ncpus = 1\nbinary = \"{CLI}\"\npoll = \"200ms\"\n",
+        scan_config(&dir, "")
+    );
+    let mut st = Station::new(&dir, &bus, false, &extra);
+    st.env.push(("SLURM_CONF".into(), cluster.conf()));
+    st.start();
+    let job = start_scan(&st, &["3", "views", "u", "8", "name", "s", "spot", "vertices", "u", "3000"]);
+    let id = job_id(&job);
+    st.wait_done(1, Duration::from_secs(300));
+    let out = only_entry(&st.spool("outbox"));
+    let files = visible(&out);
+    for f in ["spot.step", "spot.fusion.json", "spot.report.html", "views"] {
+        assert!(files.iter().any(|x| x == f), "{f} in {files:?}\n{}", st.log());
+    }
+    let (done, _) = cluster.submissions(&id);
+    assert_eq!(done.len(), 1, "converted on the cluster once: {done:?}");
+    eprintln!("a scan converted on the cluster: {done:?}; bundle {files:?}");
 }

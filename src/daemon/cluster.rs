@@ -155,7 +155,7 @@ fn final_state(id: u64) -> Option<(String, String)> {
         }
     }
     let s = slurm("sacct", &["--completion", "-n", "-P", "-j", &id.to_string(), "-o", "state"]).ok()?;
-    s.lines().last().map(|l| (l.trim().split_whitespace().next().unwrap_or("").to_string(), String::new()))
+    s.lines().last().map(|l| (l.split_whitespace().next().unwrap_or("").to_string(), String::new()))
 }
 
 /// States after which a job runs no more.

@@ -97,15 +97,15 @@ pub fn parse_time_limit(s: &str) -> Result<u32, String> {
     Ok(minutes as u32)
 }
 
+/// A duration parser: (key, value as written, default) → the duration, or (key, reason).
+pub type DurationOf<'a> = dyn Fn(&str, &Option<String>, &str) -> Result<Duration, (String, String)> + 'a;
+
 /// Validate `[executor]`; `poll` parsed by the config's duration parser.
 ///
 /// # Errors
 /// `(key, reason)`: an unknown kind, a bad time limit, 0 or more than 1024 CPUs, a relative binary path, an
 /// `sbatch` argument that is not an option or that sets what the station sets itself.
-pub fn parse(
-    raw: RawExecutor,
-    duration: &dyn Fn(&str, &Option<String>, &str) -> Result<Duration, (String, String)>,
-) -> Result<ExecutorConfig, (String, String)> {
+pub fn parse(raw: RawExecutor, duration: &DurationOf<'_>) -> Result<ExecutorConfig, (String, String)> {
     let k = |key: &str| format!("executor.{key}");
     let kind = match raw.kind.as_deref().unwrap_or("local") {
         "local" => ExecutorKind::Local,

@@ -661,7 +661,7 @@ pub fn cluster_run(dir: &Path) -> Result<(), Error> {
             stage: reporter.state.lock().map(|s| s.1).ok().filter(|s| !s.is_empty()).unwrap_or(run.stage).to_string(),
         },
     };
-    drop(reporter);
+    // The progress channel closes with the run: the writer drains it and ends.
     drop(run);
     let _ = writer.join();
     let out = dir.join("result.json");
