@@ -378,6 +378,15 @@ fn filesystem_of(path: &Path) -> Option<String> {
 mod tests {
     use super::*;
 
+    /// The file system of a path is its longest mount point's (the root's for a path nothing else holds).
+    #[test]
+    fn the_spools_file_system_is_read_from_mountinfo() {
+        let root = filesystem_of(Path::new("/")).expect("/ is mounted");
+        assert!(!root.is_empty());
+        let proc_fs = filesystem_of(Path::new("/proc/self")).expect("/proc is mounted");
+        assert_eq!(proc_fs, "proc");
+    }
+
     #[test]
     fn slurm_states_map_to_codes() {
         assert_eq!(outcome_of("COMPLETED", "None"), Outcome::Result);

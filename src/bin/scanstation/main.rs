@@ -140,7 +140,9 @@ fn main() -> ExitCode {
         1 => tracing::Level::INFO,
         _ => tracing::Level::DEBUG,
     };
-    tracing_subscriber::fmt().with_writer(std::io::stderr).with_max_level(level).init();
+    // Colours only on a terminal: a cluster job's output file and a piped log stay plain text.
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    tracing_subscriber::fmt().with_writer(std::io::stderr).with_ansi(ansi).with_max_level(level).init();
     let (json, budget) = (cli.json, cli.memory_budget);
     let read = ReadOptions { memory_budget: budget, max_input_size: cli.max_input_size };
     let result = match &cli.command {
