@@ -319,7 +319,7 @@ fn parse_scan_options(
     use crate::daemon::scan::plan::{check_coverage, check_max_views, check_passes};
     let invalid = |key: &str, m: String| StationError::InvalidArgument(format!("{key}: {m}"));
     let mut rings = None;
-    let (mut coverage, mut max_views, mut passes, mut coverage_given) = (default_coverage, None, 1, false);
+    let (mut coverage, mut max_views, mut passes) = (default_coverage, None, 1);
     for (k, v) in options {
         let bad =
             || StationError::InvalidArgument(format!("option {k:?} has the wrong type ({})", v.value_signature()));
@@ -340,10 +340,7 @@ fn parse_scan_options(
                     Some(crate::daemon::scan::plan::Ring::parse_list(&text()?).map_err(StationError::InvalidArgument)?);
             }
             option_keys::COVERAGE => match &**v {
-                Value::F64(c) => {
-                    coverage = Some(check_coverage(*c).map_err(|m| invalid("coverage", m))?);
-                    coverage_given = true;
-                }
+                Value::F64(c) => coverage = Some(check_coverage(*c).map_err(|m| invalid("coverage", m))?),
                 _ => return Err(bad()),
             },
             option_keys::MAX_VIEWS => {
@@ -368,16 +365,6 @@ fn parse_scan_options(
     // None named: the station's (`[scan] tilts`); an empty text: the level ring only.
     request.rings = rings.unwrap_or_else(|| default_tilts.to_vec());
     (request.coverage, request.max_views, request.passes) = (coverage, max_views, passes);
-    if passes > 1 {
-        // Views are chosen within one pass's frame; a scan of several passes takes its plan in each.
-        if coverage_given {
-            return Err(invalid(
-                "coverage",
-                "views chosen where the surface is unseen need a scan of one pass (passes = 1); with passes, plan the views (views, tilts)".into(),
-            ));
-        }
-        request.coverage = None;
-    }
     let known: Vec<&str> = option_keys::SCAN.into_iter().chain(option_keys::JOB).collect();
     let options = parse_options(&rest, &known)?;
     Ok((request, name, options))

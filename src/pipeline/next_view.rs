@@ -31,7 +31,8 @@ use crate::stages::reconstruct::{ReconstructOptions, reconstruct};
 /// What the views taken so far saw of a coarse surface reconstructed from them.
 #[derive(Clone, Debug)]
 pub struct Estimate {
-    /// The surface, in the scan set's common frame (the table frame).
+    /// The surface, in the frame of the scan set's last pass (the table frame the next views are posed in;
+    /// the first pass's for a scan of one pass).
     pub mesh: TriMesh,
     /// Per vertex: the views that saw it.
     pub counts: Vec<u16>,
@@ -125,6 +126,14 @@ pub fn estimate(dir: &Path, memory_budget: u64) -> Result<Estimate> {
         }
     }
     let area = super::reconstruct::vertex_area_shares(&mesh);
+    // Fused in the first pass's frame; the next views are taken in the last pass's: the surface moved there
+    // (the inverse of the motion fusion found for that pass).
+    let mut mesh = mesh;
+    if let Some(last) = fused.report.passes.last() {
+        for p in &mut mesh.positions {
+            *p = last.motion.inverse_apply(p.map(f64::from)).map(|c| c as f32);
+        }
+    }
     Ok(Estimate { counts, mesh, area, coverage, frustum })
 }
 

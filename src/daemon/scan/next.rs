@@ -2,7 +2,8 @@
 //! of chosen views, estimate what the views taken so far saw ([`crate::pipeline::next_view::estimate`]) and
 //! choose the stops that would see most of the rest ([`crate::pipeline::next_view::choose`]), under the
 //! view budget. The choice is kept in the capture log before any of its views is taken, so a restarted scan
-//! takes the same views.
+//! takes the same views. In a scan of several passes the views are chosen after the last pass, in its frame
+//! (the estimate's surface is moved there by the motion fusion found for that pass).
 
 use std::path::Path;
 use std::time::Instant;
@@ -40,7 +41,7 @@ pub fn pending(log: &CaptureLog) -> Vec<(u32, Stop)> {
     log.next_views
         .iter()
         .filter(|v| !log.has(v.index))
-        .map(|v| (v.index, Stop { angle_deg: v.angle_deg, tilt_deg: v.tilt_deg, pass: 1 }))
+        .map(|v| (v.index, Stop { angle_deg: v.angle_deg, tilt_deg: v.tilt_deg, pass: v.pass }))
         .collect()
 }
 
@@ -83,9 +84,10 @@ pub async fn round(c: &Chooser<'_>, log: &mut CaptureLog) -> Result<bool, Error>
     if seen_twice >= target {
         return end(log, "coverage reached");
     }
-    // Stops not taken yet: a stop taken again sees what it saw.
+    // Stops not taken yet in this pass (the last): a stop taken again sees what it saw.
+    let pass = c.request.passes.max(1);
     let taken = |&(a, t): &(f64, f64)| {
-        log.views.iter().any(|v| {
+        log.views.iter().filter(|v| v.pass == pass).any(|v| {
             let d = (v.angle_deg - a).rem_euclid(360.0);
             d.min(360.0 - d) < 1e-6 && (v.tilt_deg - t).abs() < 1e-6
         })
@@ -96,7 +98,7 @@ pub async fn round(c: &Chooser<'_>, log: &mut CaptureLog) -> Result<bool, Error>
             .filter(|s| !taken(s))
             .collect();
     let (axis, tilt) = ((log.axis_point, log.axis_direction), log.tilt_axis);
-    let pose_of = move |angle_deg: f64, tilt_deg: f64| stop_pose(axis, tilt, Stop { angle_deg, tilt_deg, pass: 1 });
+    let pose_of = move |angle_deg: f64, tilt_deg: f64| stop_pose(axis, tilt, Stop { angle_deg, tilt_deg, pass });
     let t = Instant::now();
     let picked = tokio::task::spawn_blocking(move || choose(&est, &cands, &pose_of, &opts))
         .await
@@ -109,7 +111,8 @@ pub async fn round(c: &Chooser<'_>, log: &mut CaptureLog) -> Result<bool, Error>
     }
     for v in picked {
         let (angle_deg, tilt_deg, predicted_gain) = (v.angle_deg, v.tilt_deg, v.predicted_gain);
-        log.next_views.push(ChosenView { index: log.planned, angle_deg, tilt_deg, predicted_gain, round: rounds + 1 });
+        let index = log.planned;
+        log.next_views.push(ChosenView { index, angle_deg, tilt_deg, predicted_gain, round: rounds + 1, pass });
         log.planned += 1;
     }
     Ok(true)

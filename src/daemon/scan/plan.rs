@@ -239,6 +239,9 @@ pub struct ChosenView {
     pub predicted_gain: f64,
     /// The round of choosing (1: after the plan).
     pub round: u32,
+    /// The pass it is taken in (the scan's last).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub pass: u32,
 }
 
 /// One estimate of what the views taken so far saw.
