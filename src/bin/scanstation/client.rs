@@ -197,7 +197,7 @@ fn job_options(
 }
 
 /// How `watch` shows the station's events: a JSON line each with `--json` or when stdout is not a terminal,
-/// else a progress bar per job and its result when it ends (a `finished` event, for a job that had already
+/// else a progress bar per job, what a scan asks a person to do (`OperatorAction`), and its result when it ends (a `finished` event, for a job that had already
 /// ended, prints nothing here: the caller prints the result).
 fn event_printer(json: bool) -> impl FnMut(&serde_json::Value) + Send {
     use std::io::{IsTerminal, Write};
@@ -206,8 +206,12 @@ fn event_printer(json: bool) -> impl FnMut(&serde_json::Value) + Send {
         let mut out = std::io::stdout();
         let p = event["path"].as_str().unwrap_or("");
         let id = p.rsplit('/').next().unwrap_or("");
+        let asked = event["properties"]["OperatorAction"].as_str().filter(|a| !a.is_empty());
         if lines {
             let _ = writeln!(out, "{event}");
+        } else if let Some(what) = asked.filter(|_| event["event"] == "changed") {
+            // A scan waits for a person (the object turned over between passes).
+            let _ = writeln!(out, "\n{id} waits for you: {what}\n  then: scanstation continue {id}");
         } else if let Some(pr) = event["properties"]["Progress"].as_f64().filter(|_| event["event"] == "changed") {
             let n = (pr * 30.0).round() as usize;
             let stage = event["properties"]["Stage"].as_str().unwrap_or("");
