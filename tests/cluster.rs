@@ -98,14 +98,41 @@ fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/slurm-cluster.sh")
 }
 
-/// A station whose conversions run on `cluster`.
-fn cluster_station(dir: &Path, bus: &Bus, cluster: &Cluster) -> Station {
-    let extra = format!(
+/// What every test here starts with: its turn on the machine, a scratch directory, a one-node cluster and a
+/// private bus (dropped in reverse: the bus, the cluster, then the turn).
+struct Scene {
+    dir: PathBuf,
+    bus: Bus,
+    cluster: Cluster,
+    _turn: std::sync::MutexGuard<'static, ()>,
+}
+
+fn scene(name: &str) -> Scene {
+    let turn = TURN.lock().unwrap_or_else(|p| p.into_inner());
+    need("busctl", "systemd");
+    let dir = common::scratch(name);
+    let cluster = Cluster::start(&dir);
+    let bus = start_bus(&dir, OPEN_POLICY);
+    Scene { dir, bus, cluster, _turn: turn }
+}
+
+/// `[executor]` for the test cluster (`scanstation cluster-run` from this build).
+fn executor_toml() -> String {
+    format!(
         "[executor]\nkind = \"slurm\"\npartition = \"scan\"\ncpus = 1\nbinary = \"{CLI}\"\npoll = \"200ms\"\ntime_limit = \"10\"\n"
-    );
-    let mut st = Station::new(dir, bus, false, &extra);
+    )
+}
+
+/// A station in `dir` whose conversions run on `cluster`, with `extra` config lines before its `[executor]`.
+fn cluster_station(dir: &Path, bus: &Bus, cluster: &Cluster, extra: &str) -> Station {
+    let mut st = Station::new(dir, bus, false, &format!("{extra}{}", executor_toml()));
     st.env.push(("SLURM_CONF".into(), cluster.conf()));
     st
+}
+
+/// A sample from `examples/`.
+fn example(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples").join(name)
 }
 
 fn job_id(path: &str) -> String {
@@ -139,18 +166,14 @@ fn error_code(st: &Station) -> String {
 /// those of a station converting locally, byte for byte.
 #[test]
 fn three_files_converted_on_the_cluster_equal_a_local_run() {
-    let _turn = TURN.lock().unwrap_or_else(|p| p.into_inner());
-    need("busctl", "systemd");
-    let dir = common::scratch("cluster-three");
-    let cluster = Cluster::start(&dir);
-    let bus = start_bus(&dir, OPEN_POLICY);
+    let Scene { dir, bus, cluster, .. } = &scene("cluster-three");
     let t = Instant::now();
     std::fs::create_dir_all(dir.join("cluster")).unwrap();
     std::fs::create_dir_all(dir.join("local")).unwrap();
-    let mut st = cluster_station(&dir.join("cluster"), &bus, &cluster);
+    let mut st = cluster_station(&dir.join("cluster"), bus, cluster, "");
     st.start();
     for (name, r) in [("a.ply", 1.0), ("b.ply", 2.0), ("c.ply", 0.5)] {
-        drop_renamed(&st.inbox(), name, &sphere_bytes(&dir, r));
+        drop_renamed(&st.inbox(), name, &sphere_bytes(dir, r));
     }
     st.wait_done(3, Duration::from_secs(300));
     let on_cluster = t.elapsed();
@@ -164,12 +187,12 @@ fn three_files_converted_on_the_cluster_equal_a_local_run() {
     );
     // The same three files on a station that converts locally.
     let t = Instant::now();
-    let mut local = Station::new(&dir.join("local"), &bus, false, "");
+    let mut local = Station::new(&dir.join("local"), bus, false, "");
     // One station owns the bus name at a time.
     drop(st);
     local.start();
     for (name, r) in [("a.ply", 1.0), ("b.ply", 2.0), ("c.ply", 0.5)] {
-        drop_renamed(&local.inbox(), name, &sphere_bytes(&dir, r));
+        drop_renamed(&local.inbox(), name, &sphere_bytes(dir, r));
     }
     local.wait_done(3, Duration::from_secs(300));
     let here = t.elapsed();
@@ -197,14 +220,10 @@ fn three_files_converted_on_the_cluster_equal_a_local_run() {
 /// end, the cluster ran it once, and the outbox holds one bundle.
 #[test]
 fn kill_9_while_the_cluster_converts_follows_the_same_job() {
-    let _turn = TURN.lock().unwrap_or_else(|p| p.into_inner());
-    need("busctl", "systemd");
-    let dir = common::scratch("cluster-kill9");
-    let cluster = Cluster::start(&dir);
-    let bus = start_bus(&dir, OPEN_POLICY);
-    let mut st = cluster_station(&dir, &bus, &cluster);
+    let Scene { dir, bus, cluster, .. } = &scene("cluster-kill9");
+    let mut st = cluster_station(dir, bus, cluster, "");
     st.start();
-    let spot = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply");
+    let spot = example("spot.ply");
     let job = submit(&st, &spot, 3000);
     let id = job_id(&job);
     let slurm_id = cluster.wait_running(&id, Duration::from_secs(60));
@@ -239,14 +258,10 @@ fn kill_9_while_the_cluster_converts_follows_the_same_job() {
 /// `Cancel()` over D-Bus is a `scancel` of the job, and the job ends `cancelled`.
 #[test]
 fn scancel_from_outside_and_cancel_over_dbus() {
-    let _turn = TURN.lock().unwrap_or_else(|p| p.into_inner());
-    need("busctl", "systemd");
-    let dir = common::scratch("cluster-cancel");
-    let cluster = Cluster::start(&dir);
-    let bus = start_bus(&dir, OPEN_POLICY);
-    let mut st = cluster_station(&dir, &bus, &cluster);
+    let Scene { dir, bus, cluster, .. } = &scene("cluster-cancel");
+    let mut st = cluster_station(dir, bus, cluster, "");
     st.start();
-    let spot = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply");
+    let spot = example("spot.ply");
     // 1. scancel from outside.
     let job = submit(&st, &spot, 3000);
     let slurm_id = cluster.wait_running(&job_id(&job), Duration::from_secs(60));
@@ -256,7 +271,7 @@ fn scancel_from_outside_and_cancel_over_dbus() {
     let q = only_entry(&st.spool("quarantine"));
     assert!(visible(&q).iter().any(|f| f == "spot.ply"), "the input is in quarantine: {:?}", visible(&q));
     // 2. Cancel() over D-Bus (another input: the same one again would be refused as a duplicate).
-    let rod = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/rod.ply");
+    let rod = example("rod.ply");
     let job = submit(&st, &rod, 3000);
     let id = job_id(&job);
     let slurm_id = cluster.wait_running(&id, Duration::from_secs(60));
@@ -273,14 +288,10 @@ fn scancel_from_outside_and_cancel_over_dbus() {
 /// node dies again, the job fails with `cluster.node-failed`.
 #[test]
 fn a_node_that_dies_is_retried_once_then_the_job_fails() {
-    let _turn = TURN.lock().unwrap_or_else(|p| p.into_inner());
-    need("busctl", "systemd");
-    let dir = common::scratch("cluster-node");
-    let cluster = Cluster::start(&dir);
-    let bus = start_bus(&dir, OPEN_POLICY);
-    let mut st = cluster_station(&dir, &bus, &cluster);
+    let Scene { dir, bus, cluster, .. } = &scene("cluster-node");
+    let mut st = cluster_station(dir, bus, cluster, "");
     st.start();
-    let spot = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply");
+    let spot = example("spot.ply");
     let job = submit(&st, &spot, 3000);
     let id = job_id(&job);
     let first = cluster.wait_running(&id, Duration::from_secs(60));
@@ -313,18 +324,9 @@ fn a_node_that_dies_is_retried_once_then_the_job_fails() {
 /// cluster: the bundle holds the views, the fusion report and the solid, as a local scan's does.
 #[test]
 fn a_scan_captures_here_and_converts_on_the_cluster() {
-    let _turn = TURN.lock().unwrap_or_else(|p| p.into_inner());
-    need("busctl", "systemd");
-    let dir = common::scratch("cluster-scan");
-    let cluster = Cluster::start(&dir);
-    let bus = start_bus(&dir, OPEN_POLICY);
-    let _rig = start_rig(&dir, 7);
-    let extra = format!(
-        "{}[executor]\nkind = \"slurm\"\npartition = \"scan\"\ncpus = 1\nbinary = \"{CLI}\"\npoll = \"200ms\"\n",
-        scan_config(&dir, "")
-    );
-    let mut st = Station::new(&dir, &bus, false, &extra);
-    st.env.push(("SLURM_CONF".into(), cluster.conf()));
+    let Scene { dir, bus, cluster, .. } = &scene("cluster-scan");
+    let _rig = start_rig(dir, 7);
+    let mut st = cluster_station(dir, bus, cluster, &scan_config(dir, ""));
     st.start();
     let job = start_scan(&st, &["3", "views", "u", "8", "name", "s", "spot", "vertices", "u", "3000"]);
     let id = job_id(&job);

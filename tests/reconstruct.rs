@@ -553,13 +553,7 @@ fn a_second_pass_at_an_unknown_pose_is_found_by_its_geometry() {
     use scanstation::geometry::pose::{Pose, axis_angle};
     use scanstation::geometry::sampling::{Rng, sample_area_uniform};
     use scanstation::stages::reconstruct::global::{GlobalOptions, Oriented, align};
-    let spot = scanstation::geometry::io::read_mesh(
-        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply"),
-        &Default::default(),
-    )
-    .unwrap()
-    .triangulate()
-    .0;
+    let spot = spot();
     let diag = spot.bbox().diagonal();
     let oriented = |mesh: &scanstation::TriMesh, n: usize, seed: u64| -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
         let mut rng = Rng::new(seed);
@@ -651,6 +645,12 @@ fn a_second_pass_at_an_unknown_pose_is_found_by_its_geometry() {
     }
 }
 
+/// Spot from `examples/`, triangulated.
+fn spot() -> TriMesh {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply");
+    scanstation::geometry::io::read_mesh(&path, &Default::default()).unwrap().triangulate().0
+}
+
 /// Views of a pass on the simulated rig's camera: `views` level stops evenly around, written into `dir` as
 /// `PREFIX-NN.ply`, each with its pose in the pass's table frame (as the station's scans list them).
 fn rig_pass(
@@ -682,13 +682,7 @@ fn a_turned_over_second_pass_is_found_and_another_object_refused() {
     use scanstation::geometry::io::scanset::{read_scan_set, write_manifest_passes};
     use scanstation::geometry::pose::Pose;
     use scanstation::stages::reconstruct::fusion::{FuseOptions, fuse};
-    let spot = scanstation::geometry::io::read_mesh(
-        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply"),
-        &Default::default(),
-    )
-    .unwrap()
-    .triangulate()
-    .0;
+    let spot = spot();
     let settings = CameraSettings { seed: 7, ..Default::default() };
     let cam = RangeCamera::new(&spot, Up::Y, settings.clone()).unwrap();
     let diag = cam.truth().bbox().diagonal();
@@ -762,13 +756,7 @@ fn twenty_turn_overs_of_spot_on_the_rig_are_each_found() {
     use scanstation::geometry::io::scanset::{read_scan_set, write_manifest_passes};
     use scanstation::geometry::pose::Pose;
     use scanstation::stages::reconstruct::fusion::{FuseOptions, fuse};
-    let spot = scanstation::geometry::io::read_mesh(
-        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply"),
-        &Default::default(),
-    )
-    .unwrap()
-    .triangulate()
-    .0;
+    let spot = spot();
     let settings = CameraSettings { seed: 8, width: 160, height: 120, ..Default::default() };
     let cam = RangeCamera::new(&spot, Up::Y, settings).unwrap();
     let diag = cam.truth().bbox().diagonal();

@@ -565,11 +565,9 @@ fn produce_on_cluster(job: &JobRun, rep: &Reporter<'_>) -> Result<Produced, Erro
     let work = job.spool.work_dir(&rec.id);
     let dir = work.join(super::cluster::DIR);
     let spec = NodeJob { record: rec.clone(), config: job.cfg.source.clone() };
-    let stages = stages_of(rec);
-    let progress = |fraction: f64, stage: &str, message: &str| {
-        let stage = stages.iter().copied().find(|s| *s == stage).unwrap_or(job.stage);
-        rep.send(fraction, stage, message.to_string());
-    };
+    // The node names stages as text; ours are the static names.
+    let stage_of = |name: &str| stages_of(rec).iter().copied().find(|s| *s == name).unwrap_or(job.stage);
+    let progress = |fraction: f64, stage: &str, message: &str| rep.send(fraction, stage_of(stage), message.to_string());
     let journal = |run: &super::journal::ClusterRun| {
         let _ = job.events.send(WorkerEvent::Cluster { id: rec.id.clone(), run: run.clone() });
     };
@@ -591,7 +589,7 @@ fn produce_on_cluster(job: &JobRun, rep: &Reporter<'_>) -> Result<Produced, Erro
     match result {
         NodeResult::Produced(p) => Ok(p),
         NodeResult::Failed { code, message, hint, stage } => {
-            let stage = stages.iter().copied().find(|s| *s == stage).unwrap_or(job.stage);
+            let stage = stage_of(&stage);
             rep.send(0.0, stage, format!("{stage}/failed on the cluster"));
             let code = ErrorCode::parse(&code).unwrap_or(ErrorCode::ClusterFailed);
             let e = Error::new(code, message);

@@ -16,6 +16,7 @@ use super::trigger::socketcan::SocketCanBus;
 use super::turntable::sim::{Fault, SimSettings};
 use super::turntable::transport::{SimCommand, SimTurntable};
 use crate::geometry::mesh::{PointCloud, TriMesh};
+use crate::geometry::pose::Pose;
 
 /// A turntable command line: `unplug`, `replug`, `drop-reply`, `error N`, `alarm N`, `stall`, `quit`.
 ///
@@ -116,10 +117,8 @@ pub struct RigSim {
     pub camera: Arc<RangeCamera>,
     /// The camera over the object as it lies now (after `turn-over`s).
     current: Arc<std::sync::RwLock<Arc<RangeCamera>>>,
-    /// Turn-overs so far.
-    turns: std::sync::atomic::AtomicU64,
-    /// The motion from the first placing's table frame to the object's now.
-    motion: std::sync::RwLock<crate::geometry::pose::Pose>,
+    /// Turn-overs so far, and the motion from the first placing's table frame to the object's now.
+    placing: std::sync::Mutex<(u64, Pose)>,
 }
 
 impl RigSim {
@@ -156,14 +155,7 @@ impl RigSim {
         let (bus, settings) = s.node;
         let node = start_node(&bus, ScannerSettings { views: Some(views), ..settings })
             .map_err(|e| format!("cannot start the simulated scanner node on {bus}: {e}"))?;
-        Ok(RigSim {
-            table,
-            node,
-            camera,
-            current,
-            turns: std::sync::atomic::AtomicU64::new(0),
-            motion: std::sync::RwLock::new(crate::geometry::pose::Pose::IDENTITY),
-        })
+        Ok(RigSim { table, node, camera, current, placing: std::sync::Mutex::new((0, Pose::IDENTITY)) })
     }
 
     /// The station's calibration for this rig: a TOML `[scan]` fragment with the table's axis and the
@@ -195,21 +187,19 @@ impl RigSim {
     ///
     /// # Errors
     /// A message when the object has no other face to rest on.
-    pub fn turn_over(&self, seed: u64) -> Result<crate::geometry::pose::Pose, String> {
+    pub fn turn_over(&self, seed: u64) -> Result<Pose, String> {
         let mut now = self.current.write().unwrap_or_else(|p| p.into_inner());
         let (turned, motion) = now.turned_over(seed)?;
-        // From the first placing: the motion so far, then this one.
-        let (_, before) = self.placing();
         *now = Arc::new(turned);
-        self.turns.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let total = motion.then_after(&before);
-        *self.motion.write().unwrap_or_else(|p| p.into_inner()) = total;
-        Ok(total)
+        let mut placing = self.placing.lock().unwrap_or_else(|p| p.into_inner());
+        // From the first placing: the motion so far, then this one.
+        *placing = (placing.0 + 1, motion.then_after(&placing.1));
+        Ok(placing.1)
     }
 
     /// Turn-overs so far, and the motion from the first placing's table frame to the object's now.
-    pub fn placing(&self) -> (u64, crate::geometry::pose::Pose) {
-        (self.turns.load(std::sync::atomic::Ordering::Relaxed), *self.motion.read().unwrap_or_else(|p| p.into_inner()))
+    pub fn placing(&self) -> (u64, Pose) {
+        *self.placing.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// Carry out one command line, the rig's (`turn-over [SEED]`), the turntable's or the scanner's;
@@ -222,10 +212,10 @@ impl RigSim {
         if words.next() == Some("turn-over") {
             let seed = match words.next() {
                 Some(w) => w.parse::<u64>().map_err(|_| format!("turn-over: {w:?} is not a seed (a whole number)"))?,
-                None => self.turns.load(std::sync::atomic::Ordering::Relaxed) + 1,
+                None => self.placing().0 + 1,
             };
             let motion = self.turn_over(seed)?;
-            let (deg, dist) = motion.difference(&crate::geometry::pose::Pose::IDENTITY);
+            let (deg, dist) = motion.difference(&Pose::IDENTITY);
             tracing::info!(seed, turned_deg = deg, moved = dist, "the object is turned over");
             return Ok(true);
         }

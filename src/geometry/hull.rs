@@ -334,24 +334,8 @@ mod tests {
     /// lying flat on 2 × 4, 14.0° standing on 1 × 2).
     #[test]
     fn a_box_rests_on_its_faces_most_stable_first() {
-        let (x, y, z) = (0.5f32, 1.0f32, 2.0f32);
-        let positions =
-            vec![[-x, -y, -z], [x, -y, -z], [x, y, -z], [-x, y, -z], [-x, -y, z], [x, -y, z], [x, y, z], [-x, y, z]];
-        let triangles = vec![
-            [0, 2, 1],
-            [0, 3, 2],
-            [4, 5, 6],
-            [4, 6, 7],
-            [0, 1, 5],
-            [0, 5, 4],
-            [1, 2, 6],
-            [1, 6, 5],
-            [2, 3, 7],
-            [2, 7, 6],
-            [3, 0, 4],
-            [3, 4, 7],
-        ];
-        let rests = resting_faces(&TriMesh { positions, triangles }).unwrap();
+        let block = crate::geometry::shapes::cuboid([-0.5, -1.0, -2.0], [0.5, 1.0, 2.0]);
+        let rests = resting_faces(&block).unwrap();
         assert_eq!(rests.len(), 6, "{rests:?}");
         assert!(rests[0].normal[0].abs() > 0.99, "{:?}", rests[0]);
         assert!((rests[0].tipping_deg() - 63.43).abs() < 0.01, "{}", rests[0].tipping_deg());
