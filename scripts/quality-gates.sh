@@ -12,8 +12,8 @@ data=$(realpath "${SCANSTATION_SHARED_DATA:-../shared/data}")
 out=$(realpath -m "${1:-target/quality-gates}")
 mkdir -p "$out"
 bin=target/release/scanstation
-echo "| mesh | wall s | peak RSS MiB | exit | status | crossings | folds | volume % | RMS % (bound 0.05) | chains |"
-echo "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|"
+echo "| mesh | wall s | peak RSS MiB | exit | status | crossings | folds | volume % | RMS % (bound 0.05) | chains | net raises (vertices, net RMS %) | repair / remesh / surface / brep / step s |"
+echo "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---|"
 for f in meshes/spot.ply meshes/armadillo_50k.ply meshes/igea.ply meshes/fandisk.ply bunny/reconstruction/bun_zipper.ply \
          large/dragon_vrip_draco.ply.gz meshes/scorpion.ply meshes/skull.ply meshes/falconstatue_boundary.ply; do
   m=$(basename "$f"); m=${m%%.*}
@@ -29,10 +29,17 @@ try:
 except (OSError, ValueError):
     err = [l for l in open(f"{out}/{m}.err") if "error:" in l]
     code_name = err[-1].split("[")[1].split("]")[0] if err else "?"
-    print(f"| {m} | {float(wall):.1f} | {int(kb)/1024:.0f} | {code} | `{code_name}` | | | | | |")
+    print(f"| {m} | {float(wall):.1f} | {int(kb)/1024:.0f} | {code} | `{code_name}` | | | | | | | |")
     sys.exit()
 g = {x["name"]: x["value"] for x in d["gates"]}
+def raises(d):
+    r = [x for a in d["attempts"] for x in a.get("raises", [])]
+    return "; ".join(f"{x['from_vertices']} → {x['to_vertices']} ({x['from_rms_pct']:.3f} → {x['to_rms_pct']:.3f}, "
+                     f"{'kept' if x['kept'] else 'not kept'})" for x in r) or "none"
+def stages(d):
+    s = {x["stage"]: x["seconds"] for x in d["stages"]}
+    return " / ".join(f"{s.get(k, 0):.1f}" for k in ["repair", "remesh", "surface", "brep", "step"])
 print(f"| {m} | {float(wall):.1f} | {int(kb)/1024:.0f} | {code} | {d['status']} | {g['crossings']:.0f} | {g['folds']:.0f} "
-      f"| {g['volume']:.3f} | {g['rms']:.4f} | {len(d['attempts'])} |")
+      f"| {g['volume']:.3f} | {g['rms']:.4f} | {len(d['attempts'])} | {raises(d)} | {stages(d)} |")
 PY
 done

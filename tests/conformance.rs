@@ -183,6 +183,12 @@ fn assert_one_valid_solid(what: &str, v: &Value) {
 /// error, not the surfaces'.)
 ///
 /// The thin-legged scorpion and the genus-2 skull (issue 42) are held to the same as the first six.
+///
+/// Since the deviation goal became `convert`'s default (issue 42, 2026-12-07) all nine shared meshes are
+/// converted at the defaults, the falcon (open base, capped) too, each from one solid (one attempt): the
+/// dragon's and the falcon's 10,000-vertex nets are over twice the goal and made again at 15,000 before the
+/// fit (the dragon was held at a fixed 20,000 before, the falcon not converted here); the other seven are
+/// the solids of a fixed 10,000 (spot was converted at 5,000 before).
 #[test]
 fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
     use scanstation::pipeline::{ConvertOptions, Resolution, convert_file};
@@ -193,16 +199,21 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
     // (file, control vertices, accuracy bound in % of the diagonal checked by the validator, gmsh's cells per
     // diagonal). The scorpion's legs are thinner than a 40th of its diagonal (0.28): at 40 cells gmsh's
     // surface mesh of a leg crosses itself and it makes no tetrahedron (measured 2026-12-06: volumes 1,
-    // tetrahedra 0); at 100 it makes 64,700.
-    let cases: [(&str, usize, Option<f64>, u32); 8] = [
-        ("meshes/spot.ply", 5_000, None, 40),
-        ("meshes/armadillo_50k.ply", 10_000, Some(0.05), 40),
-        ("meshes/igea.ply", 10_000, Some(0.05), 40),
-        ("meshes/fandisk.ply", 10_000, None, 40),
-        ("bunny/reconstruction/bun_zipper.ply", 10_000, None, 40),
-        ("large/dragon_vrip_draco.ply.gz", 20_000, None, 40),
-        ("meshes/scorpion.ply", 10_000, None, 100),
-        ("meshes/skull.ply", 10_000, None, 40),
+    // tetrahedra 0); at 100 it makes 64,700. The dragon and the falcon at the defaults (2026-12-07) keep parts
+    // the 10k nets lost (the struts under the dragon's hind foot, the falcon's thin parts): at 40 cells gmsh's
+    // surface mesh overlaps itself there ("overlapping facets" on one face, while OCCT's fine tessellation
+    // has no crossing pair); at 60 it makes 60,685 and 88,750 tetrahedra.
+    // `None`: the default resolution (the deviation goal).
+    let cases: [(&str, Option<usize>, Option<f64>, u32); 9] = [
+        ("meshes/spot.ply", None, None, 40),
+        ("meshes/armadillo_50k.ply", None, Some(0.05), 40),
+        ("meshes/igea.ply", None, Some(0.05), 40),
+        ("meshes/fandisk.ply", None, None, 40),
+        ("bunny/reconstruction/bun_zipper.ply", None, None, 40),
+        ("large/dragon_vrip_draco.ply.gz", None, None, 60),
+        ("meshes/scorpion.ply", None, None, 100),
+        ("meshes/skull.ply", None, None, 40),
+        ("meshes/falconstatue_boundary.ply", None, None, 60),
     ];
     // The issue's target. Extraordinary faces are cut towards their vertex until the jump there is below
     // `patches::JUMP_TARGET_DEG` (0.25°), so every solid is held to it.
@@ -210,13 +221,13 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
     for (file, vertices, accuracy, gmsh_cells) in cases {
         let input = data.join(file);
         let step = out_dir.join(format!("{}.step", file.replace('/', "_").replace(".ply.gz", "").replace(".ply", "")));
-        let opts = ConvertOptions {
-            resolution: Resolution::Vertices(vertices),
-            compare_samples: 50_000,
-            ..Default::default()
-        };
+        let resolution = vertices.map_or(ConvertOptions::default().resolution, Resolution::Vertices);
+        let opts = ConvertOptions { resolution, compare_samples: 50_000, ..Default::default() };
         let report = convert_file(&input, &step, &ReadOptions::default(), &opts, &NoProgress)
             .unwrap_or_else(|e| panic!("{file}: convert failed: {e}"));
+        // At the defaults: every gate passed, from one solid.
+        assert_eq!(report.status, scanstation::pipeline::Status::Ok, "{file}: gates {:?}", report.gates);
+        assert_eq!(report.attempts.len(), 1, "{file}: one solid, not {:?}", report.attempts);
         let solid_rms = report
             .stages
             .iter()

@@ -270,6 +270,12 @@ fn trust_issue_mesh(file: &str) -> bool {
 /// as surface), the solid over the cap bulges 0.038 % past the rim's plane, whose rim lies 0.081 % off it
 /// (`caps` gate −0.044 %, passed). Its RMS gate (0.063 %) still fails on scan → solid 0.085 %: a thin part of
 /// the statue lost by the quad net (the layout issue), not the base.
+///
+/// Since the deviation goal became the default (issue 42, 2026-12-07) all three are published as good, each
+/// from one solid: the falcon's 10,000-vertex net is 0.108 % of the diagonal from the repaired scan, over
+/// twice the goal, so it is made again at 15,000 (0.070 %) before the surface is fitted; its solid: RMS gate
+/// 0.042 %, scan → solid 0.058 %, solid → scan off the invented region 0.016 %, caps gate −0.041 %. The
+/// scorpion's and the skull's nets are within twice the goal and not raised (same solids as before).
 #[test]
 fn trust_issue_meshes_are_never_published_as_good() {
     use scanstation::ErrorCode;
@@ -299,9 +305,13 @@ fn trust_issue_meshes_are_never_published_as_good() {
                     && r.gates.iter().filter(|g| g.name == "caps").all(|g| g.value <= g.bound);
                 println!("{f}: status {:?}, gates {:?}, attempts {:?}", r.status, r.gates, r.attempts);
                 assert_eq!(r.status == Status::Ok, clean, "{f}: status {:?} with gates {:?}", r.status, r.gates);
-                if !f.ends_with("falconstatue_boundary.ply") {
-                    assert_eq!(r.status, Status::Ok, "{f}: gates {:?}", r.gates);
-                }
+                assert_eq!(r.status, Status::Ok, "{f}: gates {:?}", r.gates);
+                assert_eq!(r.attempts.len(), 1, "{f}: one solid {:?}", r.attempts);
+                let raised: Vec<(usize, usize, bool)> =
+                    r.attempts[0].raises.iter().map(|x| (x.from_vertices, x.to_vertices, x.kept)).collect();
+                let expected: &[(usize, usize, bool)] =
+                    if f.ends_with("falconstatue_boundary.ply") { &[(10_000, 15_000, true)] } else { &[] };
+                assert_eq!(raised, expected, "{f}: the nets made again finer {:?}", r.attempts[0].raises);
                 if let Err(e) = r.verdict() {
                     assert_eq!(e.class(), scanstation::ErrorClass::Quality, "{f}: {e}");
                 }

@@ -695,6 +695,8 @@ fn config_errors_name_the_key_and_stop_start_up() {
         ("[devices.trigger]\ninterface = \"unix:relative.sock\"\n", "devices.trigger.interface"),
         ("[devices.trigger]\ninterface = \"can0\"\nheartbeat = \"1ms\"\n", "devices.trigger.heartbeat"),
         ("[devices.trigger]\ninterface = \"can0\"\nbitrate = 500000\n", "bitrate"),
+        ("[pipeline]\nmax_vertices = 4\n", "pipeline.max_vertices"),
+        ("[pipeline]\nvertices = 4\n", "pipeline.vertices"),
     ] {
         let f = common::file(&dir, "rig.toml", format!("[paths]\nspool = \"/tmp/x\"\nstate = \"/tmp/y\"\n{body}"));
         let out = Command::new(DAEMON).arg("--config").arg(&f).arg("--check-config").output().unwrap();
@@ -707,6 +709,8 @@ fn config_errors_name_the_key_and_stop_start_up() {
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("\"memory_budget\": 6442450944") && text.contains("digest "), "{text}");
+    // The shipped station converts to the deviation goal (no exact count) under its cap.
+    assert!(text.contains("\"vertices\": null") && text.contains("\"max_vertices\": 22500"), "{text}");
     // No device by default: a watch-folder-only station.
     assert!(text.contains("\"turntable\": null") && text.contains("\"trigger\": null"), "{text}");
     // A spool that cannot be created is a clear start-up error.

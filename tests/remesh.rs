@@ -442,3 +442,36 @@ fn the_thin_part_oracles_are_closed_outward_surfaces() {
         }
     }
 }
+
+/// `convert`'s default resolution, the deviation goal ([`scanstation::pipeline::goal`]): a net farther than
+/// twice the goal from the input is made again ×1.5 finer before the surface is fitted, at most twice and
+/// never above the cap, and the solid is built once, on the last net kept. Spot at 300 control vertices is
+/// 0.2–0.4 % of its diagonal from the scan, far over 2 × 0.05 %, so both raises run (300 → 450 → 675 = the
+/// cap); with an exact count nothing is raised.
+#[test]
+fn the_deviation_goal_raises_a_net_that_misses_it_up_to_the_cap() {
+    use scanstation::pipeline::{ConvertOptions, Resolution, convert_file};
+    let spot = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spot.ply");
+    let dir = std::env::temp_dir().join(format!("scanstation-goal-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let read = scanstation::geometry::io::ReadOptions::default();
+    let goal = ConvertOptions { resolution: Resolution::Goal { start: 300, cap: 675 }, ..Default::default() };
+    let r = convert_file(&spot, &dir.join("goal.step"), &read, &goal, &NoProgress).unwrap();
+    assert_eq!(r.attempts.len(), 1, "one solid: {:?}", r.attempts);
+    let raises = &r.attempts[0].raises;
+    let steps: Vec<(usize, usize)> = raises.iter().map(|x| (x.from_vertices, x.to_vertices)).collect();
+    assert_eq!(steps, [(300, 450), (450, 675)], "{raises:?}");
+    for x in raises {
+        assert!(x.from_rms_pct > 0.1, "a raise only where the net misses 2 × the goal: {x:?}");
+        assert!(x.kept && x.to_rms_pct < x.from_rms_pct && x.to_crossing_pairs == 0, "{x:?}");
+    }
+    let net = r.attempts[0].control_vertices as f64;
+    assert!((net / 675.0 - 1.0).abs() <= 0.1, "the solid is built on the 675-vertex net: {net}");
+    let kept_rms = r.remesh.distance.as_ref().unwrap().symmetric.rms.pct_of_diagonal;
+    assert_eq!(kept_rms, raises[1].to_rms_pct, "the report's remesh is the kept net's");
+    // An exact count is kept as asked.
+    let exact = ConvertOptions { resolution: Resolution::Vertices(300), ..Default::default() };
+    let r = convert_file(&spot, &dir.join("exact.step"), &read, &exact, &NoProgress).unwrap();
+    assert!(r.attempts.iter().all(|a| a.raises.is_empty() && a.target_vertices == 300), "{:?}", r.attempts);
+    std::fs::remove_dir_all(&dir).ok();
+}

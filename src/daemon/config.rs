@@ -144,6 +144,7 @@ struct RawLimits {
 #[serde(deny_unknown_fields)]
 struct RawPipeline {
     vertices: Option<usize>,
+    max_vertices: Option<usize>,
     tolerance: Option<f64>,
     seed: Option<u64>,
     compare_samples: Option<usize>,
@@ -227,8 +228,11 @@ pub struct Config {
     #[serde(with = "secs")]
     /// How long a finished job object stays on the bus.
     pub finished_job_linger: Duration,
-    /// Control vertices of the quad net (ignored when `tolerance` is set).
-    pub vertices: usize,
+    /// Control vertices of the quad net, exactly (ignored when `tolerance` is set); unset: the deviation
+    /// goal (`max_rms_pct`) from 10,000 vertices up to `max_vertices` ([`crate::pipeline::goal`]).
+    pub vertices: Option<usize>,
+    /// The deviation goal's cap on control vertices.
+    pub max_vertices: usize,
     /// Default RMS tolerance (length) instead of a vertex count.
     pub tolerance: Option<f64>,
     /// Default seed of remeshing and sampling.
@@ -518,9 +522,15 @@ impl Config {
             return Err(err("limits.memory_budget", "below 16 MiB nothing can run".into()));
         }
         let max_input_size = size("limits.max_input_size", &raw.limits.max_input_size, "4GiB")?;
-        let vertices = raw.pipeline.vertices.unwrap_or(10_000);
-        if !(8..=10_000_000).contains(&vertices) {
-            return Err(err("pipeline.vertices", format!("{vertices} is outside 8..=10000000")));
+        let vertices = raw.pipeline.vertices;
+        if let Some(v) = vertices
+            && !(8..=10_000_000).contains(&v)
+        {
+            return Err(err("pipeline.vertices", format!("{v} is outside 8..=10000000")));
+        }
+        let max_vertices = raw.pipeline.max_vertices.unwrap_or(crate::pipeline::goal::GOAL_CAP);
+        if !(8..=10_000_000).contains(&max_vertices) {
+            return Err(err("pipeline.max_vertices", format!("{max_vertices} is outside 8..=10000000")));
         }
         if let Some(t) = raw.pipeline.tolerance
             && !(t.is_finite() && t > 0.0)
@@ -577,6 +587,7 @@ impl Config {
             keep_finished_jobs,
             finished_job_linger: dur("limits.finished_job_linger", &raw.limits.finished_job_linger, "24h")?,
             vertices,
+            max_vertices,
             tolerance: raw.pipeline.tolerance,
             seed: raw.pipeline.seed.unwrap_or(0),
             pictures_up: match raw.pipeline.pictures_up.as_deref() {

@@ -274,7 +274,8 @@ pub fn produce(job: &JobRun, rep: &Reporter<'_>) -> Result<Produced, Error> {
     std::fs::create_dir_all(&part).map_err(|e| io_err("cannot create", &part, e))?;
     let cfg = &job.cfg;
     let tolerance = rec.options.tolerance.or(cfg.tolerance).map(Resolution::Tolerance);
-    let resolution = Resolution::choose(rec.options.vertices, tolerance, cfg.vertices);
+    let default = cfg.vertices.map_or(Resolution::goal(cfg.max_vertices), Resolution::Vertices);
+    let resolution = Resolution::choose(rec.options.vertices, tolerance, default);
     let opts = ConvertOptions {
         resolution,
         seed: rec.options.seed.unwrap_or(cfg.seed),

@@ -10,6 +10,7 @@
 pub mod convert;
 pub mod fea;
 pub mod gates;
+pub mod goal;
 pub mod memory;
 pub mod next_view;
 pub mod open_input;

@@ -163,9 +163,15 @@ pub struct ConvertArgs {
     /// The STEP file to write (written to a temporary name and renamed when complete).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Control vertices of the quad net (default 10000; 16 to 10 million).
+    /// Control vertices of the quad net, exactly (16 to 10 million). Without it (and without --tolerance)
+    /// the quality gate's RMS bound (--max-rms) is the goal: the net starts at 10000 vertices and is made
+    /// again finer, up to --max-vertices, while it is farther than twice the goal from the scan.
     #[arg(long, conflicts_with = "tolerance", value_parser = ranges::vertices)]
     pub vertices: Option<usize>,
+    /// The deviation goal's cap on control vertices (16 to 10 million; ignored with --vertices or
+    /// --tolerance).
+    #[arg(long, default_value_t = pipeline::goal::GOAL_CAP, value_parser = ranges::vertices)]
+    pub max_vertices: usize,
     /// Refine coarse to fine until the solid's RMS distance to the input is at most this: a length in
     /// the input's units, or a percentage of the bounding-box diagonal such as 0.05%.
     #[arg(long)]
@@ -541,7 +547,7 @@ impl ConvertArgs {
         })?;
         let tolerance = self.tolerance.as_deref().map(Resolution::parse_tolerance).transpose()?;
         Ok(ConvertOptions {
-            resolution: Resolution::choose(self.vertices, tolerance, pipeline::convert::DEFAULT_VERTICES),
+            resolution: Resolution::choose(self.vertices, tolerance, Resolution::goal(self.max_vertices)),
             seed: self.seed,
             unit,
             quads_output: self.quads.clone(),

@@ -108,6 +108,19 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
         r.fit.final_rms,
         r.total_seconds
     );
+    for x in r.attempts.iter().flat_map(|a| &a.raises) {
+        outln!(
+            "  net raised: {} -> {} vertices (net RMS {:.4} % -> {:.4} % of the diagonal, goal x2 = {:.4} %; {} crossing pairs; {}; {:.1} s)",
+            x.from_vertices,
+            x.to_vertices,
+            x.from_rms_pct,
+            x.to_rms_pct,
+            pipeline::goal::NET_GOAL_FACTOR * r.gates.iter().find(|g| g.name == "rms").map_or(f64::NAN, |g| g.bound),
+            x.to_crossing_pairs,
+            if x.kept { "kept" } else { "not kept" },
+            x.seconds
+        );
+    }
     let status = match r.status {
         pipeline::Status::Ok => "ok",
         pipeline::Status::Degraded => "DEGRADED (published on request)",

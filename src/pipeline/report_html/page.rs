@@ -73,6 +73,20 @@ pub fn header(b: &Bundle, thumbnail: Option<&str>) -> String {
         pairs.push(("B-rep faces", cell(c.pointer("/brep/faces").unwrap_or(&Value::Null))));
         pairs.push(("volume error, %", cell(&get("volume_error_pct"))));
         pairs.push(("attempts", c.get("attempts").and_then(Value::as_array).map_or(0, Vec::len).to_string()));
+        let raises: Vec<String> = c
+            .get("attempts")
+            .and_then(Value::as_array)
+            .into_iter()
+            .flatten()
+            .flat_map(|a| a.get("raises").and_then(Value::as_array).cloned().unwrap_or_default())
+            .map(|x| {
+                let kept = if x.get("kept") == Some(&Value::Bool(true)) { "kept" } else { "not kept" };
+                format!("{} → {} ({kept})", cell(&x["from_vertices"]), cell(&x["to_vertices"]))
+            })
+            .collect();
+        if !raises.is_empty() {
+            pairs.push(("nets made finer (deviation goal)", raises.join("; ")));
+        }
         pairs.push(("total seconds", cell(&get("total_seconds"))));
     }
     s.push_str(&facts(&pairs));

@@ -124,10 +124,14 @@ pub const WORK_PER_VERTEX_DIRECT: f64 = 10.0;
 /// step; its extraction made 4,429 vertices for 10,000, and its result missed 61 % of the working vertices
 /// (RMS 6.8 % of the diagonal), so `convert` kept the split route's net, which lost the legs (the solid: 253
 /// crossing pairs, RMS 0.54 %). With the split: the direct result misses 0.4 %, its net has no crossing, and
-/// the solid passes every gate (RMS 0.024 %). Only a working mesh left with fewer vertices than asked (the
-/// input as it is, or subdivided) is split: splitting the dragon's decimated one too raised the `remesh`
-/// default's RMS from 0.050 to 0.061 % and its irregular vertices at seed 2 from 5.29 to 6.03 %. The split
-/// routes' working mesh is not split (4.9 edges a step).
+/// the solid passes every gate (RMS 0.024 %). A working mesh not decimated (the input as it is, or
+/// subdivided) is split, also when it has as many vertices as asked or more: the falcon at 15,000 was
+/// subdivided once to 104k vertices for 90k asked, and unsplit its in-plane cap's long triangles kept edges
+/// of more than half a step; the direct extraction then made 6,728 vertices for 15,000 (2,542 at a finer
+/// spacing), crossed in 450 pairs and the split route's net was kept (RMS 0.222 % of the diagonal); split
+/// (272k vertices) the direct net is 0.070 %, without a crossing (2026-12-07). A decimated one is not split:
+/// splitting the dragon's raised the `remesh` default's RMS from 0.050 to 0.061 % and its irregular
+/// vertices at seed 2 from 5.29 to 6.03 %. The split routes' working mesh is not split (4.9 edges a step).
 pub const WORK_EDGE_SPACINGS: f64 = 0.5;
 
 /// On a working mesh whose long edges were split ([`WORK_EDGE_SPACINGS`]: about two edges a lattice step), the

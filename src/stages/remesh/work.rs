@@ -34,8 +34,9 @@ pub(super) fn working_mesh(
             label = format!("subdivided ×{k}");
         }
     }
-    // A mesh decimated to `want` has about √(want / target) edges a step: only one left coarser is split.
-    let max_edge = if label != "decimated" && p.len() < want { max_edge } else { f64::INFINITY };
+    // A mesh decimated to `want` has about √(want / target) edges a step; one as it is or subdivided may
+    // keep long triangles (an in-plane cap): it is split (see WORK_EDGE_SPACINGS).
+    let max_edge = if label != "decimated" { max_edge } else { f64::INFINITY };
     let cap = ((WORK_SPLIT_GROWTH * want as f64) as usize).max(p.len());
     let added = polygon::split_long_edges(&mut p, &mut tris, max_edge, WORK_SPLIT_PASSES, cap);
     if added > 0 {
