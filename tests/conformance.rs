@@ -215,9 +215,9 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
         ("meshes/skull.ply", None, None, 40),
         ("meshes/falconstatue_boundary.ply", None, None, 60),
     ];
-    // The issue's target. Extraordinary faces are cut towards their vertex until the jump there is below
-    // `patches::JUMP_TARGET_DEG` (0.25°), so every solid is held to it.
-    const MAX_JUMP_DEG: f64 = 1.0;
+    // The validators of one solid (OCCT, crossings.py, gmsh: single-threaded Python) run on a thread while
+    // the next mesh converts; at most one such thread at a time.
+    let mut validating: Option<std::thread::JoinHandle<()>> = None;
     for (file, vertices, accuracy, gmsh_cells) in cases {
         let input = data.join(file);
         let step = out_dir.join(format!("{}.step", file.replace('/', "_").replace(".ply.gz", "").replace(".ply", "")));
@@ -247,88 +247,112 @@ fn every_closed_shared_mesh_converts_to_a_valid_step_solid() {
             report.brep.max_normal_jump_deg,
             report.total_seconds
         );
-        let tess = step.with_extension("occt.ply");
-        let mut args: Vec<&std::ffi::OsStr> = vec![step.as_os_str(), "--tess-out".as_ref(), tess.as_os_str()];
-        if accuracy.is_some() {
-            args.extend(["--ref".as_ref(), input.as_os_str(), "--samples".as_ref(), "20000".as_ref()]);
+        if let Some(v) = validating.take() {
+            v.join().unwrap_or_else(|e| std::panic::resume_unwind(e));
         }
-        let v = run_json(&kit.join("step_check.py"), &args);
-        assert_one_valid_solid(file, &v);
-        let s = &v["summary"];
-        assert_eq!(
-            s["text_all_shells_closed"], true,
-            "{file}: STEP text: an edge not used exactly twice: {}",
-            v["step_text"]
-        );
-        assert_eq!(
-            s["text_consistently_oriented"], true,
-            "{file}: STEP text: inconsistent orientation: {}",
-            v["step_text"]
-        );
-        assert_eq!(
-            s["faces"].as_u64().unwrap() as usize,
-            report.brep.faces,
-            "{file}: OCCT face count differs from ours"
-        );
-        // OpenCASCADE's own view of the joins between faces: the largest normal angle across every edge
-        // shared by two faces (7 samples per edge), against the issue's 1°.
-        let c = &v["occt"]["continuity"];
-        println!("{file}: OCCT continuity {c}");
-        assert_eq!(c["failed"], 0, "{file}: OCCT could not evaluate some edges: {c}");
-        let occt_jump = c["normal_angle_deg_max"].as_f64().unwrap();
-        assert!(
-            occt_jump <= MAX_JUMP_DEG,
-            "{file}: OCCT normal angle across an edge {occt_jump:.3}° > {MAX_JUMP_DEG}°"
-        );
-        let occt_volume = s["volume"].as_f64().unwrap();
-        let gap = (occt_volume - report.input_volume).abs() / report.input_volume;
-        assert!(
-            gap <= 0.005,
-            "{file}: OCCT volume {occt_volume:.6e} vs input {:.6e}: {:.3} % > 0.5 %",
-            report.input_volume,
-            100.0 * gap
-        );
-        if let Some(bound) = accuracy {
-            let rms_pct = s["dist_rms_pct"].as_f64().unwrap();
-            assert!(rms_pct <= bound, "{file}: solid RMS {rms_pct:.4} % of the diagonal (validator) > {bound} %");
-        }
-        let crossings = report.brep.self_intersections;
-        println!(
-            "{file}: self-intersecting triangle pairs of the solid's tessellation: {crossings} (quad mesh: {})",
-            report.brep.quad_self_intersections
-        );
-        let deflection = v["tessellation"]["deflection"].as_f64().unwrap_or_else(|| panic!("{file}: no tessellation"));
-        let x = run_json(
-            &root().join("tests/tools/crossings.py"),
-            &[tess.as_os_str(), "--tolerance".as_ref(), deflection.to_string().as_ref()],
-        );
-        println!("{file}: crossings.py on OCCT's tessellation {x}");
-        assert_eq!(
-            x["crossing_pairs"], 0,
-            "{file}: OCCT's tessellation crosses itself deeper than its deflection {deflection:.3e}: {x}"
-        );
-        let folds = report.brep.folded_faces;
-        println!("{file}: folded faces (normal turning > 90° inside a face): {folds} near {:?}", report.brep.fold_at);
-        let g = run_json(
-            &root().join("tests/tools/gmsh_tetrahedralise.py"),
-            &[step.as_os_str(), gmsh_cells.to_string().as_ref()],
-        );
-        println!("{file}: gmsh {g}");
-        assert_eq!(g["volumes"], 1, "{file}: gmsh sees {} volumes", g["volumes"]);
-        assert!(g["tetrahedra"].as_u64().unwrap() > 0, "{file}: gmsh made no tetrahedra: {g}");
-        assert_eq!(folds, 0, "{file}: {folds} folded faces near {:?}", report.brep.fold_at);
-        assert!(
-            report.brep.max_normal_jump_deg <= MAX_JUMP_DEG,
-            "{file}: largest normal jump {:.3}° > {MAX_JUMP_DEG}° at {:?}",
-            report.brep.max_normal_jump_deg,
-            report.brep.max_normal_jump_at
-        );
-        assert_eq!(
-            crossings, 0,
-            "{file}: the solid intersects itself ({crossings} pairs near {:?})",
-            report.brep.self_intersection_at
-        );
+        let kit = kit.clone();
+        validating = Some(std::thread::spawn(move || {
+            validate_converted(&Converted { file, input, step, accuracy, gmsh_cells }, &report, &kit)
+        }));
     }
+    if let Some(v) = validating.take() {
+        v.join().unwrap_or_else(|e| std::panic::resume_unwind(e));
+    }
+}
+
+/// One solid of [`every_closed_shared_mesh_converts_to_a_valid_step_solid`] and what it is checked with.
+struct Converted {
+    file: &'static str,
+    input: PathBuf,
+    step: PathBuf,
+    /// Accuracy bound checked by the validator, % of the diagonal.
+    accuracy: Option<f64>,
+    /// gmsh's cells per diagonal.
+    gmsh_cells: u32,
+}
+
+/// The independent tools' verdicts on one converted solid (the checks of
+/// [`every_closed_shared_mesh_converts_to_a_valid_step_solid`]).
+fn validate_converted(c: &Converted, report: &scanstation::pipeline::ConvertReport, kit: &Path) {
+    // The issue's target. Extraordinary faces are cut towards their vertex until the jump there is below
+    // `patches::JUMP_TARGET_DEG` (0.25°), so every solid is held to it.
+    const MAX_JUMP_DEG: f64 = 1.0;
+    let Converted { file, input, step, accuracy, gmsh_cells } = c;
+    let (file, accuracy, gmsh_cells) = (*file, *accuracy, *gmsh_cells);
+    let tess = step.with_extension("occt.ply");
+    let mut args: Vec<&std::ffi::OsStr> = vec![step.as_os_str(), "--tess-out".as_ref(), tess.as_os_str()];
+    if accuracy.is_some() {
+        args.extend(["--ref".as_ref(), input.as_os_str(), "--samples".as_ref(), "20000".as_ref()]);
+    }
+    let v = run_json(&kit.join("step_check.py"), &args);
+    assert_one_valid_solid(file, &v);
+    let s = &v["summary"];
+    assert_eq!(
+        s["text_all_shells_closed"], true,
+        "{file}: STEP text: an edge not used exactly twice: {}",
+        v["step_text"]
+    );
+    assert_eq!(
+        s["text_consistently_oriented"], true,
+        "{file}: STEP text: inconsistent orientation: {}",
+        v["step_text"]
+    );
+    assert_eq!(s["faces"].as_u64().unwrap() as usize, report.brep.faces, "{file}: OCCT face count differs from ours");
+    // OpenCASCADE's own view of the joins between faces: the largest normal angle across every edge
+    // shared by two faces (7 samples per edge), against the issue's 1°.
+    let c = &v["occt"]["continuity"];
+    println!("{file}: OCCT continuity {c}");
+    assert_eq!(c["failed"], 0, "{file}: OCCT could not evaluate some edges: {c}");
+    let occt_jump = c["normal_angle_deg_max"].as_f64().unwrap();
+    assert!(occt_jump <= MAX_JUMP_DEG, "{file}: OCCT normal angle across an edge {occt_jump:.3}° > {MAX_JUMP_DEG}°");
+    let occt_volume = s["volume"].as_f64().unwrap();
+    let gap = (occt_volume - report.input_volume).abs() / report.input_volume;
+    assert!(
+        gap <= 0.005,
+        "{file}: OCCT volume {occt_volume:.6e} vs input {:.6e}: {:.3} % > 0.5 %",
+        report.input_volume,
+        100.0 * gap
+    );
+    if let Some(bound) = accuracy {
+        let rms_pct = s["dist_rms_pct"].as_f64().unwrap();
+        assert!(rms_pct <= bound, "{file}: solid RMS {rms_pct:.4} % of the diagonal (validator) > {bound} %");
+    }
+    let crossings = report.brep.self_intersections;
+    println!(
+        "{file}: self-intersecting triangle pairs of the solid's tessellation: {crossings} (quad mesh: {})",
+        report.brep.quad_self_intersections
+    );
+    let deflection = v["tessellation"]["deflection"].as_f64().unwrap_or_else(|| panic!("{file}: no tessellation"));
+    let x = run_json(
+        &root().join("tests/tools/crossings.py"),
+        &[tess.as_os_str(), "--tolerance".as_ref(), deflection.to_string().as_ref()],
+    );
+    println!("{file}: crossings.py on OCCT's tessellation {x}");
+    assert_eq!(
+        x["crossing_pairs"], 0,
+        "{file}: OCCT's tessellation crosses itself deeper than its deflection {deflection:.3e}: {x}"
+    );
+    let folds = report.brep.folded_faces;
+    println!("{file}: folded faces (normal turning > 90° inside a face): {folds} near {:?}", report.brep.fold_at);
+    let g = run_json(
+        &root().join("tests/tools/gmsh_tetrahedralise.py"),
+        &[step.as_os_str(), gmsh_cells.to_string().as_ref()],
+    );
+    println!("{file}: gmsh {g}");
+    assert_eq!(g["volumes"], 1, "{file}: gmsh sees {} volumes", g["volumes"]);
+    assert!(g["tetrahedra"].as_u64().unwrap() > 0, "{file}: gmsh made no tetrahedra: {g}");
+    assert_eq!(folds, 0, "{file}: {folds} folded faces near {:?}", report.brep.fold_at);
+    assert!(
+        report.brep.max_normal_jump_deg <= MAX_JUMP_DEG,
+        "{file}: largest normal jump {:.3}° > {MAX_JUMP_DEG}° at {:?}",
+        report.brep.max_normal_jump_deg,
+        report.brep.max_normal_jump_at
+    );
+    assert_eq!(
+        crossings, 0,
+        "{file}: the solid intersects itself ({crossings} pairs near {:?})",
+        report.brep.self_intersection_at
+    );
 }
 
 /// Issue 42's quad nets: the scorpion and the skull, repaired as `convert` repairs them, remeshed at 10,000

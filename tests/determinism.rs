@@ -40,8 +40,10 @@ fn convert_writes_the_same_bytes_on_one_and_two_threads() {
     let dir = common::scratch("determinism-convert");
     // With its pictures: the same job gives the same PNG bytes too (issue 45).
     let pictures = Some(scanstation::pipeline::pictures::Up::Y);
+    // The default kind of resolution, the deviation goal, from 1,000 control vertices: spot's net there is
+    // over twice the goal, so the net is made again at 1,500 (the cap) before the fit, on each thread count.
     let opts = ConvertOptions {
-        resolution: Resolution::Vertices(1_500),
+        resolution: Resolution::Goal { start: 1_000, cap: 1_500 },
         compare_samples: 20_000,
         pictures,
         ..Default::default()
@@ -56,6 +58,9 @@ fn convert_writes_the_same_bytes_on_one_and_two_threads() {
             let report = pool(threads)
                 .install(|| convert_file(Path::new(SPOT), &step, &ReadOptions::default(), &opts, &NoProgress))
                 .expect("convert examples/spot.ply");
+            let raised: Vec<(usize, usize, bool)> =
+                report.attempts[0].raises.iter().map(|x| (x.from_vertices, x.to_vertices, x.kept)).collect();
+            assert_eq!(raised, [(1_000, 1_500, true)], "{threads} threads");
             let kinds: Vec<&str> = report.pictures.iter().map(|p| p.kind).collect();
             assert_eq!(kinds, ["deviation", "histogram", "net", "faces", "thumbnail"], "{threads} threads");
             let files = [&step, &report.solid_mesh_file, &report.error_map_file];

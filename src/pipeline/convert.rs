@@ -940,11 +940,13 @@ impl Chain<'_> {
     /// deviation goal, while it misses the goal, one at a higher count when that is sound and nearer
     /// ([`super::goal`]; a raised net is made once, at the same seed).
     fn net(&self, n: usize, seed: u64, span: &dyn Progress) -> Result<(PolyMesh, RemeshReport, usize, Vec<NetRaise>)> {
-        let (mut quads, mut report, mut crossings) = self.quads(n, seed, span)?;
-        let mut raises = Vec::new();
         let Resolution::Goal { cap, .. } = self.opts.resolution else {
-            return Ok((quads, report, crossings, raises));
+            let (quads, report, crossings) = self.quads(n, seed, false, span)?;
+            return Ok((quads, report, crossings, Vec::new()));
         };
+        // A net that may still be raised needs no last-resort route for being far ([`RemeshOptions::far_is_raised`]).
+        let (mut quads, mut report, mut crossings) = self.quads(n, seed, n < cap, span)?;
+        let mut raises = Vec::new();
         let net_rms = |r: &RemeshReport| r.distance.as_ref().map_or(f64::NAN, |d| d.symmetric.rms.pct_of_diagonal);
         let goal_pct = self.opts.gates.max_rms_pct;
         let mut m = n;
@@ -952,8 +954,14 @@ impl Chain<'_> {
             check_cancelled(self.progress)?;
             let clock = Instant::now();
             let opts = self.opts;
-            let ropts =
-                RemeshOptions { target_vertices: next, seed, memory_budget: opts.memory_budget, ..opts.remesh.clone() };
+            let far_is_raised = next < cap && raises.len() + 1 < super::goal::NET_RAISES;
+            let ropts = RemeshOptions {
+                target_vertices: next,
+                seed,
+                memory_budget: opts.memory_budget,
+                far_is_raised,
+                ..opts.remesh.clone()
+            };
             let (q, r) = remesh(&self.repaired, &ropts, span).map_err(|e| e.in_file(self.input))?;
             let c = mesh_self_intersections(&q);
             let coarse = (net_rms(&report), crossings, report.euler_characteristic_changed);
@@ -988,9 +996,21 @@ impl Chain<'_> {
 
     /// The quad mesh at `n` vertices: a quad mesh that folds through itself would give a self-intersecting
     /// solid, so other seeds are tried (up to [`REMESH_RETRIES`]) and the one with the fewest crossings kept.
-    fn quads(&self, n: usize, seed: u64, span: &dyn Progress) -> Result<(PolyMesh, RemeshReport, usize)> {
+    fn quads(
+        &self,
+        n: usize,
+        seed: u64,
+        far_is_raised: bool,
+        span: &dyn Progress,
+    ) -> Result<(PolyMesh, RemeshReport, usize)> {
         let opts = self.opts;
-        let ropts = RemeshOptions { target_vertices: n, seed, memory_budget: opts.memory_budget, ..opts.remesh };
+        let ropts = RemeshOptions {
+            target_vertices: n,
+            seed,
+            memory_budget: opts.memory_budget,
+            far_is_raised,
+            ..opts.remesh.clone()
+        };
         let mut best: Option<(PolyMesh, RemeshReport, usize)> = None;
         for retry in 0..=REMESH_RETRIES {
             let ropts = RemeshOptions { seed: seed.wrapping_add(retry as u64), ..ropts.clone() };

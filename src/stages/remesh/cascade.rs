@@ -210,13 +210,17 @@ impl<'a> Cascade<'a> {
     /// A later route runs only when the earlier ones all lost something: RMS above [`FALLBACK_TRIGGER_PCT`],
     /// more than [`MISSED_MAX`] of the working vertices missed, χ changed or a face left flipped; the direct
     /// routes run also when no sound result meets [`IRREGULAR_GOAL`].
+    /// With `far_is_raised`, the last uniform split after the direct routes does not run where a result is
+    /// sound apart from its distance: the caller raises the count instead.
     fn ends_before(&self, mi: usize, mode: Mode) -> bool {
         let diagonal = self.input.diagonal;
+        let after_direct = self.modes[..mi].iter().any(|m| m.is_direct());
+        let raised_instead = self.opts.far_is_raised && mode == Mode::Split && after_direct;
         mi > 0
-            && self
-                .finished
-                .iter()
-                .any(|f| f.sound(diagonal) && !(mode.is_direct() && f.stats.irregular_fraction > IRREGULAR_GOAL))
+            && self.finished.iter().any(|f| {
+                (f.sound(diagonal) && !(mode.is_direct() && f.stats.irregular_fraction > IRREGULAR_GOAL))
+                    || (raised_instead && f.class() == 0)
+            })
     }
 
     /// Whether route `mi` is passed over: a refined direct try after one the pick would prefer to the direct
