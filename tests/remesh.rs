@@ -236,9 +236,16 @@ fn the_refined_direct_route_recovers_what_the_direct_route_missed() {
         r.direct_working_vertices, r.mode, d.symmetric.rms.pct_of_diagonal, d.reference_to_test.max.pct_of_diagonal
     );
     assert_valid(&r.output, &r, "necked torus, direct");
-    assert_eq!(r.mode, Some(Mode::Direct), "alternatives {:?}", r.alternatives);
+    // The direct net keeps the neck. Since its working mesh is edge-split also when subdivision made as many
+    // vertices as asked (2026-12-07: 28,076 vertices), it is as close as the uniform split's (0.0488 against
+    // 0.0479 %), not `FIDELITY_RATIO` closer, so the uniform split, which ran first, is kept; before, the
+    // direct net (0.085 %) was.
+    let direct = std::iter::once((r.mode, d.symmetric.rms.pct_of_diagonal))
+        .chain(r.alternatives.iter().map(|a| (Some(a.mode), a.rms_pct_of_diagonal)))
+        .find(|(m, _)| *m == Some(Mode::Direct));
+    assert!(direct.is_some_and(|(_, rms)| rms < 0.1), "the direct net: alternatives {:?}", r.alternatives);
     assert!(r.direct_working_vertices > r.working_vertices, "{} working vertices", r.direct_working_vertices);
-    // Measured: RMS 0.085 %, max 0.48 %.
+    // Measured: RMS 0.085 %, max 0.48 % (2026-12-07: 0.048 %, 0.45 %).
     assert!(d.symmetric.rms.pct_of_diagonal < 0.1, "RMS {} %", d.symmetric.rms.pct_of_diagonal);
     assert!(d.reference_to_test.max.pct_of_diagonal < 1.0, "a part of the neck is missing: {d:?}");
 
@@ -446,8 +453,9 @@ fn the_thin_part_oracles_are_closed_outward_surfaces() {
 /// `convert`'s default resolution, the deviation goal ([`scanstation::pipeline::goal`]): a net farther than
 /// twice the goal from the input is made again ×1.5 finer before the surface is fitted, at most twice and
 /// never above the cap, and the solid is built once, on the last net kept. Spot at 300 control vertices is
-/// 0.2–0.4 % of its diagonal from the scan, far over 2 × 0.05 %, so both raises run (300 → 450 → 675 = the
-/// cap); with an exact count nothing is raised.
+/// 0.2–0.5 % of its diagonal from the scan, far over 2 × 0.05 %, so both raises run (300 → 450 → 675 = the
+/// cap; measured 2026-12-07: 450 kept, 675 not, being farther, 0.528 against 0.483 %); with an exact count
+/// nothing is raised.
 #[test]
 fn the_deviation_goal_raises_a_net_that_misses_it_up_to_the_cap() {
     use scanstation::pipeline::{ConvertOptions, Resolution, convert_file};
@@ -461,14 +469,18 @@ fn the_deviation_goal_raises_a_net_that_misses_it_up_to_the_cap() {
     let raises = &r.attempts[0].raises;
     let steps: Vec<(usize, usize)> = raises.iter().map(|x| (x.from_vertices, x.to_vertices)).collect();
     assert_eq!(steps, [(300, 450), (450, 675)], "{raises:?}");
+    assert!(raises[0].kept, "the first finer net is nearer: {raises:?}");
     for x in raises {
         assert!(x.from_rms_pct > 0.1, "a raise only where the net misses 2 × the goal: {x:?}");
-        assert!(x.kept && x.to_rms_pct < x.from_rms_pct && x.to_crossing_pairs == 0, "{x:?}");
+        let sound_and_nearer = x.to_rms_pct < x.from_rms_pct && x.to_crossing_pairs == 0 && !x.to_changed_topology;
+        assert_eq!(x.kept, sound_and_nearer, "{x:?}");
     }
+    let last = raises.iter().rev().find(|x| x.kept).unwrap();
     let net = r.attempts[0].control_vertices as f64;
-    assert!((net / 675.0 - 1.0).abs() <= 0.1, "the solid is built on the 675-vertex net: {net}");
+    let want = last.to_vertices as f64;
+    assert!((net / want - 1.0).abs() <= 0.1, "the solid is built on the last net kept ({want}): {net}");
     let kept_rms = r.remesh.distance.as_ref().unwrap().symmetric.rms.pct_of_diagonal;
-    assert_eq!(kept_rms, raises[1].to_rms_pct, "the report's remesh is the kept net's");
+    assert_eq!(kept_rms, last.to_rms_pct, "the report's remesh is the kept net's");
     // An exact count is kept as asked.
     let exact = ConvertOptions { resolution: Resolution::Vertices(300), ..Default::default() };
     let r = convert_file(&spot, &dir.join("exact.step"), &read, &exact, &NoProgress).unwrap();

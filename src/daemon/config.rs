@@ -140,6 +140,22 @@ struct RawLimits {
     finished_job_linger: Option<String>,
 }
 
+/// `[pipeline] vertices` (an exact count, or none: the deviation goal) and `max_vertices` (the goal's cap),
+/// each within 8 ..= 10⁷; the key and the reason otherwise.
+fn vertex_counts(p: &RawPipeline) -> Result<(Option<usize>, usize), (&'static str, String)> {
+    let range = 8..=10_000_000;
+    if let Some(v) = p.vertices
+        && !range.contains(&v)
+    {
+        return Err(("pipeline.vertices", format!("{v} is outside 8..=10000000")));
+    }
+    let max_vertices = p.max_vertices.unwrap_or(crate::pipeline::goal::GOAL_CAP);
+    if !range.contains(&max_vertices) {
+        return Err(("pipeline.max_vertices", format!("{max_vertices} is outside 8..=10000000")));
+    }
+    Ok((p.vertices, max_vertices))
+}
+
 #[derive(Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 struct RawPipeline {
@@ -522,16 +538,7 @@ impl Config {
             return Err(err("limits.memory_budget", "below 16 MiB nothing can run".into()));
         }
         let max_input_size = size("limits.max_input_size", &raw.limits.max_input_size, "4GiB")?;
-        let vertices = raw.pipeline.vertices;
-        if let Some(v) = vertices
-            && !(8..=10_000_000).contains(&v)
-        {
-            return Err(err("pipeline.vertices", format!("{v} is outside 8..=10000000")));
-        }
-        let max_vertices = raw.pipeline.max_vertices.unwrap_or(crate::pipeline::goal::GOAL_CAP);
-        if !(8..=10_000_000).contains(&max_vertices) {
-            return Err(err("pipeline.max_vertices", format!("{max_vertices} is outside 8..=10000000")));
-        }
+        let (vertices, max_vertices) = vertex_counts(&raw.pipeline).map_err(|(key, why)| err(key, why))?;
         if let Some(t) = raw.pipeline.tolerance
             && !(t.is_finite() && t > 0.0)
         {

@@ -19,6 +19,7 @@ pub mod provenance;
 pub mod reconstruct;
 pub mod render;
 pub mod report_html;
+pub mod resolution;
 
 /// What the daemon needs of the stages, through the pipeline: the progress sink every long step reports to,
 /// its cancellation check, and the FEA's settings.
