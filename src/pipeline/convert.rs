@@ -840,17 +840,8 @@ impl Chain<'_> {
         while let Some(next) = super::goal::next_count(m, net_rms(&report), goal_pct, raises.len(), cap) {
             check_cancelled(self.progress)?;
             let clock = Instant::now();
-            let opts = self.opts;
             let far_is_raised = next < cap && raises.len() + 1 < super::goal::NET_RAISES;
-            let ropts = RemeshOptions {
-                target_vertices: next,
-                seed,
-                memory_budget: opts.memory_budget,
-                far_is_raised,
-                ..opts.remesh.clone()
-            };
-            let (q, r) = remesh(&self.repaired, &ropts, span).map_err(|e| e.in_file(self.input))?;
-            let c = mesh_self_intersections(&q);
+            let (q, r, c) = self.remesh_once(next, seed, far_is_raised, span)?;
             let coarse = (net_rms(&report), crossings, report.euler_characteristic_changed);
             let fine = (net_rms(&r), c, r.euler_characteristic_changed);
             let kept = super::goal::keeps(coarse, fine);
@@ -890,21 +881,12 @@ impl Chain<'_> {
         far_is_raised: bool,
         span: &dyn Progress,
     ) -> Result<(PolyMesh, RemeshReport, usize)> {
-        let opts = self.opts;
-        let ropts = RemeshOptions {
-            target_vertices: n,
-            seed,
-            memory_budget: opts.memory_budget,
-            far_is_raised,
-            ..opts.remesh.clone()
-        };
         let mut best: Option<(PolyMesh, RemeshReport, usize)> = None;
         for retry in 0..=REMESH_RETRIES {
-            let ropts = RemeshOptions { seed: seed.wrapping_add(retry as u64), ..ropts.clone() };
-            let (q, r) = remesh(&self.repaired, &ropts, span).map_err(|e| e.in_file(self.input))?;
-            let crossings = mesh_self_intersections(&q);
+            let seed = seed.wrapping_add(retry as u64);
+            let (q, r, crossings) = self.remesh_once(n, seed, far_is_raised, span)?;
             if crossings > 0 {
-                tracing::warn!(crossings, seed = ropts.seed, "the quad mesh intersects itself; trying another seed");
+                tracing::warn!(crossings, seed, "the quad mesh intersects itself; trying another seed");
             }
             if best.as_ref().is_none_or(|b| crossings < b.2) {
                 best = Some((q, r, crossings));
@@ -914,6 +896,27 @@ impl Chain<'_> {
             }
         }
         best.ok_or_else(|| Error::internal("no remesh ran"))
+    }
+
+    /// One quad net of the repaired input at `n` vertices and `seed`, with its crossing triangle pairs.
+    fn remesh_once(
+        &self,
+        n: usize,
+        seed: u64,
+        far_is_raised: bool,
+        span: &dyn Progress,
+    ) -> Result<(PolyMesh, RemeshReport, usize)> {
+        let opts = self.opts;
+        let ropts = RemeshOptions {
+            target_vertices: n,
+            seed,
+            memory_budget: opts.memory_budget,
+            far_is_raised,
+            ..opts.remesh.clone()
+        };
+        let (q, r) = remesh(&self.repaired, &ropts, span).map_err(|e| e.in_file(self.input))?;
+        let crossings = mesh_self_intersections(&q);
+        Ok((q, r, crossings))
     }
 }
 
