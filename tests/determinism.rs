@@ -61,6 +61,12 @@ fn convert_writes_the_same_bytes_on_one_and_two_threads() {
             let raised: Vec<(usize, usize, bool)> =
                 report.attempts[0].raises.iter().map(|x| (x.from_vertices, x.to_vertices, x.kept)).collect();
             assert_eq!(raised, [(1_000, 1_500, true)], "{threads} threads");
+            // The raised net is refined locally too (its scan → net RMS is over 1.5 × the goal at 1,500).
+            let local = &report.attempts[0].local;
+            assert!(
+                local.kept.as_ref().is_some_and(|k| k.vertices_after > k.vertices_before),
+                "{threads} threads: {local:?}"
+            );
             let kinds: Vec<&str> = report.pictures.iter().map(|p| p.kind).collect();
             assert_eq!(kinds, ["deviation", "histogram", "net", "faces", "thumbnail"], "{threads} threads");
             let files = [&step, &report.solid_mesh_file, &report.error_map_file];

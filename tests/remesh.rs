@@ -476,14 +476,22 @@ fn the_deviation_goal_raises_a_net_that_misses_it_up_to_the_cap() {
         assert_eq!(x.kept, sound_and_nearer, "{x:?}");
     }
     let last = raises.iter().rev().find(|x| x.kept).unwrap();
-    let net = r.attempts[0].control_vertices as f64;
+    // The solid's net is the last one kept, refined locally (about a quarter more vertices at most).
+    let local = &r.attempts[0].local;
+    let before = local.kept.as_ref().map_or(r.attempts[0].control_vertices, |k| k.vertices_before) as f64;
     let want = last.to_vertices as f64;
-    assert!((net / want - 1.0).abs() <= 0.1, "the solid is built on the last net kept ({want}): {net}");
+    assert!((before / want - 1.0).abs() <= 0.1, "the solid is built on the last net kept ({want}): {before}");
+    if let Some(k) = &local.kept {
+        assert_eq!(k.vertices_after, r.attempts[0].control_vertices, "{local:?}");
+        assert!(k.vertices_after as f64 <= 1.3 * before, "about a quarter more at most: {local:?}");
+        assert!(k.rounds.iter().filter(|x| x.kept).all(|x| x.rms_after < x.rms_before), "{local:?}");
+    }
     let kept_rms = r.remesh.distance.as_ref().unwrap().symmetric.rms.pct_of_diagonal;
     assert_eq!(kept_rms, last.to_rms_pct, "the report's remesh is the kept net's");
     // An exact count is kept as asked.
     let exact = ConvertOptions { resolution: Resolution::Vertices(300), ..Default::default() };
     let r = convert_file(&spot, &dir.join("exact.step"), &read, &exact, &NoProgress).unwrap();
     assert!(r.attempts.iter().all(|a| a.raises.is_empty() && a.target_vertices == 300), "{:?}", r.attempts);
+    assert!(r.attempts.iter().all(|a| a.local.kept.is_none()), "an exact count is not refined: {:?}", r.attempts);
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -12,10 +12,12 @@ pub use super::goal::NetRaise;
 use super::memory::StageMeter;
 pub use super::open_input::OpenInputMeasure;
 use super::open_input::open_input_measure;
+use super::refine::LocalRefinement;
 use super::resolution::resolutions;
 pub use super::resolution::{
     DEFAULT_VERTICES, HANDLE_LOOP_SPACINGS, Resolution, TOLERANCE_MAX, TOLERANCE_START, small_handle_loop,
 };
+use super::solid_mesh::{mesh_self_intersections, solid_self_intersections, tessellate_for_check, write_solid_mesh};
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::{FileDigest, ReadOptions, ensure_not_input};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
@@ -123,6 +125,9 @@ pub struct Attempt {
     /// ([`super::goal`]); the solid is built on the last one kept.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub raises: Vec<NetRaise>,
+    /// Under the default deviation goal: the net refined locally where the scan passed far from it
+    /// ([`super::refine`]).
+    pub local: LocalRefinement,
 }
 
 /// What `scanstation convert` reports.
@@ -221,62 +226,6 @@ pub const REMESH_RETRIES: usize = 3;
 /// itself or a face folds over.
 pub const SOLID_RETRIES: usize = 2;
 
-/// Pairs of intersecting triangles of a polygon mesh, fan-triangulated (the quad net, or the welded solid mesh).
-fn mesh_self_intersections(mesh: &PolyMesh) -> usize {
-    let (t, _) = mesh.triangulate();
-    let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
-    crate::geometry::intersect::self_intersections(&p, &t.triangles).len()
-}
-
-/// Pairs of intersecting triangles of a welded 2×2-per-span tessellation of the solid (faces joined at
-/// their exactly shared boundaries); 0 for a solid whose surface does not cross itself (at that
-/// resolution).
-fn solid_self_intersections(solid: &Solid) -> Result<(usize, Option<[f64; 3]>)> {
-    let t = solid.tessellate(2)?;
-    let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
-    // Faces' boundary samples coincide exactly; anything closer than the edge tolerance is one point.
-    let tol = crate::geometry::tolerance::BREP_EDGE_REL * t.bbox().diagonal();
-    let (pts, tris, _) = crate::stages::repair::weld::weld(&p, &t.triangles, tol);
-    let pairs = crate::geometry::intersect::self_intersections(&pts, &tris);
-    Ok((pairs.len(), pairs.first().map(|&(a, _)| pts[tris[a as usize][0] as usize])))
-}
-
-/// Write the solid's watertight tessellation (the quality check's, [`tessellate_for_check`]: each face's knot
-/// spans sampled 8 × 8 at most, welded along the exactly shared edges) beside the STEP file as NAME.solid.ply,
-/// its header naming the STEP's sha256 (see [`super::fea`]). Removes the STEP file again when this fails, so
-/// the pair is written or neither.
-fn write_solid_mesh(
-    step: &Path,
-    step_sha256: &str,
-    tessellation: TriMesh,
-) -> Result<(PathBuf, PolyMesh, FileDigest, Vec<u32>)> {
-    let result = (|| {
-        let t = tessellation;
-        let p: Vec<[f64; 3]> = t.positions.iter().map(|q| q.map(f64::from)).collect();
-        let tol = crate::geometry::tolerance::BREP_EDGE_REL * t.bbox().diagonal();
-        let (pts, tris, _, kept) = crate::stages::repair::weld::weld_kept(&p, &t.triangles, tol);
-        let positions = pts.iter().map(|q| q.map(|x| x as f32)).collect();
-        let mesh = TriMesh::new(positions, tris)?;
-        let path = super::provenance::solid_artifact_path(step);
-        let comment = format!("{}{step_sha256}", super::provenance::SOLID_OF);
-        let mesh = PolyMesh::from(mesh);
-        let digest = crate::geometry::io::write_ply(&path, &mesh, &Default::default(), &[&comment])?;
-        Ok((path, mesh, digest, kept))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(step);
-    }
-    result
-}
-
-/// Tessellation density for the solid's quality check: about `budget` triangles in all; with the face of
-/// every triangle.
-fn tessellate_for_check(solid: &Solid, budget: usize) -> Result<(TriMesh, Vec<u32>)> {
-    let spans: usize = solid.faces.iter().map(|f| (f.surface.nu - 3) * (f.surface.nv - 3)).sum::<usize>().max(1);
-    let per = ((budget as f64 / (2.0 * spans as f64)).sqrt().floor() as usize).clamp(2, 8);
-    solid.tessellate_labelled(per)
-}
-
 /// A progress sink that passes on the largest fraction reported so far (with each new phase).
 struct Monotonic<'a> {
     parent: &'a dyn Progress,
@@ -305,6 +254,10 @@ struct SolidTry {
     quads: PolyMesh,
     /// Nets made again finer under the deviation goal.
     raises: Vec<NetRaise>,
+    /// The net's local refinement under the deviation goal.
+    local: LocalRefinement,
+    /// A point of each crossing pair and each folded face of the solid.
+    flaws: Vec<[f64; 3]>,
     /// Vertices of the control net.
     control_vertices: usize,
     remesh: RemeshReport,
@@ -331,6 +284,10 @@ struct Chain<'a> {
     repaired: TriMesh,
     /// The repaired mesh as the surface fit's target.
     target: MeshTarget,
+    /// Points of the scan the local refinement measures against (made when first needed).
+    samples: std::sync::OnceLock<Vec<[f64; 3]>>,
+    /// Vertices of the surface repair invented (caps, fills): the local refinement keeps away from them.
+    invented: Vec<[f64; 3]>,
     cmp_opts: CompareOptions,
     opts: &'a ConvertOptions,
     progress: &'a dyn Progress,
@@ -463,7 +420,10 @@ pub fn convert_held(
 
     // 4. The chain at each resolution until one is fine enough.
     let targets = resolutions(resolution)?;
-    let chain = Chain { input, target: MeshTarget::new(&repaired), repaired, input_geom, cmp_opts, opts, progress };
+    let target = MeshTarget::new(&repaired);
+    let samples = std::sync::OnceLock::new();
+    let invented = repair_report.holes.invented.positions.clone();
+    let chain = Chain { input, target, samples, invented, repaired, input_geom, cmp_opts, opts, progress };
     let mut attempts = Vec::new();
     let mut best = None;
     for (k, &n) in targets.iter().enumerate() {
@@ -754,6 +714,7 @@ impl Chain<'_> {
                 solid_rms: t.rms,
                 solid_rms_pct: 100.0 * t.rms / diag,
                 raises: t.raises.clone(),
+                local: t.local.clone(),
             });
             if crossings > 0 || folds > 0 {
                 tracing::warn!(
@@ -776,17 +737,74 @@ impl Chain<'_> {
         best.ok_or_else(|| Error::internal("no solid was built"))
     }
 
-    /// One chain: remesh (other seeds while the quad mesh crosses itself), fit the surface, build and measure
-    /// the solid.
+    /// One chain: remesh (other seeds while the quad mesh crosses itself), under the deviation goal refine
+    /// the net locally ([`super::refine`]), fit the surface, build and measure the solid. A solid on a
+    /// refined net that crosses itself or folds is built again on a net refined away from its flaws, then
+    /// on the unrefined net.
     fn chain(&self, n: usize, seed: u64) -> Result<SolidTry> {
+        let progress = self.progress;
+        check_cancelled(progress)?;
+        let mut clock = Some(Clock::start());
+        let mut remesh_reading = None;
+        let span = ProgressSpan::new(progress, 0.1, 0.5, "remesh");
+        let (base, remesh_report, quad_crossings, raises) = self.net(n, seed, &span)?;
+        let max_rms_pct = self.opts.gates.max_rms_pct;
+        let scan_to_net = remesh_report.distance.as_ref().map_or(0.0, |d| d.reference_to_test.rms.pct_of_diagonal);
+        let goal = matches!(self.opts.resolution, Resolution::Goal { .. })
+            && scan_to_net > super::refine::LOCAL_TRIGGER_GOALS * max_rms_pct;
+        let mut local = LocalRefinement::default();
+        let mut avoid = self.invented.clone();
+        let mut earlier = [0.0; 2];
+        loop {
+            let refined = if goal && local.given_up < super::refine::SOLID_TRIES {
+                let samples = self.samples.get_or_init(|| super::refine::scan_samples(&self.input_geom));
+                let goal_abs = max_rms_pct / 100.0 * self.input_geom.bbox().diagonal();
+                let (q, r) = super::refine::refine_net(&base, &self.repaired, samples, goal_abs, &avoid)?;
+                (r.vertices_after > r.vertices_before).then_some((q, r))
+            } else {
+                None
+            };
+            let last = refined.is_none();
+            let (quads, report) = refined.map_or((base.clone(), None), |(q, r)| (q, Some(r)));
+            if let Some(c) = clock.take() {
+                let r = c.stop("remesh", None);
+                remesh_reading = Some((r.seconds, r.peak_rss_mib));
+            }
+            let mut t = self.solid_on(quads, quad_crossings, &span, remesh_reading)?;
+            if last || (t.brep.self_intersections, t.brep.folded_faces) == (0, 0) {
+                (t.stages[1].seconds, t.stages[2].seconds) =
+                    (t.stages[1].seconds + earlier[0], t.stages[2].seconds + earlier[1]);
+                local.kept = report;
+                (t.remesh, t.raises, t.local) = (remesh_report, raises, local);
+                return Ok(t);
+            }
+            tracing::warn!(
+                pairs = t.brep.self_intersections,
+                folds = t.brep.folded_faces,
+                "the solid on the locally refined net crosses itself or folds; refining away from there"
+            );
+            earlier[0] += t.stages[1].seconds;
+            earlier[1] += t.stages[2].seconds;
+            local.given_up += 1;
+            local.avoided += t.flaws.len();
+            avoid.extend(t.flaws);
+        }
+    }
+
+    /// Fit the surface to `quads`, build and measure the solid. `remesh` is the remesh stage's seconds and
+    /// peak memory (its distance is measured here, on `quads`).
+    fn solid_on(
+        &self,
+        quads: PolyMesh,
+        quad_crossings: usize,
+        span: &dyn Progress,
+        remesh: Option<(f64, Option<f64>)>,
+    ) -> Result<SolidTry> {
         let (opts, progress) = (self.opts, self.progress);
         let mut stages = Vec::new();
-        check_cancelled(progress)?;
-        let clock = Clock::start();
-        let span = ProgressSpan::new(progress, 0.1, 0.5, "remesh");
-        let (quads, remesh_report, quad_crossings, raises) = self.net(n, seed, &span)?;
-        let d = compare(&Geometry::Mesh(quads.clone()), &self.input_geom, &self.cmp_opts, &span)?;
-        stages.push(clock.stop("remesh", Some(d)));
+        let d = compare(&Geometry::Mesh(quads.clone()), &self.input_geom, &self.cmp_opts, span)?;
+        let (seconds, peak_rss_mib) = remesh.unwrap_or((0.0, None));
+        stages.push(StageReport { stage: "remesh", seconds, peak_rss_mib, distance: Some(d) });
 
         check_cancelled(progress)?;
         let clock = Clock::start();
@@ -801,7 +819,11 @@ impl Chain<'_> {
         let p1 = surface.refine.apply(&p);
         let (solid, mut brep_report) = build_solid(&surface, &p1)?;
         brep_report.quad_self_intersections = quad_crossings;
-        (brep_report.self_intersections, brep_report.self_intersection_at) = solid_self_intersections(&solid)?;
+        let mut flaws = solid_self_intersections(&solid)?;
+        (brep_report.self_intersections, brep_report.self_intersection_at) = (flaws.len(), flaws.first().copied());
+        if brep_report.folded_faces > 0 {
+            flaws.extend(solid.fold_points());
+        }
         let (tessellation, tessellation_faces) = tessellate_for_check(&solid, 1_500_000)?;
         let d =
             compare(&Geometry::Mesh(PolyMesh::from(tessellation.clone())), &self.input_geom, &self.cmp_opts, &span)?;
@@ -809,9 +831,10 @@ impl Chain<'_> {
         stages.push(clock.stop("brep", Some(d)));
         Ok(SolidTry {
             quads,
-            raises,
+            raises: Vec::new(),
+            local: LocalRefinement::default(),
             control_vertices: net.vertex_count,
-            remesh: remesh_report,
+            remesh: RemeshReport::default(),
             fit: fit_report,
             solid,
             brep: brep_report,
@@ -820,6 +843,7 @@ impl Chain<'_> {
             input_to_solid_rms,
             tessellation,
             tessellation_faces,
+            flaws,
         })
     }
 

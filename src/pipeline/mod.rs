@@ -17,9 +17,11 @@ pub mod open_input;
 pub mod pictures;
 pub mod provenance;
 pub mod reconstruct;
+pub mod refine;
 pub mod render;
 pub mod report_html;
 pub mod resolution;
+mod solid_mesh;
 
 /// What the daemon needs of the stages, through the pipeline: the progress sink every long step reports to,
 /// its cancellation check, and the FEA's settings.

@@ -121,6 +121,34 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
             x.seconds
         );
     }
+    if let Some(a) = r.attempts.last() {
+        if let Some(k) = &a.local.kept {
+            let rounds: Vec<String> = k
+                .rounds
+                .iter()
+                .filter(|x| x.kept)
+                .map(|x| {
+                    format!(
+                        "+{} at {} far samples, scan -> net RMS {:.4} % -> {:.4} %",
+                        x.added_vertices,
+                        x.far_samples,
+                        100.0 * x.rms_before / r.bbox_diagonal,
+                        100.0 * x.rms_after / r.bbox_diagonal
+                    )
+                })
+                .collect();
+            outln!(
+                "  net refined locally: {} -> {} vertices ({}; {:.1} s)",
+                k.vertices_before,
+                k.vertices_after,
+                rounds.join("; then "),
+                k.seconds
+            );
+        }
+        if a.local.given_up > 0 {
+            outln!("  refined nets given up: {} (the solid crossed itself or folded there)", a.local.given_up);
+        }
+    }
     let status = match r.status {
         pipeline::Status::Ok => "ok",
         pipeline::Status::Degraded => "DEGRADED (published on request)",

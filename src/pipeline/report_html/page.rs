@@ -87,6 +87,17 @@ pub fn header(b: &Bundle, thumbnail: Option<&str>) -> String {
         if !raises.is_empty() {
             pairs.push(("nets made finer (deviation goal)", raises.join("; ")));
         }
+        // The solid's attempt: the last one.
+        let local = c.get("attempts").and_then(Value::as_array).and_then(|a| a.last()).and_then(|a| a.get("local"));
+        if let Some(l) = local.filter(|l| !l["kept"].is_null() || l["given_up"].as_u64().unwrap_or(0) > 0) {
+            let added = l.pointer("/kept/vertices_after").and_then(Value::as_u64).unwrap_or(0)
+                - l.pointer("/kept/vertices_before").and_then(Value::as_u64).unwrap_or(0);
+            let text = format!(
+                "{added} control vertices added where the scan passed far; {} refined nets given up",
+                cell(&l["given_up"])
+            );
+            pairs.push(("net refined locally (deviation goal)", text));
+        }
         pairs.push(("total seconds", cell(&get("total_seconds"))));
     }
     s.push_str(&facts(&pairs));

@@ -139,6 +139,13 @@ impl Solid {
     /// span, two neighbouring samples whose normals differ by more than 90°, or a vanishing normal. Returns
     /// the count and a point of the first folded face (by index). Cost: 81 surface evaluations per span.
     pub fn folds(&self) -> (usize, Option<V3>) {
+        let folded = self.fold_points();
+        (folded.len(), folded.first().copied())
+    }
+
+    /// A point of each face whose surface folds over ([`Solid::folds`]), in face order. Cost: as
+    /// [`Solid::folds`].
+    pub fn fold_points(&self) -> Vec<V3> {
         let folded: Vec<Option<V3>> = self
             .faces
             .par_iter()
@@ -181,7 +188,7 @@ impl Solid {
                 None
             })
             .collect();
-        (folded.iter().filter(|f| f.is_some()).count(), folded.into_iter().flatten().next())
+        folded.into_iter().flatten().collect()
     }
 
     /// Enclosed volume `⅓ ∮ p · n dA` and area, by 5×5-point Gauss quadrature per knot span (exact for

@@ -40,6 +40,9 @@
 //! 8. a least-squares fit of the vertices to the input, both ways ([`fit`]), on every route's result
 //!    before the routes are weighed.
 //!
+//! Apart from the stage, [`local::refine_where_far`] refines a finished net 3 × 3 only where the input passes
+//! far from it (`convert`'s deviation goal uses it).
+//!
 //! **How the vertex count is matched.** The split in step 6 turns a quad-dominant mesh with V vertices,
 //! E edges and F faces into a pure-quad mesh with exactly V + E + F vertices (≈ 4V). The split route
 //! therefore extracts at a quarter of the target; both routes repeat the extraction with the spacing
@@ -60,6 +63,7 @@ mod finish;
 pub mod fit;
 pub mod hierarchy;
 pub mod integer;
+pub mod local;
 mod pick;
 pub mod quadify;
 mod report;
