@@ -385,12 +385,7 @@ pub fn convert_held(
     check_outputs(input, output, opts)?;
     let t_total = Instant::now();
     let mut stages = Vec::new();
-    let cmp_opts = CompareOptions {
-        samples: opts.compare_samples,
-        seed: opts.seed,
-        include_vertices: true,
-        memory_budget: opts.memory_budget,
-    };
+    let cmp_opts = compare_options(opts);
 
     // 2. Read.
     let clock = Clock::start();
@@ -420,9 +415,8 @@ pub fn convert_held(
 
     // 4. The chain at each resolution until one is fine enough.
     let targets = resolutions(resolution)?;
-    let target = MeshTarget::new(&repaired);
-    let samples = std::sync::OnceLock::new();
-    let invented = repair_report.holes.invented.positions.clone();
+    let (target, samples, invented) =
+        (MeshTarget::new(&repaired), Default::default(), repair_report.holes.invented.positions.clone());
     let chain = Chain { input, target, samples, invented, repaired, input_geom, cmp_opts, opts, progress };
     let mut attempts = Vec::new();
     let mut best = None;
@@ -521,6 +515,16 @@ pub fn convert_held(
     };
     let digests = Digests { step, solid_mesh: solid_digest, error_map: map.digest };
     Ok(Converted { report, solid_mesh, fused, digests, seen_by })
+}
+
+/// How the conversion measures distances: `opts`' samples, seed and memory budget, the vertices too.
+fn compare_options(opts: &ConvertOptions) -> CompareOptions {
+    CompareOptions {
+        samples: opts.compare_samples,
+        seed: opts.seed,
+        include_vertices: true,
+        memory_budget: opts.memory_budget,
+    }
 }
 
 /// Step 1 of [`convert_held`]: no output may overwrite the input or another output, nor replace what is not
