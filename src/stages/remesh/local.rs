@@ -18,8 +18,14 @@
 //!
 //! **Casting** a new vertex: from its bilinear place on the old face, along ± the net's interpolated normal,
 //! at most [`CAST_SPACINGS`] local edges, onto the nearer input triangle that faces the same way (so it lands
-//! on the floor of a slot the face bridged, and never on the far side of a thin part); where no ray hits, the
-//! nearest input point facing the same way.
+//! on the floor of a slot the face bridged, and never on the far side of a thin part: a ray whose first hit
+//! faces away is not used); where no ray hits, the nearest input point facing the same way. Then
+//! [`RELAX_ROUNDS`] rounds of smoothing along the input's tangent plane even out where the casts landed.
+//!
+//! **Given up**, with the faces two rings around them, and built again ([`SITE_TRIES`]): new faces that cross
+//! any face of the net, turn over ([`FOLD_COS`]) or bend sharply from a neighbour ([`MAX_BEND_DEG`]), and
+//! those holding a vertex that faces the other wall of a gap narrower than [`GAP_SPACINGS`] of its spacing
+//! (a solid fitted there crosses itself).
 
 use rayon::prelude::*;
 
