@@ -754,13 +754,13 @@ impl Chain<'_> {
         let (base, remesh_report, quad_crossings, raises) = self.net(n, seed, &span)?;
         let max_rms_pct = self.opts.gates.max_rms_pct;
         let scan_to_net = remesh_report.distance.as_ref().map_or(0.0, |d| d.reference_to_test.rms.pct_of_diagonal);
-        let goal = matches!(self.opts.resolution, Resolution::Goal { .. })
+        let refines = matches!(self.opts.resolution, Resolution::Goal { .. })
             && scan_to_net > super::refine::LOCAL_TRIGGER_GOALS * max_rms_pct;
         let mut local = LocalRefinement::default();
         let mut avoid = self.invented.clone();
         let mut earlier = [0.0; 2];
         loop {
-            let refined = if goal && local.given_up < super::refine::SOLID_TRIES {
+            let refined = if refines && local.given_up < super::refine::SOLID_TRIES {
                 let samples = self.samples.get_or_init(|| super::refine::scan_samples(&self.input_geom));
                 let goal_abs = max_rms_pct / 100.0 * self.input_geom.bbox().diagonal();
                 let (q, r) = super::refine::refine_net(&base, &self.repaired, samples, goal_abs, &avoid)?;

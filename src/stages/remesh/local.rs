@@ -32,7 +32,7 @@ use rayon::prelude::*;
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::bvh::{PointBvh, TriangleBvh};
 use crate::geometry::mesh::{PolyMesh, TriMesh};
-use crate::geometry::topology::UnionFind;
+use crate::geometry::topology::{MeshTopology, UnionFind};
 use crate::geometry::vec3::{self, V3, add, cross, dot, norm, scale, sub, wide};
 
 /// Longest cast of a new vertex onto the input, in edges of the face it came from: deep enough for the
@@ -319,32 +319,32 @@ struct Topo {
     face_edges: Vec<[u32; 4]>,
     /// Per edge, its (lower, higher) vertex and its two faces.
     edges: Vec<([u32; 2], [u32; 2])>,
+    /// The edges in the order the faces first name them (new vertices are numbered in it).
+    order: Vec<u32>,
 }
 
 impl Topo {
     fn new(net: &PolyMesh) -> Self {
-        let mut index = std::collections::HashMap::new();
-        let mut edges: Vec<([u32; 2], [u32; 2])> = Vec::new();
-        let mut face_edges = Vec::with_capacity(net.face_count());
-        for (f, c) in net.faces().enumerate() {
-            let mut fe = [0u32; 4];
-            for k in 0..4 {
-                let key = [c[k].min(c[(k + 1) % 4]), c[k].max(c[(k + 1) % 4])];
-                let e = *index.entry(key).or_insert_with(|| {
-                    edges.push((key, [u32::MAX; 2]));
-                    edges.len() as u32 - 1
-                });
-                let slot = &mut edges[e as usize].1;
-                if slot[0] == u32::MAX {
-                    slot[0] = f as u32
-                } else {
-                    slot[1] = f as u32
+        let t = MeshTopology::new(net);
+        let face_edges: Vec<[u32; 4]> = (0..net.face_count())
+            .map(|f| {
+                let start = net.face_start(f);
+                [0, 1, 2, 3].map(|k| t.halfedge_edge[start + k])
+            })
+            .collect();
+        let edges = (0..t.edges.len())
+            .map(|e| {
+                let mut faces = [u32::MAX; 2];
+                for (slot, &h) in faces.iter_mut().zip(t.edge_halfedges(e)) {
+                    *slot = t.corner_face[h as usize];
                 }
-                fe[k] = e;
-            }
-            face_edges.push(fe);
-        }
-        Topo { face_edges, edges }
+                (t.edges[e], faces)
+            })
+            .collect();
+        let mut seen = vec![false; t.edges.len()];
+        let order =
+            face_edges.iter().flatten().copied().filter(|&e| !std::mem::replace(&mut seen[e as usize], true)).collect();
+        Topo { face_edges, edges, order }
     }
 
     /// Split edges: those of a refined face.
@@ -412,12 +412,12 @@ impl Built {
         let split = topo.split_edges(refine);
         let p: Vec<V3> = net.positions.iter().map(|&x| wide(x)).collect();
         let normals = vertex_normals(net, &p);
-        let mut b =
-            Builder { p: p.clone(), n: normals.clone(), spacing: Vec::new(), faces: Vec::new(), origin: Vec::new() };
-        b.spacing = vec![0.0; p.len()];
-        // Edge thirds, numbered in edge order (deterministic).
+        let spacing = vec![0.0; p.len()];
+        let mut b = Builder { p: p.clone(), n: normals.clone(), spacing, faces: Vec::new(), origin: Vec::new() };
+        // Edge thirds, numbered in the order the faces first name the edges (deterministic).
         let mut thirds = vec![[u32::MAX; 2]; topo.edges.len()];
-        for (e, &([u, v], _)) in topo.edges.iter().enumerate() {
+        for &e in &topo.order {
+            let (e, [u, v]) = (e as usize, topo.edges[e as usize].0);
             if split[e] {
                 let len = norm(sub(p[v as usize], p[u as usize]));
                 let (nu, nv) = (normals[u as usize], normals[v as usize]);
