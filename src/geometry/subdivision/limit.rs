@@ -9,7 +9,9 @@
 
 use super::net::{QuadNet, Stencils};
 use crate::error::{Error, Result};
+use rayon::prelude::*;
 use std::collections::HashMap;
+use std::sync::OnceLock;
 
 /// Local subdivision depth used around extraordinary vertices.
 pub const EV_LEVELS: usize = 10;
@@ -80,6 +82,8 @@ pub struct LimitSurface {
     pub refine: Stencils,
     /// Per level-1 face.
     pub kinds: Vec<FaceKind>,
+    /// The local evaluation of every extraordinary face, built once on first use ([`LimitSurface::ev_patches`]).
+    ev: OnceLock<Vec<Option<EvPatch>>>,
 }
 
 impl LimitSurface {
@@ -111,7 +115,27 @@ impl LimitSurface {
             };
             kinds.push(kind);
         }
-        Ok(LimitSurface { net, refine, kinds })
+        Ok(LimitSurface { net, refine, kinds, ev: OnceLock::new() })
+    }
+
+    /// The local evaluation ([`EvPatch`]) of every extraordinary face (`None` for a regular one), built on
+    /// the first call and kept: the surface fit and the B-rep both evaluate the same faces.
+    ///
+    /// # Errors
+    /// `internal.bug` when a face's local evaluation cannot be built. Cost: the first call O(F) (ten local
+    /// subdivisions per extraordinary face, in parallel), later calls O(1).
+    pub fn ev_patches(&self) -> Result<&[Option<EvPatch>]> {
+        if let Some(ev) = self.ev.get() {
+            return Ok(ev);
+        }
+        let ev: Vec<Option<EvPatch>> = (0..self.net.faces.len())
+            .into_par_iter()
+            .map(|f| match self.kinds[f] {
+                FaceKind::Extraordinary(c) => EvPatch::new(&self.net, f, c as usize).map(Some),
+                FaceKind::Regular(_) => Ok(None),
+            })
+            .collect::<Result<_>>()?;
+        Ok(self.ev.get_or_init(|| ev))
     }
 
     /// Corner index where the patch frame of face `f` starts.

@@ -89,8 +89,24 @@ impl BsplineSurface {
 
     /// Point and first derivatives at `(u, v)`.
     pub fn eval(&self, u: f64, v: f64) -> (V3, V3, V3) {
-        let (iu, bu, du) = basis(&self.knots_u, self.nu, u);
-        let (iv, bv, dv) = basis(&self.knots_v, self.nv, v);
+        self.combine(&basis(&self.knots_u, self.nu, u), &basis(&self.knots_v, self.nv, v))
+    }
+
+    /// Points and first derivatives on the grid `us × vs`, `out[j · us.len() + i]` at `(us[i], vs[j])`: the
+    /// same values as [`BsplineSurface::eval`] there, each parameter's basis evaluated once.
+    /// Cost: O(|us| · |vs|) plus the basis of each parameter (O(log n) to find its span).
+    pub fn eval_grid(&self, us: &[f64], vs: &[f64]) -> Vec<(V3, V3, V3)> {
+        let bu: Vec<Basis> = us.iter().map(|&u| basis(&self.knots_u, self.nu, u)).collect();
+        let mut out = Vec::with_capacity(us.len() * vs.len());
+        for &v in vs {
+            let bv = basis(&self.knots_v, self.nv, v);
+            out.extend(bu.iter().map(|b| self.combine(b, &bv)));
+        }
+        out
+    }
+
+    /// The surface's point and derivatives from the bases along u and v.
+    fn combine(&self, &(iu, bu, du): &Basis, &(iv, bv, dv): &Basis) -> (V3, V3, V3) {
         let mut p = [0.0; 3];
         let mut pu = [0.0; 3];
         let mut pv = [0.0; 3];
@@ -106,13 +122,14 @@ impl BsplineSurface {
     }
 }
 
+/// Index of the first of the 4 poles that act at a parameter, their basis values and derivatives.
+type Basis = (usize, [f64; 4], [f64; 4]);
+
 /// Index of the first of the 4 poles that act at `t`, their basis values and derivatives (Cox–de Boor).
-fn basis(knots: &[f64], n: usize, t: f64) -> (usize, [f64; 4], [f64; 4]) {
+fn basis(knots: &[f64], n: usize, t: f64) -> Basis {
     // Span k with knots[k] <= t < knots[k + 1], clamped into [3, n − 1].
-    let mut k = 3;
-    while k + 1 < n && knots[k + 1] <= t {
-        k += 1;
-    }
+    // (Knots ascend: the last knot at or before t, found by bisection.)
+    let k = 3 + if n > 4 { knots[4..n].partition_point(|&x| x <= t) } else { 0 };
     // Degree-2 values for the derivative, degree-3 for the value.
     let mut nb = [0.0f64; 4];
     nb[0] = 1.0;

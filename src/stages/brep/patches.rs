@@ -299,158 +299,207 @@ fn exact_cells(ev: &EvPatch, p1: &[V3], levels: usize) -> FaceNet {
     FaceNet { bu: breaks.clone(), bv: breaks, nets }
 }
 
+/// What every pass of [`build`] reads: the refined net's limit points and tangents, the local evaluation
+/// tables of its extraordinary faces and its edge table.
+struct Limits<'a> {
+    surface: &'a LimitSurface,
+    p1: &'a [V3],
+    edge_of: Vec<u32>,
+    edge_half: Vec<u32>,
+    vertex: Vec<V3>,
+    tangents: Vec<[V3; 2]>,
+    normal: Vec<V3>,
+    ev_tables: &'a [Option<EvPatch>],
+}
+
+impl<'a> Limits<'a> {
+    /// # Errors
+    /// `internal.bug` when an extraordinary face's local evaluation cannot be built.
+    fn new(surface: &'a LimitSurface, p1: &'a [V3]) -> Result<Self> {
+        let net = &surface.net;
+        let (edge_of, edge_half) = net.edges();
+        let vertex: Vec<V3> =
+            (0..net.vertex_count as u32).into_par_iter().map(|v| combine(&limit_stencil(net, v), p1)).collect();
+        let tangents: Vec<[V3; 2]> = (0..net.vertex_count as u32)
+            .into_par_iter()
+            .map(|v| tangent_stencils(net, v).map(|t| combine(&t, p1)))
+            .collect();
+        let normal: Vec<V3> = tangents.iter().map(|[a, b]| vec3::unit_or(vec3::cross(*a, *b), [0.0; 3])).collect();
+        let ev_tables = surface.ev_patches()?;
+        Ok(Limits { surface, p1, edge_of, edge_half, vertex, tangents, normal, ev_tables })
+    }
+
+    /// The exact limit tangent direction of the edge of outgoing half-edge `h` at its start vertex (the
+    /// eigen-tangents T0, T1 combined by the edge's angle 2πi/n around the vertex).
+    fn edge_direction(&self, h: u32) -> Option<V3> {
+        let net = &self.surface.net;
+        let v = net.from(h);
+        let outs = net.outgoing(v);
+        let i = outs.iter().position(|&o| o == h)?;
+        let angle = std::f64::consts::TAU * i as f64 / outs.len() as f64;
+        let [a, b] = self.tangents[v as usize];
+        let d = vec3::unit_or(vec3::add(vec3::scale(a, angle.cos()), vec3::scale(b, angle.sin())), [0.0; 3]);
+        (d != [0.0; 3]).then_some(d)
+    }
+
+    /// Face `f`'s nets before its boundary is shared: a regular face's exact Bézier net, an extraordinary
+    /// face's exact cells, cut `level` times.
+    fn exact(&self, f: usize, level: usize) -> Result<FaceNet> {
+        match (self.surface.kinds[f], &self.ev_tables[f]) {
+            (FaceKind::Regular(grid), _) => Ok(FaceNet::whole(bspline_to_bezier(&grid.map(|g| self.p1[g as usize])))),
+            (FaceKind::Extraordinary(_), Some(ev)) => Ok(exact_cells(ev, self.p1, level)),
+            _ => Err(Error::internal(format!("face {f} has no local evaluation"))),
+        }
+    }
+
+    /// The curve of edge `e`, from the faces' exact nets (`exact`, by [`Limits::exact`]): a regular face's
+    /// boundary row; between two extraordinary faces, the exact cells of the face of `edge_half[e]`, with
+    /// the span at an extraordinary vertex fitted.
+    fn curve(&self, e: usize, exact: &[FaceNet]) -> Result<EdgeCurve> {
+        let (surface, net) = (self.surface, &self.surface.net);
+        let h = self.edge_half[e];
+        let t = net.twin[h as usize];
+        let (a, b) = (net.from(h), net.to(h));
+        let mut c = 'curve: {
+            for (half, reversed) in [(h, false), (t, true)] {
+                let g = &exact[(half / 4) as usize];
+                if !g.is_split() {
+                    let mut c = boundary_slots(side_of(surface, half)).map(|s| g.nets[0][s]);
+                    if reversed {
+                        c.reverse();
+                    }
+                    break 'curve EdgeCurve::single(c);
+                }
+            }
+            // Both faces extraordinary: read the exact cells of the face of h, and fit the span at an
+            // extraordinary vertex.
+            let f = (h / 4) as usize;
+            let g = &exact[f];
+            let levels = g.bu.len() - 2;
+            let n = levels + 1;
+            let cell = |i: usize, j: usize| &g.nets[n * j + i];
+            let ev = self.ev_tables[f].as_ref().ok_or_else(|| Error::internal("missing table"))?;
+            match side_of(surface, h) {
+                // u = 1 and v = 1: exact, one span per cell along the side.
+                1 => concat((0..n).map(|j| [3, 7, 11, 15].map(|s| cell(levels, j)[s])), g.bv.clone()),
+                2 => concat(
+                    (0..n).rev().map(|i| [15, 14, 13, 12].map(|s| cell(i, levels)[s])),
+                    g.bu.iter().rev().map(|x| 1.0 - x).collect(),
+                ),
+                0 => {
+                    let ends = (self.vertex[a as usize], self.normal[a as usize], self.edge_direction(h));
+                    let spans: Vec<[V3; 4]> = (1..n).map(|i| [0, 1, 2, 3].map(|s| cell(i, 0)[s])).collect();
+                    fit_ev_edge(surface, f, ev, self.p1, true, ends, (&spans, levels))
+                }
+                _ => {
+                    let ends = (self.vertex[b as usize], self.normal[b as usize], self.edge_direction(t));
+                    let spans: Vec<[V3; 4]> = (1..n).map(|j| [0, 4, 8, 12].map(|s| cell(0, j)[s])).collect();
+                    fit_ev_edge(surface, f, ev, self.p1, false, ends, (&spans, levels)).reversed()
+                }
+            }
+        };
+        c.points[0] = self.vertex[a as usize];
+        *c.points.last_mut().expect("points") = self.vertex[b as usize];
+        Ok(c)
+    }
+
+    /// Face `f`'s nets with its boundary from the shared edge curves: a regular face takes its boundary
+    /// rows from them; an extraordinary face builds its corner cell from the curves at the vertex and its
+    /// exact neighbours.
+    fn shared(&self, f: usize, mut g: FaceNet, curves: &[EdgeCurve]) -> Result<FaceNet> {
+        let s = self.surface.frame_start(f);
+        let side = |k: usize| -> EdgeCurve {
+            let half = frame_halfedges(f, s)[k];
+            let e = self.edge_of[half as usize] as usize;
+            if self.edge_half[e] == half { curves[e].clone() } else { curves[e].reversed() }
+        };
+        if !g.is_split() {
+            for k in 0..4 {
+                let c = side(k);
+                // A regular face's curves are its own (single-span) rows, or another regular face's.
+                if c.knots.len() != 2 {
+                    return Err(Error::internal(format!("regular face {f} has a split edge curve")));
+                }
+                for (slot, q) in boundary_slots(k).into_iter().zip(c.span(0)) {
+                    g.nets[0][slot] = q;
+                }
+            }
+            return Ok(g);
+        }
+        let ev = self.ev_tables[f].as_ref().ok_or_else(|| Error::internal("missing table"))?;
+        g.nets[0] = ev_corner(self.surface, f, ev, self.p1, &g, &side(0), &side(3));
+        Ok(g)
+    }
+}
+
 /// Build all patches from the fitted control points on the refined net (`p1`).
 ///
 /// # Errors
 /// `internal.bug` when an extraordinary face's local evaluation cannot be built.
 ///
-/// Cost: O(F) per pass, a few thousand flops per extraordinary face; at most [`EV_SPLIT_LEVELS`] passes
-/// (each re-cuts the faces of the vertices still above the jump target).
+/// Cost: O(F) for the first pass, a few thousand flops per extraordinary face; at most
+/// [`EV_SPLIT_LEVELS`] passes, each building again only the faces it cuts, their edges' curves and the
+/// faces on those edges, and measuring the normal jumps of all faces (O(F)).
 pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
     let net = &surface.net;
-    let (edge_of, edge_half) = net.edges();
-    let vertex: Vec<V3> =
-        (0..net.vertex_count as u32).into_par_iter().map(|v| combine(&limit_stencil(net, v), p1)).collect();
-    let tangents: Vec<[V3; 2]> = (0..net.vertex_count as u32)
-        .into_par_iter()
-        .map(|v| tangent_stencils(net, v).map(|t| combine(&t, p1)))
-        .collect();
-    let normal: Vec<V3> = tangents.iter().map(|[a, b]| vec3::unit_or(vec3::cross(*a, *b), [0.0; 3])).collect();
-    // The exact limit tangent direction of the edge of outgoing half-edge `h` at its start vertex (the
-    // eigen-tangents T0, T1 combined by the edge's angle 2πi/n around the vertex).
-    let edge_direction = |h: u32| -> Option<V3> {
-        let v = net.from(h);
-        let outs = net.outgoing(v);
-        let i = outs.iter().position(|&o| o == h)?;
-        let angle = std::f64::consts::TAU * i as f64 / outs.len() as f64;
-        let [a, b] = tangents[v as usize];
-        let d = vec3::unit_or(vec3::add(vec3::scale(a, angle.cos()), vec3::scale(b, angle.sin())), [0.0; 3]);
-        (d != [0.0; 3]).then_some(d)
-    };
-    let ev_tables: Vec<Option<EvPatch>> = (0..net.faces.len())
-        .into_par_iter()
-        .map(|f| match surface.kinds[f] {
-            FaceKind::Extraordinary(c) => EvPatch::new(net, f, c as usize).map(Some),
-            FaceKind::Regular(_) => Ok(None),
-        })
-        .collect::<Result<_>>()?;
-    // Cut every extraordinary face once; cut the faces of an extraordinary vertex again while the largest
-    // normal jump at them is above JUMP_TARGET_DEG (up to EV_SPLIT_LEVELS cuts).
+    let lim = Limits::new(surface, p1)?;
+    // 1. Every extraordinary face cut once: exact nets, edge curves, nets with their shared boundary.
     let mut level = vec![1usize; net.faces.len()];
-    let evs: Vec<(u32, Vec<usize>)> = (0..net.vertex_count as u32)
+    let mut exact: Vec<FaceNet> =
+        (0..net.faces.len()).into_par_iter().map(|f| lim.exact(f, level[f])).collect::<Result<_>>()?;
+    let mut curves: Vec<EdgeCurve> =
+        (0..lim.edge_half.len()).into_par_iter().map(|e| lim.curve(e, &exact)).collect::<Result<_>>()?;
+    let mut nets: Vec<FaceNet> =
+        exact.par_iter().enumerate().map(|(f, g)| lim.shared(f, g.clone(), &curves)).collect::<Result<_>>()?;
+    let evs: Vec<Vec<usize>> = (0..net.vertex_count as u32)
         .filter(|&v| net.valence(v) != 4)
-        .map(|v| (v, net.outgoing(v).iter().map(|&h| (h / 4) as usize).collect()))
+        .map(|v| net.outgoing(v).iter().map(|&h| (h / 4) as usize).collect())
         .collect();
     loop {
-        // Regular faces: exact Bézier nets. Extraordinary faces: the exact cells.
-        let mut nets: Vec<FaceNet> = (0..net.faces.len())
-            .into_par_iter()
-            .map(|f| match (surface.kinds[f], &ev_tables[f]) {
-                (FaceKind::Regular(grid), _) => Ok(FaceNet::whole(bspline_to_bezier(&grid.map(|g| p1[g as usize])))),
-                (FaceKind::Extraordinary(_), Some(ev)) => Ok(exact_cells(ev, p1, level[f])),
-                _ => Err(Error::internal(format!("face {f} has no local evaluation"))),
-            })
-            .collect::<Result<_>>()?;
-
-        // Edge curves.
-        let edge_curve: Vec<EdgeCurve> = edge_half
-            .par_iter()
-            .map(|&h| -> Result<EdgeCurve> {
-                let t = net.twin[h as usize];
-                let (a, b) = (net.from(h), net.to(h));
-                let mut c = 'curve: {
-                    for (half, reversed) in [(h, false), (t, true)] {
-                        let g = &nets[(half / 4) as usize];
-                        if !g.is_split() {
-                            let mut c = boundary_slots(side_of(surface, half)).map(|s| g.nets[0][s]);
-                            if reversed {
-                                c.reverse();
-                            }
-                            break 'curve EdgeCurve::single(c);
-                        }
-                    }
-                    // Both faces extraordinary: read the exact cells of the face of h, and fit the span at an
-                    // extraordinary vertex.
-                    let f = (h / 4) as usize;
-                    let g = &nets[f];
-                    let levels = g.bu.len() - 2;
-                    let n = levels + 1;
-                    let cell = |i: usize, j: usize| &g.nets[n * j + i];
-                    let ev = ev_tables[f].as_ref().ok_or_else(|| Error::internal("missing table"))?;
-                    match side_of(surface, h) {
-                        // u = 1 and v = 1: exact, one span per cell along the side.
-                        1 => concat((0..n).map(|j| [3, 7, 11, 15].map(|s| cell(levels, j)[s])), g.bv.clone()),
-                        2 => concat(
-                            (0..n).rev().map(|i| [15, 14, 13, 12].map(|s| cell(i, levels)[s])),
-                            g.bu.iter().rev().map(|x| 1.0 - x).collect(),
-                        ),
-                        0 => {
-                            let ends = (vertex[a as usize], normal[a as usize], edge_direction(h));
-                            let spans: Vec<[V3; 4]> = (1..n).map(|i| [0, 1, 2, 3].map(|s| cell(i, 0)[s])).collect();
-                            fit_ev_edge(surface, f, ev, p1, true, ends, (&spans, levels))
-                        }
-                        _ => {
-                            let ends = (vertex[b as usize], normal[b as usize], edge_direction(t));
-                            let spans: Vec<[V3; 4]> = (1..n).map(|j| [0, 4, 8, 12].map(|s| cell(0, j)[s])).collect();
-                            fit_ev_edge(surface, f, ev, p1, false, ends, (&spans, levels)).reversed()
-                        }
-                    }
-                };
-                c.points[0] = vertex[a as usize];
-                *c.points.last_mut().expect("points") = vertex[b as usize];
-                Ok(c)
-            })
-            .collect::<Result<_>>()?;
-
-        // Regular faces take their boundary rows from the shared (single-span) edge curves; extraordinary faces
-        // build their corner cell from the curves at the vertex and its exact neighbours.
-        nets.par_iter_mut().enumerate().try_for_each(|(f, g)| -> Result<()> {
-            let s = surface.frame_start(f);
-            let side = |k: usize| -> EdgeCurve {
-                let half = frame_halfedges(f, s)[k];
-                let e = edge_of[half as usize] as usize;
-                if edge_half[e] == half { edge_curve[e].clone() } else { edge_curve[e].reversed() }
-            };
-            if !g.is_split() {
-                for k in 0..4 {
-                    let c = side(k);
-                    // A regular face's curves are its own (single-span) rows, or another regular face's.
-                    if c.knots.len() != 2 {
-                        return Err(Error::internal(format!("regular face {f} has a split edge curve")));
-                    }
-                    for (slot, q) in boundary_slots(k).into_iter().zip(c.span(0)) {
-                        g.nets[0][slot] = q;
-                    }
-                }
-                return Ok(());
-            }
-            let ev = ev_tables[f].as_ref().ok_or_else(|| Error::internal("missing table"))?;
-            g.nets[0] = ev_corner(surface, f, ev, p1, g, &side(0), &side(3));
-            Ok(())
-        })?;
         let patches = Patches {
             nets,
-            edge_curve,
-            edge_half: edge_half.clone(),
-            edge_of: edge_of.clone(),
-            vertex: vertex.clone(),
+            edge_curve: curves,
+            edge_half: lim.edge_half.clone(),
+            edge_of: lim.edge_of.clone(),
+            vertex: lim.vertex.clone(),
         };
+        // 2. The faces of an extraordinary vertex are cut again while the largest normal jump at them is
+        //    above JUMP_TARGET_DEG (up to EV_SPLIT_LEVELS cuts).
         let jumps = face_jumps(surface, &patches);
-        let mut raised = false;
-        for (_, faces) in &evs {
+        let mut cut = vec![false; net.faces.len()];
+        for faces in &evs {
             let worst = faces.iter().map(|&f| jumps[f]).fold(0.0, f64::max);
             if worst > JUMP_TARGET_DEG && faces.iter().all(|&f| level[f] < EV_SPLIT_LEVELS) {
                 for &f in faces {
                     level[f] += 1;
+                    cut[f] = true;
                 }
-                raised = true;
             }
         }
-        if !raised {
+        if !cut.contains(&true) {
             return Ok(patches);
         }
+        (nets, curves) = (patches.nets, patches.edge_curve);
+        // 3. Built again: the cut faces' exact cells, the curves of their edges, the nets on those edges
+        //    (the same functions of the same data as a whole pass: the same bytes).
+        exact.par_iter_mut().enumerate().filter(|(f, _)| cut[*f]).try_for_each(|(f, g)| -> Result<()> {
+            *g = lim.exact(f, level[f])?;
+            Ok(())
+        })?;
+        let on_cut = |h: u32| cut[(h / 4) as usize] || cut[(net.twin[h as usize] / 4) as usize];
+        let redo: Vec<bool> = lim.edge_half.iter().map(|&h| on_cut(h)).collect();
+        curves.par_iter_mut().enumerate().filter(|(e, _)| redo[*e]).try_for_each(|(e, c)| -> Result<()> {
+            *c = lim.curve(e, &exact)?;
+            Ok(())
+        })?;
+        let touched = |f: usize| cut[f] || (0..4).any(|k| redo[lim.edge_of[4 * f + k] as usize]);
+        nets.par_iter_mut().enumerate().filter(|(f, _)| touched(*f)).try_for_each(|(f, g)| -> Result<()> {
+            *g = lim.shared(f, exact[f].clone(), &curves)?;
+            Ok(())
+        })?;
     }
 }
+
 /// The corner cell of extraordinary face `f` (its net `g`, split into exact cells): the sides on the face's
 /// boundary from the edge curves `s0` (v = 0) and `s3` (u = 0), the inner sides from the exact neighbours,
 /// and the inner points fitted ([`fit_corner`]) so that the corner joins them C¹.

@@ -164,16 +164,14 @@ impl Solid {
                     t
                 };
                 let (us, vs) = (grid(&ku), grid(&kv));
+                let points = s.eval_grid(&us, &vs);
                 let mut normals = vec![[0.0; 3]; us.len() * vs.len()];
-                for (j, &v) in vs.iter().enumerate() {
-                    for (i, &u) in us.iter().enumerate() {
-                        let (p, pu, pv) = s.eval(u, v);
-                        let n = vec3::cross(pu, pv);
-                        if !(vec3::norm(n) > 0.0) {
-                            return Some(p);
-                        }
-                        normals[j * us.len() + i] = vec3::scale(n, 1.0 / vec3::norm(n));
+                for (k, &(p, pu, pv)) in points.iter().enumerate() {
+                    let n = vec3::cross(pu, pv);
+                    if !(vec3::norm(n) > 0.0) {
+                        return Some(p);
                     }
+                    normals[k] = vec3::scale(n, 1.0 / vec3::norm(n));
                 }
                 for j in 0..vs.len() {
                     for i in 0..us.len() {
@@ -181,7 +179,7 @@ impl Solid {
                         let right = (i + 1 < us.len()).then(|| normals[j * us.len() + i + 1]);
                         let up = (j + 1 < vs.len()).then(|| normals[(j + 1) * us.len() + i]);
                         if [right, up].into_iter().flatten().any(|m| vec3::dot(n, m) < 0.0) {
-                            return Some(s.eval(us[i], vs[j]).0);
+                            return Some(points[j * us.len() + i].0);
                         }
                     }
                 }
@@ -200,13 +198,18 @@ impl Solid {
             let s = &face.surface;
             let (ku, _) = bspline::knot_multiplicities(&s.knots_u);
             let (kv, _) = bspline::knot_multiplicities(&s.knots_v);
-            for wu in ku.windows(2) {
-                for wv in kv.windows(2) {
+            // Every Gauss point's parameter along u and along v, span by span, evaluated on their grid.
+            let gauss = |k: &[f64]| -> Vec<f64> {
+                k.windows(2).flat_map(|w| GAUSS5.map(|(x, _)| w[0] + (w[1] - w[0]) / 2.0 * (x + 1.0))).collect()
+            };
+            let (us, vs) = (gauss(&ku), gauss(&kv));
+            let points = s.eval_grid(&us, &vs);
+            for (su, wu) in ku.windows(2).enumerate() {
+                for (sv, wv) in kv.windows(2).enumerate() {
                     let (hu, hv) = ((wu[1] - wu[0]) / 2.0, (wv[1] - wv[0]) / 2.0);
-                    for &(xu, au) in &GAUSS5 {
-                        for &(xv, av) in &GAUSS5 {
-                            let (u, v) = (wu[0] + hu * (xu + 1.0), wv[0] + hv * (xv + 1.0));
-                            let (p, pu, pv) = s.eval(u, v);
+                    for (gu, &(_, au)) in GAUSS5.iter().enumerate() {
+                        for (gv, &(_, av)) in GAUSS5.iter().enumerate() {
+                            let (p, pu, pv) = points[(5 * sv + gv) * us.len() + 5 * su + gu];
                             let n = vec3::cross(pu, pv);
                             let w = au * av * hu * hv;
                             vol += w * vec3::dot(p, n) / 3.0;
@@ -239,12 +242,7 @@ impl Solid {
             let us: Vec<f64> = param_points(&ku, n);
             let vs: Vec<f64> = param_points(&kv, n);
             let base = pos.len() as u32;
-            for &v in &vs {
-                for &u in &us {
-                    let p = s.eval(u, v).0;
-                    pos.push([p[0] as f32, p[1] as f32, p[2] as f32]);
-                }
-            }
+            pos.extend(s.eval_grid(&us, &vs).into_iter().map(|(p, _, _)| [p[0] as f32, p[1] as f32, p[2] as f32]));
             let cols = us.len() as u32;
             for j in 0..vs.len() as u32 - 1 {
                 for i in 0..cols - 1 {

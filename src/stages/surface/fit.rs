@@ -11,9 +11,7 @@
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::mesh::TriMesh;
-use crate::geometry::subdivision::limit::{
-    EvPatch, FaceKind, LimitSurface, bspline_basis, limit_stencil, point_weights,
-};
+use crate::geometry::subdivision::limit::{FaceKind, LimitSurface, bspline_basis, limit_stencil, point_weights};
 use crate::geometry::subdivision::net::{QuadNet, Stencils, combine};
 use crate::geometry::vec3::{self, V3};
 use crate::stages::Progress;
@@ -186,15 +184,17 @@ impl Samples {
             .collect();
         let ev_faces: Vec<usize> =
             (0..surface.kinds.len()).filter(|&f| matches!(surface.kinds[f], FaceKind::Extraordinary(_))).collect();
+        let tables = surface.ev_patches()?;
         let rows: Vec<Result<Vec<_>>> = ev_faces
             .par_iter()
             .map(|&f| {
-                let ev = EvPatch::new(&surface.net, f, surface.frame_start(f))?;
+                let ev =
+                    tables[f].as_ref().ok_or_else(|| Error::internal(format!("face {f} has no local evaluation")))?;
                 let mut out = Vec::with_capacity(m * m);
                 for j in 0..m {
                     for i in 0..m {
                         let (u, v) = ((i as f64 + 0.5) / m as f64, (j as f64 + 0.5) / m as f64);
-                        out.push(point_weights(surface, f, u, v, Some(&ev)));
+                        out.push(point_weights(surface, f, u, v, Some(ev)));
                     }
                 }
                 Ok(out)
@@ -214,23 +214,19 @@ impl Samples {
     /// Positions (k = 0) or derivatives (k = 1, 2) of all samples from refined-net values.
     fn eval(&self, surface: &LimitSurface, p1: &[V3], k: usize) -> Vec<V3> {
         let mm = self.m * self.m;
-        let mut out: Vec<V3> = self
-            .regular
-            .par_iter()
-            .flat_map_iter(|&f| {
-                let FaceKind::Regular(grid) = surface.kinds[f as usize] else { unreachable!() };
-                (0..mm).map(move |s| {
-                    let mut acc = [0.0; 3];
-                    for (g, w) in grid.iter().zip(&self.slot[s][k]) {
-                        let p = p1[*g as usize];
-                        for c in 0..3 {
-                            acc[c] += w * p[c];
-                        }
+        // Each regular face writes its own mm samples (no flattening iterator between).
+        let mut out: Vec<V3> = vec![[0.0; 3]; self.regular.len() * mm];
+        out.par_chunks_mut(mm).zip(self.regular.par_iter()).for_each(|(chunk, &f)| {
+            let FaceKind::Regular(grid) = surface.kinds[f as usize] else { unreachable!() };
+            for (s, acc) in chunk.iter_mut().enumerate() {
+                for (g, w) in grid.iter().zip(&self.slot[s][k]) {
+                    let p = p1[*g as usize];
+                    for c in 0..3 {
+                        acc[c] += w * p[c];
                     }
-                    acc
-                })
-            })
-            .collect();
+                }
+            }
+        });
         let st = [&self.ev_pos, &self.ev_du, &self.ev_dv][k];
         out.extend(st.apply(p1));
         out
