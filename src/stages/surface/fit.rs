@@ -214,19 +214,23 @@ impl Samples {
     /// Positions (k = 0) or derivatives (k = 1, 2) of all samples from refined-net values.
     fn eval(&self, surface: &LimitSurface, p1: &[V3], k: usize) -> Vec<V3> {
         let mm = self.m * self.m;
-        // Each regular face writes its own mm samples (no flattening iterator between).
-        let mut out: Vec<V3> = vec![[0.0; 3]; self.regular.len() * mm];
-        out.par_chunks_mut(mm).zip(self.regular.par_iter()).for_each(|(chunk, &f)| {
-            let FaceKind::Regular(grid) = surface.kinds[f as usize] else { unreachable!() };
-            for (s, acc) in chunk.iter_mut().enumerate() {
-                for (g, w) in grid.iter().zip(&self.slot[s][k]) {
-                    let p = p1[*g as usize];
-                    for c in 0..3 {
-                        acc[c] += w * p[c];
+        let mut out: Vec<V3> = self
+            .regular
+            .par_iter()
+            .flat_map_iter(|&f| {
+                let FaceKind::Regular(grid) = surface.kinds[f as usize] else { unreachable!() };
+                (0..mm).map(move |s| {
+                    let mut acc = [0.0; 3];
+                    for (g, w) in grid.iter().zip(&self.slot[s][k]) {
+                        let p = p1[*g as usize];
+                        for c in 0..3 {
+                            acc[c] += w * p[c];
+                        }
                     }
-                }
-            }
-        });
+                    acc
+                })
+            })
+            .collect();
         let st = [&self.ev_pos, &self.ev_du, &self.ev_dv][k];
         out.extend(st.apply(p1));
         out
