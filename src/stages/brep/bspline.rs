@@ -374,6 +374,39 @@ mod tests {
         assert!(mult[2..mult.len() - 1].iter().all(|&m| m == 1), "the other knots become simple: {mult:?}");
     }
 
+    /// Grid evaluation gives `eval`'s bits at every grid point, at knots (span ends) and between them,
+    /// on a surface of several spans a side (where the span search walks, and now bisects).
+    #[test]
+    fn grid_evaluation_equals_pointwise_bit_for_bit() {
+        let (w, h) = (7, 5);
+        let grid: Vec<V3> = (0..(w + 3) * (h + 3))
+            .map(|k| {
+                let (i, j) = ((k % (w + 3)) as f64, (k / (w + 3)) as f64);
+                [i + 0.1 * j, j, (0.9 * i).sin() * (0.4 * j).cos()]
+            })
+            .collect();
+        let s = BsplineSurface::from_uniform_grid(&grid, w, h);
+        let us: Vec<f64> = (0..=4 * w).map(|k| k as f64 / 4.0).chain([0.3, 6.999, 7.0]).collect();
+        let vs: Vec<f64> = (0..=3 * h).map(|k| k as f64 / 3.0).chain([2.5, 4.0001, 5.0]).collect();
+        // The bisection finds the span the linear walk found, out of range and NaN included.
+        let walk = |t: f64| {
+            let mut k = 3;
+            while k + 1 < s.nu && s.knots_u[k + 1] <= t {
+                k += 1;
+            }
+            k - 3
+        };
+        for t in us.iter().copied().chain([-1.0, 8.0, f64::NAN, f64::INFINITY]) {
+            assert_eq!(basis(&s.knots_u, s.nu, t).0, walk(t), "span at {t}");
+        }
+        let on_grid = s.eval_grid(&us, &vs);
+        for (j, &v) in vs.iter().enumerate() {
+            for (i, &u) in us.iter().enumerate() {
+                assert_eq!(on_grid[j * us.len() + i], s.eval(u, v), "at ({u}, {v})");
+            }
+        }
+    }
+
     #[test]
     fn clamped_grid_reproduces_the_uniform_spline() {
         // A wavy 5×4-face grid: compare clamped evaluation with direct uniform B-spline evaluation.
