@@ -374,18 +374,22 @@ mod tests {
         assert!(mult[2..mult.len() - 1].iter().all(|&m| m == 1), "the other knots become simple: {mult:?}");
     }
 
+    /// The control grid of a wavy `w × h`-face uniform B-spline surface, `(w + 3) × (h + 3)` points.
+    fn wavy_grid(w: usize, h: usize) -> Vec<V3> {
+        (0..(w + 3) * (h + 3))
+            .map(|k| {
+                let (i, j) = ((k % (w + 3)) as f64, (k / (w + 3)) as f64);
+                [i, j, (0.7 * i).sin() + 0.3 * (1.3 * j).cos() * i]
+            })
+            .collect()
+    }
+
     /// Grid evaluation gives `eval`'s bits at every grid point, at knots (span ends) and between them,
     /// on a surface of several spans a side (where the span search walks, and now bisects).
     #[test]
     fn grid_evaluation_equals_pointwise_bit_for_bit() {
         let (w, h) = (7, 5);
-        let grid: Vec<V3> = (0..(w + 3) * (h + 3))
-            .map(|k| {
-                let (i, j) = ((k % (w + 3)) as f64, (k / (w + 3)) as f64);
-                [i + 0.1 * j, j, (0.9 * i).sin() * (0.4 * j).cos()]
-            })
-            .collect();
-        let s = BsplineSurface::from_uniform_grid(&grid, w, h);
+        let s = BsplineSurface::from_uniform_grid(&wavy_grid(w, h), w, h);
         let us: Vec<f64> = (0..=4 * w).map(|k| k as f64 / 4.0).chain([0.3, 6.999, 7.0]).collect();
         let vs: Vec<f64> = (0..=3 * h).map(|k| k as f64 / 3.0).chain([2.5, 4.0001, 5.0]).collect();
         // The bisection finds the span the linear walk found, out of range and NaN included.
@@ -411,12 +415,7 @@ mod tests {
     fn clamped_grid_reproduces_the_uniform_spline() {
         // A wavy 5×4-face grid: compare clamped evaluation with direct uniform B-spline evaluation.
         let (w, h) = (5, 4);
-        let grid: Vec<V3> = (0..(w + 3) * (h + 3))
-            .map(|k| {
-                let (i, j) = ((k % (w + 3)) as f64, (k / (w + 3)) as f64);
-                [i, j, (0.7 * i).sin() + 0.3 * (1.3 * j).cos() * i]
-            })
-            .collect();
+        let grid = wavy_grid(w, h);
         let s = BsplineSurface::from_uniform_grid(&grid, w, h);
         assert_eq!((s.nu, s.nv), (w + 3, h + 3));
         for &(u, v) in &[(0.0, 0.0), (0.3, 2.7), (2.5, 1.5), (4.99, 3.2), (5.0, 4.0), (1.0, 3.0)] {

@@ -447,22 +447,22 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
     let mut level = vec![1usize; net.faces.len()];
     let mut exact: Vec<FaceNet> =
         (0..net.faces.len()).into_par_iter().map(|f| lim.exact(f, level[f])).collect::<Result<_>>()?;
-    let mut curves: Vec<EdgeCurve> =
+    let curves: Vec<EdgeCurve> =
         (0..lim.edge_half.len()).into_par_iter().map(|e| lim.curve(e, &exact)).collect::<Result<_>>()?;
-    let mut nets: Vec<FaceNet> =
+    let nets: Vec<FaceNet> =
         exact.par_iter().enumerate().map(|(f, g)| lim.shared(f, g.clone(), &curves)).collect::<Result<_>>()?;
     let evs: Vec<Vec<usize>> = (0..net.vertex_count as u32)
         .filter(|&v| net.valence(v) != 4)
         .map(|v| net.outgoing(v).iter().map(|&h| (h / 4) as usize).collect())
         .collect();
+    let mut patches = Patches {
+        nets,
+        edge_curve: curves,
+        edge_half: lim.edge_half.clone(),
+        edge_of: lim.edge_of.clone(),
+        vertex: lim.vertex.clone(),
+    };
     loop {
-        let patches = Patches {
-            nets,
-            edge_curve: curves,
-            edge_half: lim.edge_half.clone(),
-            edge_of: lim.edge_of.clone(),
-            vertex: lim.vertex.clone(),
-        };
         // 2. The faces of an extraordinary vertex are cut again while the largest normal jump at them is
         //    above JUMP_TARGET_DEG (up to EV_SPLIT_LEVELS cuts).
         let jumps = face_jumps(surface, &patches);
@@ -479,7 +479,6 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
         if !cut.contains(&true) {
             return Ok(patches);
         }
-        (nets, curves) = (patches.nets, patches.edge_curve);
         // 3. Built again: the cut faces' exact cells, the curves of their edges, the nets on those edges
         //    (the same functions of the same data as a whole pass: the same bytes).
         exact.par_iter_mut().enumerate().filter(|(f, _)| cut[*f]).try_for_each(|(f, g)| -> Result<()> {
@@ -488,13 +487,14 @@ pub fn build(surface: &LimitSurface, p1: &[V3]) -> Result<Patches> {
         })?;
         let on_cut = |h: u32| cut[(h / 4) as usize] || cut[(net.twin[h as usize] / 4) as usize];
         let redo: Vec<bool> = lim.edge_half.iter().map(|&h| on_cut(h)).collect();
-        curves.par_iter_mut().enumerate().filter(|(e, _)| redo[*e]).try_for_each(|(e, c)| -> Result<()> {
+        let Patches { nets, edge_curve, .. } = &mut patches;
+        edge_curve.par_iter_mut().enumerate().filter(|(e, _)| redo[*e]).try_for_each(|(e, c)| -> Result<()> {
             *c = lim.curve(e, &exact)?;
             Ok(())
         })?;
         let touched = |f: usize| cut[f] || (0..4).any(|k| redo[lim.edge_of[4 * f + k] as usize]);
         nets.par_iter_mut().enumerate().filter(|(f, _)| touched(*f)).try_for_each(|(f, g)| -> Result<()> {
-            *g = lim.shared(f, exact[f].clone(), &curves)?;
+            *g = lim.shared(f, exact[f].clone(), edge_curve)?;
             Ok(())
         })?;
     }
