@@ -77,7 +77,7 @@ fn row(name: &str, input: &Path, r: &scanstation::pipeline::ConvertReport, tmp: 
     let signed = scanstation::stages::quality::with_side(&map.distances, &side);
     let t_sign = t0.elapsed().as_secs_f64();
     let diag = r.bbox_diagonal;
-    let deviation = Deviation { signed: &signed, invented: None, band: 0.0005 * diag, diag, unit: "mm" };
+    let deviation = Deviation { signed: &signed, invented: None, band: 0.0005 * diag, diag, unit: "mm", far: &[] };
     let attempts = r
         .attempts
         .iter()

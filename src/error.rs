@@ -99,6 +99,9 @@ pub enum ErrorCode {
     ReconstructViewsDisagree,
     /// A point cloud's normals include zero-length or non-finite vectors.
     InputBadNormal,
+    /// The scan is several separate closed parts after repair (each at least repair's share of the area
+    /// kept): the chain makes one solid of one connected surface.
+    InputSeveralParts,
     /// A compressed input expands far more than any scan does ([`GZIP_BOMB_RATIO`](crate::geometry::io::GZIP_BOMB_RATIO)).
     InputDecompressionBomb,
     /// The operation would need more memory than its budget allows.
@@ -152,6 +155,9 @@ pub enum ErrorCode {
     /// Quality gate: an open input's cap bulges past its rim's plane by more than the rim's own
     /// non-planarity and the accuracy goal.
     QualityCapBulge,
+    /// Quality gate: a part of the scan lies farther from the solid than the far-tail bound (a tip cut short,
+    /// a crease rounded off, a thin part lost), though the RMS may be within its own.
+    QualityMaxDistance,
     /// The job ran past its time limit (a cluster's `--time`).
     ResourceTime,
     /// The cluster node running the job failed, again after one resubmission.
@@ -164,7 +170,7 @@ pub enum ErrorCode {
 }
 
 /// Every code, in declaration order (for [`ErrorCode::parse`]).
-pub const ALL_CODES: [ErrorCode; 60] = {
+pub const ALL_CODES: [ErrorCode; 62] = {
     use ErrorCode::*;
     [
         InputNotFound,
@@ -200,6 +206,7 @@ pub const ALL_CODES: [ErrorCode; 60] = {
         ReconstructFailed,
         ReconstructViewsDisagree,
         InputBadNormal,
+        InputSeveralParts,
         ResourceMemoryBudget,
         ResourceOutput,
         InternalBug,
@@ -223,6 +230,7 @@ pub const ALL_CODES: [ErrorCode; 60] = {
         QualityVolume,
         QualityRms,
         QualityCapBulge,
+        QualityMaxDistance,
         ResourceTime,
         ClusterNodeFailed,
         ClusterCancelled,
@@ -267,6 +275,7 @@ impl ErrorCode {
             ErrorCode::ReconstructFailed => "reconstruct.failed",
             ErrorCode::ReconstructViewsDisagree => "reconstruct.views-disagree",
             ErrorCode::InputBadNormal => "input.bad-normal",
+            ErrorCode::InputSeveralParts => "input.several-parts",
             ErrorCode::ResourceMemoryBudget => "resource.memory",
             ErrorCode::ResourceOutput => "resource.output",
             ErrorCode::InternalBug => "internal.bug",
@@ -290,6 +299,7 @@ impl ErrorCode {
             ErrorCode::QualityVolume => "quality.volume",
             ErrorCode::QualityRms => "quality.rms",
             ErrorCode::QualityCapBulge => "quality.cap-bulge",
+            ErrorCode::QualityMaxDistance => "quality.max-distance",
             ErrorCode::ResourceTime => "resource.time",
             ErrorCode::ClusterNodeFailed => "cluster.node-failed",
             ErrorCode::ClusterCancelled => "cluster.cancelled",
@@ -321,7 +331,8 @@ impl ErrorCode {
             | ErrorCode::QualityFolded
             | ErrorCode::QualityVolume
             | ErrorCode::QualityRms
-            | ErrorCode::QualityCapBulge => ErrorClass::Quality,
+            | ErrorCode::QualityCapBulge
+            | ErrorCode::QualityMaxDistance => ErrorClass::Quality,
             ErrorCode::DeviceUnplugged
             | ErrorCode::DeviceWrongFirmware
             | ErrorCode::DeviceTimeout

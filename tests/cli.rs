@@ -351,7 +351,7 @@ fn a_solid_that_misses_a_quality_gate_exits_4_unless_accepted_as_degraded() {
     let v: Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(v["status"], "failed", "{v}");
     let gates: Vec<&str> = v["gates"].as_array().unwrap().iter().map(|g| g["name"].as_str().unwrap()).collect();
-    assert_eq!(gates, ["crossings", "folds", "volume", "rms"]);
+    assert_eq!(gates, ["crossings", "folds", "volume", "rms", "max-distance"]);
     let rms = v["gates"].as_array().unwrap().iter().find(|g| g["name"] == "rms").unwrap();
     let measured = rms["value"].as_f64().unwrap();
     assert!(measured > 0.05 && rms["bound"] == 0.05 && rms["passed"] == false, "{rms}");
@@ -375,6 +375,31 @@ fn a_solid_that_misses_a_quality_gate_exits_4_unless_accepted_as_degraded() {
     let (code, _, err) = run(&["convert", SPOT, "-o", out.to_str().unwrap(), "--max-rms=-1", "--json"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("outside the range [0.000001, 100]"), "{err}");
+}
+
+/// A scan of two separate closed parts (two balls a diameter apart) is refused after repair with
+/// `input.several-parts` (exit 2), naming the count, before any remeshing: the chain makes one solid of one
+/// connected surface (it ended in an internal `brep.invalid` before).
+#[test]
+fn a_scan_of_two_separate_parts_is_refused_as_bad_input() {
+    use scanstation::geometry::shapes::icosphere;
+    let dir = scratch("cli_two_parts");
+    let (a, b) = (icosphere(1.0, 3, [0.0; 3]), icosphere(1.0, 3, [4.0, 0.0, 0.0]));
+    let mut obj = String::new();
+    for p in a.positions.iter().chain(&b.positions) {
+        obj.push_str(&format!("v {} {} {}\n", p[0], p[1], p[2]));
+    }
+    let n = a.positions.len() as u32;
+    for t in a.triangles.iter().copied().chain(b.triangles.iter().map(|t| t.map(|i| i + n))) {
+        obj.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
+    }
+    let input = dir.join("two-balls.obj");
+    std::fs::write(&input, obj).unwrap();
+    let out = dir.join("two-balls.step");
+    let (code, _, err) = run(&["convert", input.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("[input.several-parts]") && err.contains("2 separate closed parts"), "{err}");
+    assert!(!out.exists(), "nothing is written");
 }
 
 const ROD: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rod.ply");

@@ -302,7 +302,8 @@ fn trust_issue_meshes_are_never_published_as_good() {
                     && r.brep.folded_faces == 0
                     && r.volume_error_pct.abs() <= 0.5
                     && gate("rms").value <= gate("rms").bound
-                    && r.gates.iter().filter(|g| g.name == "caps").all(|g| g.value <= g.bound);
+                    && r.gates.iter().filter(|g| g.name == "caps").all(|g| g.value <= g.bound)
+                    && gate("max-distance").value <= gate("max-distance").bound;
                 println!("{f}: status {:?}, gates {:?}, attempts {:?}", r.status, r.gates, r.attempts);
                 assert_eq!(r.status == Status::Ok, clean, "{f}: status {:?} with gates {:?}", r.status, r.gates);
                 assert_eq!(r.status, Status::Ok, "{f}: gates {:?}", r.gates);

@@ -167,6 +167,7 @@ struct RawPipeline {
     resume: Option<bool>,
     max_rms_pct: Option<f64>,
     max_volume_error_pct: Option<f64>,
+    max_distance_pct: Option<f64>,
     accept_degraded: Option<bool>,
     pictures_up: Option<String>,
 }
@@ -554,10 +555,11 @@ impl Config {
                 .pipeline
                 .max_volume_error_pct
                 .unwrap_or(crate::pipeline::gates::DEFAULT_MAX_VOLUME_ERROR_PCT),
+            max_distance_pct: raw.pipeline.max_distance_pct.unwrap_or(crate::pipeline::gates::DEFAULT_MAX_DISTANCE_PCT),
             accept_degraded: raw.pipeline.accept_degraded.unwrap_or(false),
         };
         if let Err(e) = gates.validated() {
-            return Err(err("pipeline.max_rms_pct / max_volume_error_pct", e.message));
+            return Err(err("pipeline.max_rms_pct / max_volume_error_pct / max_distance_pct", e.message));
         }
         let progress_max_rate_hz = raw.dbus.progress_max_rate_hz.unwrap_or(4.0);
         if !(progress_max_rate_hz.is_finite() && (0.1..=100.0).contains(&progress_max_rate_hz)) {

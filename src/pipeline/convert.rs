@@ -19,7 +19,7 @@ pub use super::resolution::{
 };
 use super::solid_mesh::{mesh_self_intersections, solid_self_intersections, tessellate_for_check, write_solid_mesh};
 use crate::error::{Error, ErrorCode, Result};
-use crate::geometry::io::{FileDigest, ReadOptions, ensure_not_input};
+use crate::geometry::io::{FileDigest, ReadOptions};
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::stages::brep::step::{LengthUnit, StepOptions, write_step};
 use crate::stages::brep::{BrepReport, Solid, build_solid};
@@ -174,6 +174,9 @@ pub struct ConvertReport {
     /// (`reference_to_test`: points to surface; `test_to_reference`: invented surface). Every later stage is
     /// measured against the points.
     pub reconstruct: Option<ReconstructStep>,
+    /// The far tail of the scan → solid distance, which the `max-distance` gate judges: its largest value,
+    /// where it is, how much of the scan lies beyond the bound, and what repair dropped ([`super::far_tail`]).
+    pub far_tail: super::gates::FarTail,
     /// `ok` when the solid meets every gate; `failed` when it misses one (see [`ConvertReport::verdict`]);
     /// `degraded` when it misses one and was published anyway ([`GateOptions::accept_degraded`]).
     pub status: Status,
@@ -270,6 +273,8 @@ struct SolidTry {
     rms: f64,
     /// The one-sided RMS distance input → solid (the measure for an open input).
     input_to_solid_rms: f64,
+    /// The largest distance input → solid (samples, vertices, inside the farthest samples' triangles).
+    input_to_solid_max: f64,
     /// The solid's tessellation for the quality check (about 1.5M triangles), also the solid mesh written
     /// beside the STEP file.
     tessellation: TriMesh,
@@ -382,7 +387,7 @@ pub fn convert_held(
     let monotonic = Monotonic { parent: progress, last: std::sync::Mutex::new(0.0) };
     let progress: &dyn Progress = &monotonic;
     // 1. No output may overwrite the input or another output; the gates' bounds make sense.
-    check_outputs(input, output, opts)?;
+    super::checks::check_outputs(input, output, opts)?;
     let t_total = Instant::now();
     let mut stages = Vec::new();
     let cmp_opts = compare_options(opts);
@@ -409,7 +414,8 @@ pub fn convert_held(
     let clock = Clock::start();
     let span = ProgressSpan::new(progress, 0.02, 0.1, "repair");
     let repair_opts = repair_options(opts, resolution, mesh, diag, &cmp_opts);
-    let (repaired, repair_report) = repair(mesh, &repair_opts, &span).map_err(|e| e.in_file(input))?;
+    let (repaired, repair_report) =
+        repair(mesh, &repair_opts, &span).and_then(super::checks::one_part).map_err(|e| e.in_file(input))?;
     stages.push(clock.stop("repair", Some(repair_report.distance.clone())));
     let input_volume = repaired.signed_volume();
 
@@ -462,6 +468,8 @@ pub fn convert_held(
     let (input_to_solid, held) = ((kept_input_to_solid_rms, diag), fused.as_ref());
     let (open_input, error_map_file, map, invented, seen_by) =
         measure_and_map(output, &solid_mesh, &chain.input_geom, input_to_solid, &repair_report, held)?;
+    let scan = (&chain.input_geom, &chain.repaired, &repair_report);
+    let far_tail = super::far_tail::measure(scan, &solid_mesh, kept.input_to_solid_max, opts.gates.max_rms_pct, diag);
     stages.push(clock.stop("quality", None));
     progress.report(1.0, "quality/done");
 
@@ -480,13 +488,16 @@ pub fn convert_held(
         cap_excess_pct: open_input.as_ref().and_then(OpenInputMeasure::cap_excess_pct),
         cloud_scatter_pct,
         tolerance_pct,
+        max_distance_pct: far_tail.max_pct,
+        cloud_max_pct: reconstruct_step.as_ref().map(|r| r.distance.reference_to_test.max.pct_of_diagonal),
     };
     let (status, gates) = judge_logged(&measured, &opts.gates);
 
     // 8. The pictures, when asked for.
     let bound_pct = tolerance_pct.unwrap_or(opts.gates.max_rms_pct);
     let (held, measured) = ((&solid_mesh, &face_of[..], &kept.quads), (&chain.repaired, &map, invented.as_deref()));
-    let pictures = draw_pictures(output, opts, held, measured, (&attempts, diag, bound_pct), &mut stages)?;
+    let chain_figures = (&attempts[..], diag, bound_pct, &far_tail.places[..]);
+    let pictures = draw_pictures(output, opts, held, measured, chain_figures, &mut stages)?;
     let report = ConvertReport {
         input_file: input.to_path_buf(),
         output_file: output.to_path_buf(),
@@ -507,6 +518,7 @@ pub fn convert_held(
         attempts,
         open_input,
         reconstruct: reconstruct_step,
+        far_tail,
         status,
         gates,
         total_seconds: t_total.elapsed().as_secs_f64(),
@@ -525,26 +537,6 @@ fn compare_options(opts: &ConvertOptions) -> CompareOptions {
         include_vertices: true,
         memory_budget: opts.memory_budget,
     }
-}
-
-/// Step 1 of [`convert_held`]: no output may overwrite the input or another output, nor replace what is not
-/// a regular file; the gates' bounds make sense.
-fn check_outputs(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<()> {
-    opts.gates.validated()?;
-    ensure_not_input(output, &[input])?;
-    // The artifacts beside the STEP file must not land on the input either (`convert X.solid.ply -o X.step`).
-    let (solid_path, map_path) =
-        (super::provenance::solid_artifact_path(output), super::provenance::error_map_path(output));
-    ensure_not_input(&solid_path, &[input])?;
-    ensure_not_input(&map_path, &[input])?;
-    for p in [output, &solid_path, &map_path] {
-        crate::geometry::io::ensure_replaceable(p)?;
-    }
-    if let Some(q) = &opts.quads_output {
-        ensure_not_input(q, &[input, output, &solid_path, &map_path])?;
-        crate::geometry::io::ensure_replaceable(q)?;
-    }
-    Ok(())
 }
 
 /// The gates on `m`, each missed one logged.
@@ -594,7 +586,7 @@ fn draw_pictures(
     opts: &ConvertOptions,
     (solid, face_of, net): (&PolyMesh, &[u32], &PolyMesh),
     (repaired, map, invented): (&TriMesh, &ErrorMapFile, Option<&[bool]>),
-    (attempts, diag, bound_pct): (&[Attempt], f64, f64),
+    (attempts, diag, bound_pct, far): (&[Attempt], f64, f64, &[[f64; 3]]),
     stages: &mut Vec<StageReport>,
 ) -> Result<Vec<super::pictures::Picture>> {
     use super::pictures::{AttemptPoint, ConvertPictures, Deviation, write_convert_pictures};
@@ -612,7 +604,8 @@ fn draw_pictures(
             rejected: a.solid_self_intersections > 0 || a.solid_folded_faces > 0,
         })
         .collect();
-    let deviation = Deviation { signed: &signed, invented, band: bound_pct / 100.0 * diag, diag, unit: unit.symbol() };
+    let band = bound_pct / 100.0 * diag;
+    let deviation = Deviation { signed: &signed, invented, band, diag, unit: unit.symbol(), far };
     let p = ConvertPictures { solid: &solid, face_of, deviation, net, attempts, rms_bound_pct: bound_pct };
     let drawn = write_convert_pictures(output, &p, up)?;
     stages.push(clock.stop("pictures", None));
@@ -754,16 +747,20 @@ impl Chain<'_> {
         let (base, remesh_report, quad_crossings, raises) = self.net(n, seed, &span)?;
         let max_rms_pct = self.opts.gates.max_rms_pct;
         let scan_to_net = remesh_report.distance.as_ref().map_or(0.0, |d| d.reference_to_test.rms.pct_of_diagonal);
-        let refines = matches!(self.opts.resolution, Resolution::Goal { .. })
-            && scan_to_net > super::refine::LOCAL_TRIGGER_GOALS * max_rms_pct;
-        let mut local = LocalRefinement::default();
+        let scan_to_net_max = remesh_report.distance.as_ref().map_or(0.0, |d| d.reference_to_test.max.pct_of_diagonal);
+        let trigger = matches!(self.opts.resolution, Resolution::Goal { .. })
+            .then(|| super::refine::trigger((scan_to_net, scan_to_net_max), max_rms_pct))
+            .flatten();
+        let (refines, by_max) = (trigger.is_some(), trigger == Some(super::refine::Trigger::FarTail));
+        let mut local = LocalRefinement { trigger, ..Default::default() };
         let mut avoid = self.invented.clone();
         let mut earlier = [0.0; 2];
         loop {
-            let refined = if refines && local.given_up < super::refine::SOLID_TRIES {
+            let tries = if by_max { super::refine::FAR_TAIL_SOLID_TRIES } else { super::refine::SOLID_TRIES };
+            let refined = if refines && local.given_up < tries {
                 let samples = self.samples.get_or_init(|| super::refine::scan_samples(&self.input_geom));
                 let goal_abs = max_rms_pct / 100.0 * self.input_geom.bbox().diagonal();
-                let (q, r) = super::refine::refine_net(&base, &self.repaired, samples, goal_abs, &avoid)?;
+                let (q, r) = super::refine::refine_net(&base, &self.repaired, samples, goal_abs, &avoid, by_max)?;
                 (r.vertices_after > r.vertices_before).then_some((q, r))
             } else {
                 None
@@ -831,7 +828,8 @@ impl Chain<'_> {
         let (tessellation, tessellation_faces) = tessellate_for_check(&solid, 1_500_000)?;
         let d =
             compare(&Geometry::Mesh(PolyMesh::from(tessellation.clone())), &self.input_geom, &self.cmp_opts, &span)?;
-        let (rms, input_to_solid_rms) = (d.symmetric.rms.value, d.reference_to_test.rms.value);
+        let (rms, input_to_solid_rms, input_to_solid_max) =
+            (d.symmetric.rms.value, d.reference_to_test.rms.value, d.reference_to_test.max.value);
         stages.push(clock.stop("brep", Some(d)));
         Ok(SolidTry {
             quads,
@@ -845,6 +843,7 @@ impl Chain<'_> {
             stages,
             rms,
             input_to_solid_rms,
+            input_to_solid_max,
             tessellation,
             tessellation_faces,
             flaws,

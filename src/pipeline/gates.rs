@@ -13,6 +13,14 @@
 //! | `volume` | `quality.volume` | \|solid − input\| / input volume, % | [`GateOptions::max_volume_error_pct`] |
 //! | `rms` | `quality.rms` | RMS distance, % of the input's diagonal | the tolerance, or [`GateOptions::max_rms_pct`]; for a cloud √(that² + s²) |
 //! | `caps` | `quality.cap-bulge` | an open input's caps: the largest bulge past a cap's rim plane beyond the rim's own non-planarity, % of the diagonal | the RMS bound |
+//! | `max-distance` | `quality.max-distance` | the far tail: the largest distance from the scan repair kept to the solid, % of the diagonal | [`GateOptions::max_distance_pct`]; for a cloud plus its points' own largest distance from the reconstruction |
+//!
+//! The RMS hides a fine part cut short: a horn tip 1.5 % of the diagonal short moves spot's RMS by a few
+//! thousandths of a percent. The `max-distance` gate bounds the far tail (every scan vertex, the scan's
+//! area samples and the farthest point inside the triangles of the farthest samples, against the solid's
+//! tessellation: [`crate::stages::quality`]). Scan vertices that repair itself left farther than the bound
+//! from its result (debris it dropped, spikes it flattened) are not the solid's to follow: they are counted
+//! and reported beside the gate ([`FarTail`]), not hidden.
 //!
 //! The RMS is two-sided for a closed input. For an open input (holes that repair filled) the solid's caps and
 //! fills have no scan to be measured against: it is √((scan → solid² + solid → scan off the invented
@@ -38,6 +46,21 @@ pub const DEFAULT_MAX_RMS_PCT: f64 = 0.05;
 /// Default bound on the solid's volume error, % of the input's volume.
 pub const DEFAULT_MAX_VOLUME_ERROR_PCT: f64 = 0.5;
 
+/// Default bound on the far tail: the largest distance from the scan repair kept to the solid, % of the
+/// scan's diagonal. An interim bound, measured (2026-12-07, the nine shared meshes at the defaults, the net
+/// refined where its far tail is over [`FAR_TAIL_GOAL_GOALS`] × the RMS goal): spot 0.12 %, igea 0.19 %,
+/// fandisk 0.21 %, the bunny 0.32 %, the armadillo 0.48 %, the skull 0.86 %, the scorpion 1.02 %, the
+/// dragon 1.74 % and the falcon 1.79 % (thin struts, talons and spines the one-spacing net cannot enter);
+/// scans outside the shared set that were delivered reach 1.0–1.61 %. It refuses a solid that lost a limb,
+/// an ear or a handle's worth of the scan; the far-tail goal, [`FAR_TAIL_GOAL_GOALS`] × the RMS goal
+/// (0.2 %), is what the net is refined toward and what the report counts and the page marks.
+pub const DEFAULT_MAX_DISTANCE_PCT: f64 = 2.0;
+
+/// The far-tail goal as a multiple of the RMS goal: 4 × 0.05 % = 0.2 % of the diagonal (0.6 mm on a 30 cm
+/// figurine). The net is refined locally where the scan passes farther
+/// ([`super::refine::LOCAL_FAR_GOALS`] is this), and [`FarTail`] counts and places what lies beyond it.
+pub const FAR_TAIL_GOAL_GOALS: f64 = 4.0;
+
 /// The gates' bounds, and whether a solid that misses one is still published.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct GateOptions {
@@ -46,6 +69,8 @@ pub struct GateOptions {
     pub max_rms_pct: f64,
     /// Most |volume error|, % of the input's volume.
     pub max_volume_error_pct: f64,
+    /// Most distance from any part of the scan to the solid, % of its diagonal (the `max-distance` gate).
+    pub max_distance_pct: f64,
     /// Publish a solid that misses a gate anyway, with status `degraded`.
     pub accept_degraded: bool,
 }
@@ -55,6 +80,7 @@ impl Default for GateOptions {
         GateOptions {
             max_rms_pct: DEFAULT_MAX_RMS_PCT,
             max_volume_error_pct: DEFAULT_MAX_VOLUME_ERROR_PCT,
+            max_distance_pct: DEFAULT_MAX_DISTANCE_PCT,
             accept_degraded: false,
         }
     }
@@ -66,7 +92,11 @@ impl GateOptions {
     /// # Errors
     /// `input.bad-argument` for a bound that is not a positive finite number.
     pub fn validated(self) -> crate::error::Result<Self> {
-        for (name, v) in [("max_rms_pct", self.max_rms_pct), ("max_volume_error_pct", self.max_volume_error_pct)] {
+        for (name, v) in [
+            ("max_rms_pct", self.max_rms_pct),
+            ("max_volume_error_pct", self.max_volume_error_pct),
+            ("max_distance_pct", self.max_distance_pct),
+        ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(Error::new(ErrorCode::InputBadArgument, format!("{name} must be a positive percentage")));
             }
@@ -159,7 +189,36 @@ pub struct Measured {
     pub cloud_scatter_pct: Option<f64>,
     /// The RMS bound from a tolerance, % of the diagonal; `None` for the default goal.
     pub tolerance_pct: Option<f64>,
+    /// The far tail: the largest distance from the scan repair kept to the solid, % of the diagonal.
+    pub max_distance_pct: f64,
+    /// For a point-cloud input, the points' own largest distance from the reconstructed surface, % of the
+    /// diagonal (outliers no surface passes through): added to the `max-distance` bound.
+    pub cloud_max_pct: Option<f64>,
 }
+
+/// The far tail of the scan → solid distance, as the `max-distance` gate judges it ([`Measured::max_distance_pct`]).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct FarTail {
+    /// The largest distance from the scan repair kept to the solid, % of the diagonal.
+    pub max_pct: f64,
+    /// Where it is: the scan point farthest from the solid (input units).
+    pub at: [f64; 3],
+    /// The far-tail goal: [`FAR_TAIL_GOAL_GOALS`] × the RMS goal, % of the diagonal.
+    pub goal_pct: f64,
+    /// Scan vertices farther from the solid than the goal (of those repair kept).
+    pub vertices_beyond_goal: usize,
+    /// Up to [`FAR_TAIL_PLACES`] places where the scan lies beyond the goal, farthest first, at least
+    /// [`PLACE_SEPARATION_REL`](super::far_tail::PLACE_SEPARATION_REL) of the diagonal apart (input units).
+    pub places: Vec<[f64; 3]>,
+    /// Scan vertices repair left farther than the goal from its own result (debris dropped, spikes
+    /// flattened, the sides of a handle it cut): not judged by the gate.
+    pub dropped_by_repair: usize,
+    /// The largest distance of those to the solid, % of the diagonal (0 when none).
+    pub dropped_max_pct: f64,
+}
+
+/// Places of the far tail a report keeps ([`FarTail::places`]).
+pub const FAR_TAIL_PLACES: usize = 8;
 
 /// The gates on `m`, in the order of the table above, and the status they give.
 pub fn judge(m: &Measured, opts: &GateOptions) -> (Status, Vec<Gate>) {
@@ -211,6 +270,24 @@ pub fn judge(m: &Measured, opts: &GateOptions) -> (Status, Vec<Gate>) {
                 .into(),
         ));
     }
+    let (far_bound, far_what) = match m.cloud_max_pct {
+        Some(c) => (
+            opts.max_distance_pct + c,
+            "largest distance scan points → solid (bound plus the points' own from the reconstruction), % of the diagonal",
+        ),
+        None => (
+            opts.max_distance_pct,
+            "largest distance scan → solid (a tip cut short, a crease rounded), % of the diagonal",
+        ),
+    };
+    gates.push(Gate::new(
+        "max-distance",
+        ErrorCode::QualityMaxDistance,
+        m.max_distance_pct,
+        far_bound,
+        "%",
+        far_what.into(),
+    ));
     let status = if gates.iter().all(|g| g.passed) {
         Status::Ok
     } else if opts.accept_degraded {
@@ -244,6 +321,8 @@ mod tests {
             cap_excess_pct: None,
             cloud_scatter_pct: None,
             tolerance_pct: None,
+            max_distance_pct: 0.122,
+            cloud_max_pct: None,
         }
     }
 
@@ -251,7 +330,10 @@ mod tests {
     fn a_clean_solid_passes_every_gate() {
         let (status, gates) = judge(&clean(), &GateOptions::default());
         assert_eq!(status, Status::Ok);
-        assert_eq!(gates.iter().map(|g| g.name).collect::<Vec<_>>(), ["crossings", "folds", "volume", "rms"]);
+        assert_eq!(
+            gates.iter().map(|g| g.name).collect::<Vec<_>>(),
+            ["crossings", "folds", "volume", "rms", "max-distance"]
+        );
         assert!(verdict(status, &gates).is_ok());
     }
 
@@ -264,7 +346,7 @@ mod tests {
         let (status, gates) = judge(&open, &GateOptions::default());
         assert_eq!(status, Status::Failed);
         let names: Vec<_> = gates.iter().map(|g| g.name).collect();
-        assert_eq!(names, ["crossings", "folds", "volume", "rms", "caps"]);
+        assert_eq!(names, ["crossings", "folds", "volume", "rms", "caps", "max-distance"]);
         let e = verdict(status, &gates).unwrap_err();
         assert_eq!(e.code, ErrorCode::QualityCapBulge);
         assert!(e.message.contains("0.0600"), "{}", e.message);
@@ -297,6 +379,31 @@ mod tests {
         let m = Measured { volume_error_pct: f64::NAN, ..clean() };
         assert_eq!(judge(&m, &GateOptions::default()).0, Status::Failed);
         assert!(GateOptions { max_rms_pct: 0.0, ..Default::default() }.validated().is_err());
+    }
+
+    /// The far tail: spot's solid before the net was refined for it had its tail tip 1.548 % of the diagonal
+    /// from the scan with an RMS of 0.028 %: within the RMS bound, missed at a far-tail bound of 0.2 %
+    /// (`quality.max-distance`, naming the value), met at the default. A cloud's own largest distance from its
+    /// reconstruction widens the bound.
+    #[test]
+    fn a_tip_cut_short_misses_the_far_tail_gate_though_the_rms_is_met() {
+        let spot = Measured { rms_pct: 0.0281, max_distance_pct: 1.548, ..clean() };
+        let strict = GateOptions { max_distance_pct: 0.2, ..Default::default() };
+        let (status, gates) = judge(&spot, &strict);
+        assert_eq!(status, Status::Failed);
+        assert_eq!(gates.iter().filter(|g| !g.passed).map(|g| g.name).collect::<Vec<_>>(), ["max-distance"]);
+        let e = verdict(status, &gates).unwrap_err();
+        assert_eq!(e.code, ErrorCode::QualityMaxDistance);
+        assert_eq!(e.code.as_str(), "quality.max-distance");
+        assert!(e.message.contains("1.5480 %") && e.message.contains("bound 0.2000 %"), "{}", e.message);
+        assert_eq!(judge(&spot, &GateOptions::default()).0, Status::Ok);
+        let cloud = Measured { cloud_max_pct: Some(0.5), max_distance_pct: 0.6, ..clean() };
+        let (status, gates) = judge(&cloud, &strict);
+        assert_eq!(status, Status::Ok, "{gates:?}");
+        assert!((gates[4].bound - 0.7).abs() < 1e-12, "{:?}", gates[4]);
+        let far = Measured { max_distance_pct: f64::NAN, ..clean() };
+        assert_eq!(judge(&far, &GateOptions::default()).0, Status::Failed, "a far tail not measured never passes");
+        assert!(GateOptions { max_distance_pct: 0.0, ..Default::default() }.validated().is_err());
     }
 
     /// The bunny's range scans: points → solid 0.0604 % with the points scattering 0.0402 % about the

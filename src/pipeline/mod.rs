@@ -7,7 +7,9 @@
 //! the whole chain to a STEP solid ([`convert_file`], and [`convert_held`] handing back what it held), and
 //! the FEA on a solid ([`fea`]).
 
+mod checks;
 pub mod convert;
+pub mod far_tail;
 pub mod fea;
 pub mod gates;
 pub mod goal;

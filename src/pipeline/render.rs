@@ -86,8 +86,14 @@ pub fn render_file(mesh_path: &Path, out: &Path, read: &ReadOptions, opts: &Rend
                 d = with_side(&d, &signed_vertex_distances(&tri, &r.triangulate().0));
             }
             let diag = reference.bbox().diagonal();
-            let dev =
-                Deviation { signed: &d, invented: None, band: opts.band_pct / 100.0 * diag, diag, unit: opts.unit };
+            let dev = Deviation {
+                signed: &d,
+                invented: None,
+                band: opts.band_pct / 100.0 * diag,
+                diag,
+                unit: opts.unit,
+                far: &[],
+            };
             maps::deviation_sheet(&scene(), &dev, &dev.colours())
         }
         ColorBy::Net => maps::net_sheet(&scene(), &poly, 0.01 * tri.bbox().diagonal()),

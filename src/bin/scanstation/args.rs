@@ -203,6 +203,11 @@ pub struct ConvertArgs {
     /// Quality gate: the most |volume error| of the solid against the input, % (1e-6 to 100).
     #[arg(long, value_name = "PCT", default_value_t = pipeline::gates::DEFAULT_MAX_VOLUME_ERROR_PCT, value_parser = ranges::gate_pct)]
     pub max_volume_error: f64,
+    /// Quality gate: the most distance from any part of the scan to the solid, % of the diagonal (the far
+    /// tail: a tip cut short, a crease rounded off; 1e-6 to 100). Under the default deviation goal the net
+    /// is refined locally where the scan passes farther than this.
+    #[arg(long, value_name = "PCT", default_value_t = pipeline::gates::DEFAULT_MAX_DISTANCE_PCT, value_parser = ranges::gate_pct)]
+    pub max_distance: f64,
     /// Publish a solid that misses a quality gate anyway (exit 0, `"status": "degraded"` in the report);
     /// without it such a solid exits 4 with the gate's `quality.*` code.
     #[arg(long)]
@@ -558,6 +563,7 @@ impl ConvertArgs {
             gates: GateOptions {
                 max_rms_pct: self.max_rms,
                 max_volume_error_pct: self.max_volume_error,
+                max_distance_pct: self.max_distance,
                 accept_degraded: self.accept_degraded,
             }
             .validated()?,

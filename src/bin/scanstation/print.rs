@@ -108,47 +108,7 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
         r.fit.final_rms,
         r.total_seconds
     );
-    for x in r.attempts.iter().flat_map(|a| &a.raises) {
-        outln!(
-            "  net raised: {} -> {} vertices (net RMS {:.4} % -> {:.4} % of the diagonal, goal x2 = {:.4} %; {} crossing pairs; {}; {:.1} s)",
-            x.from_vertices,
-            x.to_vertices,
-            x.from_rms_pct,
-            x.to_rms_pct,
-            pipeline::goal::NET_GOAL_FACTOR * r.gates.iter().find(|g| g.name == "rms").map_or(f64::NAN, |g| g.bound),
-            x.to_crossing_pairs,
-            if x.kept { "kept" } else { "not kept" },
-            x.seconds
-        );
-    }
-    if let Some(a) = r.attempts.last() {
-        if let Some(k) = &a.local.kept {
-            let rounds: Vec<String> = k
-                .rounds
-                .iter()
-                .filter(|x| x.kept)
-                .map(|x| {
-                    format!(
-                        "+{} at {} far samples, scan -> net RMS {:.4} % -> {:.4} %",
-                        x.added_vertices,
-                        x.far_samples,
-                        100.0 * x.rms_before / r.bbox_diagonal,
-                        100.0 * x.rms_after / r.bbox_diagonal
-                    )
-                })
-                .collect();
-            outln!(
-                "  net refined locally: {} -> {} vertices ({}; {:.1} s)",
-                k.vertices_before,
-                k.vertices_after,
-                rounds.join("; then "),
-                k.seconds
-            );
-        }
-        if a.local.given_up > 0 {
-            outln!("  refined nets given up: {} (the solid crossed itself or folded there)", a.local.given_up);
-        }
-    }
+    print_net_changes(r);
     let status = match r.status {
         pipeline::Status::Ok => "ok",
         pipeline::Status::Degraded => "DEGRADED (published on request)",
@@ -185,11 +145,12 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
             );
         }
     }
+    print_far_tail(&r.far_tail);
     outln!("  quality: {status}");
     for g in &r.gates {
         let num = |x: f64| if g.unit == "%" { format!("{x:.4}") } else { format!("{x:.0}") };
         outln!(
-            "    {:<10} {:>10} {:<6} bound {:<8} {}",
+            "    {:<12} {:>10} {:<6} bound {:<8} {}",
             g.name,
             num(g.value),
             g.unit,
@@ -202,6 +163,76 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
         let page = pipeline::report_html::convert_page_path(&r.output_file);
         outln!("  pictures: {} beside {}; page {}", kinds.join(", "), first.file.display(), page.display());
     }
+}
+
+/// The nets made again finer under the deviation goal, and the kept net's local refinement.
+fn print_net_changes(r: &pipeline::ConvertReport) {
+    for x in r.attempts.iter().flat_map(|a| &a.raises) {
+        outln!(
+            "  net raised: {} -> {} vertices (net RMS {:.4} % -> {:.4} % of the diagonal, goal x2 = {:.4} %; {} crossing pairs; {}; {:.1} s)",
+            x.from_vertices,
+            x.to_vertices,
+            x.from_rms_pct,
+            x.to_rms_pct,
+            pipeline::goal::NET_GOAL_FACTOR * r.gates.iter().find(|g| g.name == "rms").map_or(f64::NAN, |g| g.bound),
+            x.to_crossing_pairs,
+            if x.kept { "kept" } else { "not kept" },
+            x.seconds
+        );
+    }
+    if let Some(a) = r.attempts.last() {
+        if let Some(k) = &a.local.kept {
+            let rounds: Vec<String> = k
+                .rounds
+                .iter()
+                .filter(|x| x.kept)
+                .map(|x| {
+                    format!(
+                        "+{} at {} far samples, scan -> net RMS {:.4} % -> {:.4} %, max {:.4} % -> {:.4} %",
+                        x.added_vertices,
+                        x.far_samples,
+                        100.0 * x.rms_before / r.bbox_diagonal,
+                        100.0 * x.rms_after / r.bbox_diagonal,
+                        100.0 * x.max_before / r.bbox_diagonal,
+                        100.0 * x.max_after / r.bbox_diagonal
+                    )
+                })
+                .collect();
+            let why = match a.local.trigger {
+                Some(pipeline::refine::Trigger::FarTail) => "for the far tail",
+                _ => "for the RMS",
+            };
+            outln!(
+                "  net refined locally {why}: {} -> {} vertices ({}; {:.1} s)",
+                k.vertices_before,
+                k.vertices_after,
+                rounds.join("; then "),
+                k.seconds
+            );
+        }
+        if a.local.given_up > 0 {
+            outln!("  refined nets given up: {} (the solid crossed itself or folded there)", a.local.given_up);
+        }
+    }
+}
+
+/// The far tail of the scan → solid distance: its largest value, where, and how much lies beyond the goal.
+fn print_far_tail(t: &pipeline::gates::FarTail) {
+    outln!(
+        "  far tail: scan -> solid at most {:.4} % of the diagonal, at ({:.4}, {:.4}, {:.4}); {} scan vertices beyond the goal {:.2} % in {} places{}",
+        t.max_pct,
+        t.at[0],
+        t.at[1],
+        t.at[2],
+        t.vertices_beyond_goal,
+        t.goal_pct,
+        t.places.len(),
+        if t.dropped_by_repair > 0 {
+            format!("; {} left by repair (up to {:.4} %), not judged", t.dropped_by_repair, t.dropped_max_pct)
+        } else {
+            String::new()
+        }
+    );
 }
 
 /// Human-readable `reconstruct` report.

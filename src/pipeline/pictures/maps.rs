@@ -5,6 +5,7 @@ use super::sheet::{INK, Scene, colour_bar, hatch, legend_box, num, swatch, ticks
 use crate::geometry::mesh::PolyMesh;
 use crate::geometry::raster::Image;
 use crate::geometry::stats::percentile;
+use crate::geometry::vec3::V3;
 use crate::stages::quality::{DEVIATION_BAND, INVENTED_GREY, deviation_colour};
 
 /// The shaded solid's own colour under overlays (net, faces' boundaries).
@@ -26,6 +27,28 @@ pub struct Deviation<'a> {
     pub diag: f64,
     /// The model unit's name (`mm`).
     pub unit: &'a str,
+    /// Places where the scan lies farther from the solid than the far-tail goal (model points: a tip cut
+    /// short, a crease rounded off): each is ringed in every view ([`crate::pipeline::gates::FarTail::places`]).
+    pub far: &'a [V3],
+}
+
+/// Ring colour of a far place on the deviation map.
+pub const FAR_RING: [u8; 3] = [150, 0, 170];
+
+/// Ring radius of a far place, pixels.
+const FAR_RING_RADIUS: f64 = 11.0;
+
+/// Ring `p` on `img` (the snapshot's panel), two pixels wide, whether or not the surface hides it (a part the
+/// solid lost lies outside it).
+fn ring(img: &mut Image, snap: &crate::geometry::raster::Snapshot, p: V3) {
+    let Some(c) = snap.screen(p) else { return };
+    let at = |k: usize| {
+        let a = std::f64::consts::TAU * k as f64 / 24.0;
+        ((c[0] + FAR_RING_RADIUS * a.cos()).round() as i64, (c[1] + FAR_RING_RADIUS * a.sin()).round() as i64)
+    };
+    for k in 0..24 {
+        img.line(at(k), at(k + 1), 2, FAR_RING);
+    }
 }
 
 impl Deviation<'_> {
@@ -60,19 +83,30 @@ impl Deviation<'_> {
 /// The deviation map, its vertices coloured by `colours` ([`Deviation::colours`]).
 pub fn deviation_sheet(scene: &Scene, dev: &Deviation, colours: &[[u8; 3]]) -> Image {
     let range = dev.range();
-    let mut sheet = scene.sheet(|snap| paint_deviation(snap, scene, dev, colours));
+    let mut sheet = scene.sheet(|snap| {
+        let mut img = paint_deviation(snap, scene, dev, colours);
+        dev.far.iter().for_each(|&p| ring(&mut img, snap, p));
+        img
+    });
     let lb = legend_box();
     colour_bar(&mut sheet, lb.bar, |t| deviation_colour((2.0 * t - 1.0) * range, range, dev.band));
     ticks(&mut sheet, lb.bar, lb.ticks_y, &[(0.0, dev.label(-range)), (0.5, "0".into()), (1.0, dev.label(range))]);
     let caption = format!("solid - scan, signed: blue inside, red outside; grey within +-{}", dev.label(dev.band));
     sheet.text(lb.bar.0, lb.caption_y, &caption, 1, INK);
     let y = swatch(&mut sheet, (lb.swatch_x, lb.bar.1), |_, _| DEVIATION_BAND, "within the tolerance band");
-    swatch(
+    let y = swatch(
         &mut sheet,
         (lb.swatch_x, y),
         |x, y| hatch(x, y, INVENTED_GREY, INVENTED_INK),
         "invented: caps, fills, unseen",
     );
+    if !dev.far.is_empty() {
+        let ringed = |x: u32, y: u32| {
+            let (dx, dy) = ((x as i64 % 16) as f64 - 7.5, (y as i64 % 16) as f64 - 7.5);
+            if (dx.hypot(dy) - 6.0).abs() < 1.2 { FAR_RING } else { crate::geometry::raster::BACKGROUND }
+        };
+        swatch(&mut sheet, (lb.swatch_x, y), ringed, "ringed: scan farther than the far-tail goal");
+    }
     sheet
 }
 

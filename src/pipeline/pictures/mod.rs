@@ -192,7 +192,7 @@ mod tests {
         let signed = signed_vertex_distances(&small, &large);
         assert!(signed.iter().all(|&d| (d + 0.01).abs() < 1e-4), "every vertex 0.01 inside");
         let diag = large.bbox().diagonal();
-        let dev = Deviation { signed: &signed, invented: None, band: 0.001, diag, unit: "mm" };
+        let dev = Deviation { signed: &signed, invented: None, band: 0.001, diag, unit: "mm", far: &[] };
         let sheet = maps::deviation_sheet(&Scene::new(&small, Up::Y.axis()), &dev, &dev.colours());
         let px = covered(&sheet);
         assert!(px.len() > 4 * 40_000, "four discs: {} pixels", px.len());
@@ -216,7 +216,7 @@ mod tests {
             }
         }
         let signed = signed_vertex_distances(&bumped, &plain);
-        let dev = Deviation { signed: &signed, invented: None, band: 0.002, diag: 3.46, unit: "mm" };
+        let dev = Deviation { signed: &signed, invented: None, band: 0.002, diag: 3.46, unit: "mm", far: &[] };
         let sheet = maps::deviation_sheet(&Scene::new(&bumped, Up::Y.axis()), &dev, &dev.colours());
         // Front panel 512 × 336 with 5 % margins: x from −1.05 to 1.05 over 302.4 rows → scale 144 px/unit,
         // centred at column 256 (a sphere's extent is symmetric up to the bump's 0.05). The bump spans
@@ -248,7 +248,7 @@ mod tests {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             let out = dir.join(format!("t{threads}"));
             std::fs::create_dir_all(&out).unwrap();
-            let dev = Deviation { signed: &signed, invented: None, band: 0.001, diag: 3.46, unit: "mm" };
+            let dev = Deviation { signed: &signed, invented: None, band: 0.001, diag: 3.46, unit: "mm", far: &[] };
             let attempts = vec![
                 AttemptPoint { target_vertices: 5000, rms_pct: 0.09, rejected: true },
                 AttemptPoint { target_vertices: 10000, rms_pct: 0.03, rejected: false },

@@ -72,6 +72,9 @@ pub fn header(b: &Bundle, thumbnail: Option<&str>) -> String {
         pairs.push(("bounding-box diagonal", format!("{} {}", cell(&get("bbox_diagonal")), cell(&get("unit")))));
         pairs.push(("B-rep faces", cell(c.pointer("/brep/faces").unwrap_or(&Value::Null))));
         pairs.push(("volume error, %", cell(&get("volume_error_pct"))));
+        if let Some(t) = c.get("far_tail").filter(|t| t.is_object()) {
+            pairs.push(("far tail: scan → solid at most", far_tail(t)));
+        }
         pairs.push(("attempts", c.get("attempts").and_then(Value::as_array).map_or(0, Vec::len).to_string()));
         let raises: Vec<String> = c
             .get("attempts")
@@ -102,6 +105,28 @@ pub fn header(b: &Bundle, thumbnail: Option<&str>) -> String {
     }
     s.push_str(&facts(&pairs));
     s
+}
+
+/// The far tail as a person reads it: the largest scan → solid distance (three significant digits), the
+/// scan beyond the far-tail goal (ringed on the deviation map), and what repair left.
+fn far_tail(t: &Value) -> String {
+    let num = |k: &str| t.get(k).and_then(Value::as_f64).unwrap_or(f64::NAN);
+    let count = |k: &str| t.get(k).and_then(Value::as_u64).unwrap_or(0);
+    let places = t.get("places").and_then(Value::as_array).map_or(0, Vec::len);
+    let mut text = format!(
+        "{} % of the diagonal; {} scan vertices beyond the goal of {} % ({places} places, ringed on the deviation map)",
+        crate::pipeline::pictures::sheet::num(num("max_pct")),
+        count("vertices_beyond_goal"),
+        crate::pipeline::pictures::sheet::num(num("goal_pct")),
+    );
+    if count("dropped_by_repair") > 0 {
+        text.push_str(&format!(
+            "; {} scan vertices repair left farther than the goal (up to {} %), not judged",
+            count("dropped_by_repair"),
+            crate::pipeline::pictures::sheet::num(num("dropped_max_pct"))
+        ));
+    }
+    esc(&text)
 }
 
 /// Why a quarantined job stopped.

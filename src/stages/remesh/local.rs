@@ -80,11 +80,22 @@ pub struct LocalOptions {
     pub avoid: Vec<V3>,
     /// See `avoid` (model units).
     pub avoid_radius: f64,
+    /// A round is kept only when it also brings the largest distance of the samples down (not only their
+    /// RMS): for a net refined for its far tail (a tip cut short) rather than for its RMS, a round that
+    /// leaves the farthest place where it was costs vertices and a fit for nothing.
+    pub by_max: bool,
 }
 
 impl Default for LocalOptions {
     fn default() -> Self {
-        LocalOptions { far: f64::INFINITY, rounds: 2, max_added_share: 0.25, avoid: Vec::new(), avoid_radius: 0.0 }
+        LocalOptions {
+            far: f64::INFINITY,
+            rounds: 2,
+            max_added_share: 0.25,
+            avoid: Vec::new(),
+            avoid_radius: 0.0,
+            by_max: false,
+        }
     }
 }
 
@@ -305,7 +316,7 @@ fn round(
             let d = Distances::measure(&built.mesh, samples);
             r.added_vertices = built.mesh.positions.len() - net.positions.len();
             (r.rms_after, r.max_after) = (d.rms(), d.max());
-            r.kept = r.rms_after < r.rms_before;
+            r.kept = r.rms_after < r.rms_before && (!opts.by_max || r.max_after < r.max_before);
             return Some((built.mesh, r));
         }
     }

@@ -107,6 +107,11 @@ pub struct RepairReport {
     pub decimate: Option<decimate::DecimateReport>,
     /// Self-intersections after decimation, removed as in step 4.
     pub decimate_intersections: Option<intersections::IntersectionReport>,
+    /// Closed pieces the closing cut off beside the body (under `keep_share` of the area), removed at the
+    /// end as debris is ([`manifold::drop_small_pieces`]), and their faces.
+    pub pieces_dropped: usize,
+    /// See `pieces_dropped`.
+    pub faces_removed_pieces: usize,
     /// Faces reversed at the end so that the signed volume is positive.
     pub flipped_outward: bool,
     /// The result.
@@ -253,6 +258,7 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         }
         decimate_intersections = Some(check);
     }
+    let (pieces_dropped, faces_removed_pieces) = manifold::drop_small_pieces(&pos, &mut tris, opts.keep_share);
     let (pos, tris, _) = polygon::drop_unreferenced(&pos, &tris);
     let mut out = to_trimesh(&pos, tris);
     let flipped_outward = out.signed_volume() < 0.0;
@@ -301,6 +307,8 @@ pub fn repair(mesh: &PolyMesh, opts: &RepairOptions, progress: &dyn Progress) ->
         smooth,
         decimate: decimated,
         decimate_intersections,
+        pieces_dropped,
+        faces_removed_pieces,
         flipped_outward,
         output,
         distance,
