@@ -41,10 +41,16 @@ const FAR_RING_RADIUS: f64 = 11.0;
 /// Ring `p` on `img` (the snapshot's panel), two pixels wide, whether or not the surface hides it (a part the
 /// solid lost lies outside it).
 fn ring(img: &mut Image, snap: &crate::geometry::raster::Snapshot, p: V3) {
-    let Some(c) = snap.screen(p) else { return };
+    if let Some(c) = snap.screen(p) {
+        ring_at(img, (c[0], c[1]), FAR_RING_RADIUS);
+    }
+}
+
+/// A ring of radius `r` pixels about `c`, two pixels wide.
+fn ring_at(img: &mut Image, c: (f64, f64), r: f64) {
     let at = |k: usize| {
         let a = std::f64::consts::TAU * k as f64 / 24.0;
-        ((c[0] + FAR_RING_RADIUS * a.cos()).round() as i64, (c[1] + FAR_RING_RADIUS * a.sin()).round() as i64)
+        ((c.0 + r * a.cos()).round() as i64, (c.1 + r * a.sin()).round() as i64)
     };
     for k in 0..24 {
         img.line(at(k), at(k + 1), 2, FAR_RING);
@@ -101,11 +107,8 @@ pub fn deviation_sheet(scene: &Scene, dev: &Deviation, colours: &[[u8; 3]]) -> I
         "invented: caps, fills, unseen",
     );
     if !dev.far.is_empty() {
-        let ringed = |x: u32, y: u32| {
-            let (dx, dy) = ((x as i64 % 16) as f64 - 7.5, (y as i64 % 16) as f64 - 7.5);
-            if (dx.hypot(dy) - 6.0).abs() < 1.2 { FAR_RING } else { crate::geometry::raster::BACKGROUND }
-        };
-        swatch(&mut sheet, (lb.swatch_x, y), ringed, "ringed: scan farther than the far-tail goal");
+        swatch(&mut sheet, (lb.swatch_x, y), |_, _| crate::geometry::raster::BACKGROUND, "ringed: the scan's far tail");
+        ring_at(&mut sheet, ((lb.swatch_x + 8) as f64, (y + 8) as f64), 5.0);
     }
     sheet
 }
