@@ -3,16 +3,16 @@
 
 use std::path::Path;
 
-use super::convert::ConvertOptions;
+use super::gates::GateOptions;
 use crate::error::{Error, ErrorCode, Result};
 use crate::geometry::io::ensure_not_input;
 use crate::geometry::mesh::TriMesh;
 use crate::stages::repair::RepairReport;
 
-/// Step 1 of [`convert_held`]: no output may overwrite the input or another output, nor replace what is not
+/// Step 1 of [`convert_held`](super::convert_held): no output may overwrite the input or another output, nor replace what is not
 /// a regular file; the gates' bounds make sense.
-pub(super) fn check_outputs(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<()> {
-    opts.gates.validated()?;
+pub(super) fn check_outputs(input: &Path, output: &Path, gates: &GateOptions, quads: Option<&Path>) -> Result<()> {
+    gates.validated()?;
     ensure_not_input(output, &[input])?;
     // The artifacts beside the STEP file must not land on the input either (`convert X.solid.ply -o X.step`).
     let (solid_path, map_path) =
@@ -22,7 +22,7 @@ pub(super) fn check_outputs(input: &Path, output: &Path, opts: &ConvertOptions) 
     for p in [output, &solid_path, &map_path] {
         crate::geometry::io::ensure_replaceable(p)?;
     }
-    if let Some(q) = &opts.quads_output {
+    if let Some(q) = quads {
         ensure_not_input(q, &[input, output, &solid_path, &map_path])?;
         crate::geometry::io::ensure_replaceable(q)?;
     }

@@ -387,7 +387,7 @@ pub fn convert_held(
     let monotonic = Monotonic { parent: progress, last: std::sync::Mutex::new(0.0) };
     let progress: &dyn Progress = &monotonic;
     // 1. No output may overwrite the input or another output; the gates' bounds make sense.
-    super::checks::check_outputs(input, output, opts)?;
+    super::checks::check_outputs(input, output, &opts.gates, opts.quads_output.as_deref())?;
     let t_total = Instant::now();
     let mut stages = Vec::new();
     let cmp_opts = compare_options(opts);
@@ -465,11 +465,9 @@ pub fn convert_held(
     let clock = Clock::start();
     ProgressSpan::new(progress, 0.98, 1.0, "quality");
     let cloud_scatter_pct = reconstruct_step.as_ref().map(|r| r.distance.reference_to_test.rms.pct_of_diagonal);
-    let (input_to_solid, held) = ((kept_input_to_solid_rms, diag), fused.as_ref());
-    let (open_input, error_map_file, map, invented, seen_by) =
-        measure_and_map(output, &solid_mesh, &chain.input_geom, input_to_solid, &repair_report, held)?;
-    let scan = (&chain.input_geom, &chain.repaired, &repair_report);
-    let far_tail = super::far_tail::measure(scan, &solid_mesh, kept.input_to_solid_max, opts.gates.max_rms_pct, diag);
+    let to_solid = (kept_input_to_solid_rms, kept.input_to_solid_max, diag);
+    let (open_input, error_map_file, map, invented, seen_by, far_tail) =
+        measure_and_map(output, &solid_mesh, &chain, to_solid, &repair_report, fused.as_ref())?;
     stages.push(clock.stop("quality", None));
     progress.report(1.0, "quality/done");
 
@@ -494,9 +492,8 @@ pub fn convert_held(
     let (status, gates) = judge_logged(&measured, &opts.gates);
 
     // 8. The pictures, when asked for.
-    let bound_pct = tolerance_pct.unwrap_or(opts.gates.max_rms_pct);
     let (held, measured) = ((&solid_mesh, &face_of[..], &kept.quads), (&chain.repaired, &map, invented.as_deref()));
-    let chain_figures = (&attempts[..], diag, bound_pct, &far_tail.places[..]);
+    let chain_figures = (&attempts[..], diag, tolerance_pct.unwrap_or(opts.gates.max_rms_pct), &far_tail.places[..]);
     let pictures = draw_pictures(output, opts, held, measured, chain_figures, &mut stages)?;
     let report = ConvertReport {
         input_file: input.to_path_buf(),
@@ -548,22 +545,31 @@ fn judge_logged(m: &Measured, opts: &GateOptions) -> (Status, Vec<super::gates::
     (status, gates)
 }
 
-/// Step 6 of [`convert_file`]: an open input's measure of `solid_mesh` (see [`OpenInputMeasure`]), then the
-/// error map beside `output` (the solid mesh coloured by its distance to `input`, the invented region grey).
 /// What [`measure_and_map`] measured and wrote: an open input's measure, the error map's path, what it wrote,
-/// the invented vertices (an open input's fills, a scan's unseen surface), and what a scan's views saw.
-type MapMeasure =
-    (Option<OpenInputMeasure>, PathBuf, ErrorMapFile, Option<Vec<bool>>, Option<super::reconstruct::SeenBy>);
+/// the invented vertices (an open input's fills, a scan's unseen surface), what a scan's views saw, and the
+/// far tail.
+type MapMeasure = (
+    Option<OpenInputMeasure>,
+    PathBuf,
+    ErrorMapFile,
+    Option<Vec<bool>>,
+    Option<super::reconstruct::SeenBy>,
+    super::gates::FarTail,
+);
 
-/// Returns the measure, the error map's path, what it wrote, and the invented vertices (an open input's).
+/// Step 6 of [`convert_held`]: an open input's measure of `solid_mesh` (see [`OpenInputMeasure`]), the error
+/// map beside `output` (the solid mesh coloured by its distance to the input, the invented region grey), and
+/// the far tail of the scan → solid distance ([`super::far_tail`]). `to_solid` is the chain's input → solid
+/// RMS and maximum and the input's diagonal.
 fn measure_and_map(
     output: &Path,
     solid_mesh: &PolyMesh,
-    input: &Geometry,
-    (input_to_solid_rms, diag): (f64, f64),
+    chain: &Chain,
+    (input_to_solid_rms, input_to_solid_max, diag): (f64, f64, f64),
     repair_report: &RepairReport,
     fused: Option<&super::reconstruct::Fused>,
 ) -> Result<MapMeasure> {
+    let input = &chain.input_geom;
     let (open_input, invented) = open_input_measure(solid_mesh, input, input_to_solid_rms, repair_report, diag);
     // A scan's views: the surface none saw is invented too (the reconstruction closed it).
     let seen_by = fused.map(|f| super::reconstruct::seen_by_views(&solid_mesh.triangulate().0, f));
@@ -574,7 +580,9 @@ fn measure_and_map(
     };
     let error_map_file = super::provenance::error_map_path(output);
     let map = write_error_map(&error_map_file, &Geometry::Mesh(solid_mesh.clone()), input, invented.as_deref())?;
-    Ok((open_input, error_map_file, map, invented, seen_by))
+    let scan = (input, &chain.repaired, repair_report);
+    let far_tail = super::far_tail::measure(scan, solid_mesh, input_to_solid_max, chain.opts.gates.max_rms_pct, diag);
+    Ok((open_input, error_map_file, map, invented, seen_by, far_tail))
 }
 
 /// Step 8 of [`convert_held`]: the job's pictures beside `output` ([`super::pictures`]) when
