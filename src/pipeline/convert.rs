@@ -175,7 +175,8 @@ pub struct ConvertReport {
     /// measured against the points.
     pub reconstruct: Option<ReconstructStep>,
     /// The far tail of the scan → solid distance, which the `max-distance` gate judges: its largest value,
-    /// where it is, how much of the scan lies beyond the bound, and what repair dropped ([`super::far_tail`]).
+    /// where it is, how much of the scan lies beyond the far-tail goal and where, and what repair left
+    /// ([`super::far_tail`]).
     pub far_tail: super::gates::FarTail,
     /// `ok` when the solid meets every gate; `failed` when it misses one (see [`ConvertReport::verdict`]);
     /// `degraded` when it misses one and was published anyway ([`GateOptions::accept_degraded`]).
@@ -199,7 +200,8 @@ impl ConvertReport {
     /// its measured value. A caller that publishes the files `convert_file` wrote must check this first.
     ///
     /// # Errors
-    /// `quality.self-intersecting`, `quality.folded`, `quality.volume` or `quality.rms`.
+    /// `quality.self-intersecting`, `quality.folded`, `quality.volume`, `quality.rms`, `quality.cap-bulge` or
+    /// `quality.max-distance`.
     pub fn verdict(&self) -> Result<()> {
         super::gates::verdict(self.status, &self.gates)
     }
@@ -308,7 +310,8 @@ struct Chain<'a> {
 /// and [`ConvertReport::verdict`] gives the `quality.*` error: check it before publishing the files.
 ///
 /// # Errors
-/// Reader errors; `reconstruct.*` for a cloud or a scan set; `repair.failed`; `remesh.*`; `surface.*`; `brep.invalid`; `resource.output` when the output cannot be
+/// Reader errors; `reconstruct.*` for a cloud or a scan set; `repair.failed`; `input.several-parts` for a scan
+/// that repair leaves in several separate closed parts; `remesh.*`; `surface.*`; `brep.invalid`; `resource.output` when the output cannot be
 /// written or would overwrite the input; `input.bad-argument` for a bad resolution; `cancelled` when
 /// `progress` asks to stop (checked between stages, so nothing is written).
 ///
