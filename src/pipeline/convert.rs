@@ -177,7 +177,7 @@ pub struct ConvertReport {
     /// The far tail of the scan → solid distance, which the `max-distance` gate judges: its largest value,
     /// where it is, how much of the scan lies beyond the far-tail goal and where, and what repair left
     /// ([`super::far_tail`]).
-    pub far_tail: super::gates::FarTail,
+    pub far_tail: super::far_tail::FarTail,
     /// `ok` when the solid meets every gate; `failed` when it misses one (see [`ConvertReport::verdict`]);
     /// `degraded` when it misses one and was published anyway ([`GateOptions::accept_degraded`]).
     pub status: Status,
@@ -557,7 +557,7 @@ type MapMeasure = (
     ErrorMapFile,
     Option<Vec<bool>>,
     Option<super::reconstruct::SeenBy>,
-    super::gates::FarTail,
+    super::far_tail::FarTail,
 );
 
 /// Step 6 of [`convert_held`]: an open input's measure of `solid_mesh` (see [`OpenInputMeasure`]), the error

@@ -13,11 +13,35 @@
 
 use rayon::prelude::*;
 
-use super::gates::{FAR_TAIL_GOAL_GOALS, FAR_TAIL_PLACES, FarTail};
+use super::gates::FAR_TAIL_GOAL_GOALS;
 use crate::geometry::bvh::TriangleBvh;
 use crate::geometry::mesh::{Geometry, PolyMesh, TriMesh};
 use crate::geometry::vec3::{V3, norm, sub, wide};
 use crate::stages::repair::RepairReport;
+
+/// The far tail of the scan → solid distance, as the `max-distance` gate judges it ([`Measured::max_distance_pct`]).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct FarTail {
+    /// The largest distance from the scan repair kept to the solid, % of the diagonal.
+    pub max_pct: f64,
+    /// Where it is: the scan point farthest from the solid (input units).
+    pub at: [f64; 3],
+    /// The far-tail goal: [`FAR_TAIL_GOAL_GOALS`](super::gates::FAR_TAIL_GOAL_GOALS) × the RMS goal, % of the diagonal.
+    pub goal_pct: f64,
+    /// Scan vertices farther from the solid than the goal (of those repair kept).
+    pub vertices_beyond_goal: usize,
+    /// Up to [`FAR_TAIL_PLACES`] places where the scan lies beyond the goal, farthest first, at least
+    /// [`PLACE_SEPARATION_REL`] of the diagonal apart (input units).
+    pub places: Vec<[f64; 3]>,
+    /// Scan vertices repair left farther than the goal from its own result (debris dropped, spikes
+    /// flattened, the sides of a handle it cut): not judged by the gate.
+    pub dropped_by_repair: usize,
+    /// The largest distance of those to the solid, % of the diagonal (0 when none).
+    pub dropped_max_pct: f64,
+}
+
+/// Places of the far tail a report keeps ([`FarTail::places`]).
+pub const FAR_TAIL_PLACES: usize = 8;
 
 /// Places of the far tail closer than this share of the diagonal to a farther one are the same place.
 pub const PLACE_SEPARATION_REL: f64 = 0.05;

@@ -20,7 +20,7 @@
 //! area samples and the farthest point inside the triangles of the farthest samples, against the solid's
 //! tessellation: [`crate::stages::quality`]). Scan vertices that repair itself left farther than the bound
 //! from its result (debris it dropped, spikes it flattened) are not the solid's to follow: they are counted
-//! and reported beside the gate ([`FarTail`]), not hidden.
+//! and reported beside the gate ([`FarTail`](super::far_tail::FarTail)), not hidden.
 //!
 //! The RMS is two-sided for a closed input. For an open input (holes that repair filled) the solid's caps and
 //! fills have no scan to be measured against: it is √((scan → solid² + solid → scan off the invented
@@ -58,7 +58,7 @@ pub const DEFAULT_MAX_DISTANCE_PCT: f64 = 2.0;
 
 /// The far-tail goal as a multiple of the RMS goal: 4 × 0.05 % = 0.2 % of the diagonal (0.6 mm on a 30 cm
 /// figurine). The net is refined locally where the scan passes farther
-/// ([`super::refine::LOCAL_FAR_GOALS`] is this), and [`FarTail`] counts and places what lies beyond it.
+/// ([`super::refine::LOCAL_FAR_GOALS`] is this), and [`FarTail`](super::far_tail::FarTail) counts and places what lies beyond it.
 pub const FAR_TAIL_GOAL_GOALS: f64 = 4.0;
 
 /// The gates' bounds, and whether a solid that misses one is still published.
@@ -195,30 +195,6 @@ pub struct Measured {
     /// diagonal (outliers no surface passes through): added to the `max-distance` bound.
     pub cloud_max_pct: Option<f64>,
 }
-
-/// The far tail of the scan → solid distance, as the `max-distance` gate judges it ([`Measured::max_distance_pct`]).
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
-pub struct FarTail {
-    /// The largest distance from the scan repair kept to the solid, % of the diagonal.
-    pub max_pct: f64,
-    /// Where it is: the scan point farthest from the solid (input units).
-    pub at: [f64; 3],
-    /// The far-tail goal: [`FAR_TAIL_GOAL_GOALS`] × the RMS goal, % of the diagonal.
-    pub goal_pct: f64,
-    /// Scan vertices farther from the solid than the goal (of those repair kept).
-    pub vertices_beyond_goal: usize,
-    /// Up to [`FAR_TAIL_PLACES`] places where the scan lies beyond the goal, farthest first, at least
-    /// [`PLACE_SEPARATION_REL`](super::far_tail::PLACE_SEPARATION_REL) of the diagonal apart (input units).
-    pub places: Vec<[f64; 3]>,
-    /// Scan vertices repair left farther than the goal from its own result (debris dropped, spikes
-    /// flattened, the sides of a handle it cut): not judged by the gate.
-    pub dropped_by_repair: usize,
-    /// The largest distance of those to the solid, % of the diagonal (0 when none).
-    pub dropped_max_pct: f64,
-}
-
-/// Places of the far tail a report keeps ([`FarTail::places`]).
-pub const FAR_TAIL_PLACES: usize = 8;
 
 /// The gates on `m`, in the order of the table above, and the status they give.
 pub fn judge(m: &Measured, opts: &GateOptions) -> (Status, Vec<Gate>) {

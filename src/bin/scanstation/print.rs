@@ -217,7 +217,7 @@ fn print_net_changes(r: &pipeline::ConvertReport) {
 }
 
 /// The far tail of the scan → solid distance: its largest value, where, and how much lies beyond the goal.
-fn print_far_tail(t: &pipeline::gates::FarTail) {
+fn print_far_tail(t: &pipeline::far_tail::FarTail) {
     outln!(
         "  far tail: scan -> solid at most {:.4} % of the diagonal, at ({:.4}, {:.4}, {:.4}); {} scan vertices beyond the goal {:.2} % in {} places{}",
         t.max_pct,

@@ -28,7 +28,7 @@ pub struct Deviation<'a> {
     /// The model unit's name (`mm`).
     pub unit: &'a str,
     /// Places where the scan lies farther from the solid than the far-tail goal (model points: a tip cut
-    /// short, a crease rounded off): each is ringed in every view ([`crate::pipeline::gates::FarTail::places`]).
+    /// short, a crease rounded off): each is ringed in every view ([`crate::pipeline::far_tail::FarTail::places`]).
     pub far: &'a [V3],
 }
 
