@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 
 use crate::geometry::mesh::TriMesh;
+use crate::geometry::vec3::{dot, norm, plane_frame, sub};
 
 /// An icosphere: the icosahedron subdivided `level` times, vertices projected onto the sphere of `radius`
 /// around `center`. Outward-oriented, closed, genus 0; `10·4^level + 2` vertices, `20·4^level` triangles.
@@ -224,6 +225,15 @@ pub fn quad_torus(major: f64, minor: f64, n: usize, m: usize) -> crate::geometry
 /// # Panics
 /// A profile with fewer than 3 points, or an open one whose ends are off the axis.
 pub fn revolve(profile: &[[f64; 2]], closed: bool, step: f64) -> TriMesh {
+    revolve_rings(profile, closed, step, 3)
+}
+
+/// [`revolve`] with at least `min_ring` vertices on every ring (a thin rod or a tip sampled round, as a scan
+/// samples it, not as a triangle or a square).
+///
+/// # Panics
+/// As [`revolve`].
+pub fn revolve_rings(profile: &[[f64; 2]], closed: bool, step: f64, min_ring: usize) -> TriMesh {
     use std::f64::consts::TAU;
     assert!(profile.len() >= 3, "a profile needs 3 points");
     let rings: &[[f64; 2]] = if closed {
@@ -236,7 +246,7 @@ pub fn revolve(profile: &[[f64; 2]], closed: bool, step: f64) -> TriMesh {
     let mut positions = Vec::new();
     let mut first = Vec::with_capacity(rings.len() + 1);
     for &[r, z] in rings {
-        let n = ((TAU * r / step).ceil() as usize).max(3);
+        let n = ((TAU * r / step).ceil() as usize).max(min_ring.max(3));
         first.push(positions.len());
         for i in 0..n {
             let u = TAU * i as f64 / n as f64;
@@ -296,13 +306,14 @@ fn arc(out: &mut Vec<[f64; 2]>, c: [f64; 2], radius: f64, a0: f64, a1: f64, step
     }));
 }
 
-/// A round plate of radius 1 and `thickness`, its rim a half circle: genus 0. Profile points every `step`.
+/// A round plate of radius 1 and `thickness`, its rim a half circle: genus 0. Profile points every `step`, and
+/// at least 8 around the rim.
 pub fn plate_profile(thickness: f64, step: f64) -> Vec<[f64; 2]> {
     use std::f64::consts::FRAC_PI_2;
     let h = thickness / 2.0;
     let mut p = Vec::new();
     segment(&mut p, [0.0, -h], [1.0 - h, -h], step);
-    arc(&mut p, [1.0 - h, 0.0], h, -FRAC_PI_2, FRAC_PI_2, step);
+    arc(&mut p, [1.0 - h, 0.0], h, -FRAC_PI_2, FRAC_PI_2, step.min(std::f64::consts::PI * h / 8.0));
     segment(&mut p, [1.0 - h, h], [0.0, h], step);
     p.push([0.0, h]);
     p
@@ -356,4 +367,164 @@ pub fn folded_sheet_profile(thickness: f64, gap: f64, step: f64) -> Vec<[f64; 2]
     segment(&mut p, [r1, -h + w], [r0, -h + w], step);
     arc(&mut p, [r0, -h], w, FRAC_PI_2, 3.0 * FRAC_PI_2, step);
     p
+}
+
+/// A lens of radius 1 and `thickness` at its centre, its rim a sharp edge (two spherical caps meeting at an
+/// angle of about 2·thickness radians), as an open profile for [`revolve`]: genus 0. Points every `step`,
+/// closer toward the rim (a tenth of `step` in the last 5 %), so the sharp edge is sampled as a scan of a
+/// blade would be.
+pub fn lens_profile(thickness: f64, step: f64) -> Vec<[f64; 2]> {
+    let h = thickness / 2.0;
+    // The caps' sphere: radius ρ through (0, ±h) and (1, 0), centre on the axis at ∓(ρ − h).
+    let rho = (1.0 + h * h) / (2.0 * h);
+    let at = |r: f64, up: bool| {
+        let z = (rho * rho - r * r).sqrt() - (rho - h);
+        [r, if up { z } else { -z }]
+    };
+    let mut radii = Vec::new();
+    let mut r = 0.0;
+    while r < 1.0 {
+        radii.push(r);
+        r += if r > 0.95 { step / 10.0 } else { step };
+    }
+    let mut p: Vec<[f64; 2]> = radii.iter().map(|&r| at(r, false)).collect();
+    p.push([1.0, 0.0]);
+    p.extend(radii.iter().rev().map(|&r| at(r, true)));
+    p
+}
+
+/// A ball of radius 1 with five fingers: round rods of `finger_radius`, `finger_length` beyond the ball, each
+/// ending in a half ball, fanned over the upper half (50° from +z, 36° apart around it), each widening to 2.5 ×
+/// its radius where it meets the ball over 3 radii. The ball is an icosphere of `level` (its edges about
+/// 1.05 / 2^level); the fingers' rings are about `step` apart. Closed, outward, genus 0.
+pub fn hand(finger_radius: f64, finger_length: f64, level: u32, step: f64) -> TriMesh {
+    let ball = icosphere(1.0, level, [0.0; 3]);
+    let p: Vec<[f64; 3]> = ball.positions.iter().map(|x| x.map(f64::from)).collect();
+    let dirs: Vec<[f64; 3]> = (0..5)
+        .map(|k| {
+            let (t, f) = (50f64.to_radians(), (36.0 * k as f64).to_radians());
+            [t.sin() * f.cos(), t.sin() * f.sin(), t.cos()]
+        })
+        .collect();
+    let foot = 2.5 * finger_radius;
+    // 1. Holes: every ball triangle with a corner inside a finger's foot.
+    let inside = |v: usize| dirs.iter().position(|&d| dot(p[v], d) > (1.0 - foot * foot).sqrt());
+    let mut triangles: Vec<[u32; 3]> =
+        ball.triangles.iter().copied().filter(|t| t.iter().all(|&v| inside(v as usize).is_none())).collect();
+    let mut positions = ball.positions.clone();
+    // 2. Each hole's rim, walked along the remaining triangles' edges that have no twin.
+    let twins: std::collections::HashSet<(u32, u32)> =
+        triangles.iter().flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3]))).collect();
+    let mut next: HashMap<u32, u32> = HashMap::new();
+    for t in &triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            if !twins.contains(&(b, a)) {
+                next.insert(b, a); // the rim walked with the hole on the left: counter-clockwise seen from outside
+            }
+        }
+    }
+    for &d in &dirs {
+        let (u, v) = plane_frame(d);
+        let angle = |x: [f64; 3]| dot(x, v).atan2(dot(x, u)).rem_euclid(std::f64::consts::TAU);
+        // The rim of this finger's hole, from the vertex nearest angle 0.
+        let start = *next
+            .keys()
+            .filter(|&&a| dot(p[a as usize], d) > (3.0 * foot).cos())
+            .min_by(|&&a, &&b| angle(p[a as usize]).total_cmp(&angle(p[b as usize])).then(a.cmp(&b)))
+            .expect("a finger's hole has a rim");
+        let mut rim = vec![start];
+        while let Some(&n) = next.get(rim.last().unwrap()) {
+            if n == start {
+                break;
+            }
+            rim.push(n);
+        }
+        // 3. The finger's profile (radius, height along d): a collar from the rim, the rod, the half ball.
+        let base = rim.iter().map(|&a| dot(p[a as usize], d)).fold(f64::MIN, f64::max);
+        let top = 1.0 + finger_length;
+        let mut prof = Vec::new();
+        let mut h = base + step / 2.0;
+        while h < top - finger_radius {
+            let s = ((h - base) / (3.0 * finger_radius)).min(1.0);
+            prof.push([finger_radius * (1.0 + 1.5 * (1.0 - s) * (1.0 - s)), h]);
+            h += step;
+        }
+        let k = ((std::f64::consts::FRAC_PI_2 * finger_radius / step).ceil() as usize).max(2);
+        for i in 0..k {
+            let a = std::f64::consts::FRAC_PI_2 * i as f64 / k as f64;
+            prof.push([finger_radius * a.cos(), top - finger_radius + finger_radius * a.sin()]);
+        }
+        // 4. Rings, zipped to each other (and the first to the rim) by the share of the way around.
+        let mut prev: Vec<(u32, f64)> = {
+            let pts: Vec<[f64; 3]> = rim.iter().map(|&a| p[a as usize]).collect();
+            let mut along = vec![0.0];
+            for i in 1..pts.len() {
+                along.push(along[i - 1] + norm(sub(pts[i - 1], pts[i])));
+            }
+            let total = along[pts.len() - 1] + norm(sub(pts[pts.len() - 1], pts[0]));
+            rim.iter().zip(along).map(|(&a, s)| (a, s / total)).collect()
+        };
+        for &[r, h] in &prof {
+            let n = ((std::f64::consts::TAU * r / step).ceil() as usize).max(6);
+            let ring: Vec<(u32, f64)> = (0..n)
+                .map(|i| {
+                    let a = std::f64::consts::TAU * i as f64 / n as f64;
+                    let x = [0, 1, 2].map(|c| h * d[c] + r * (a.cos() * u[c] + a.sin() * v[c]));
+                    positions.push(x.map(|c| c as f32));
+                    ((positions.len() - 1) as u32, i as f64 / n as f64)
+                })
+                .collect();
+            zip_loops(&prev, &ring, &mut triangles);
+            prev = ring;
+        }
+        positions.push([0, 1, 2].map(|c| (top * d[c]) as f32));
+        let tip = (positions.len() - 1) as u32;
+        for i in 0..prev.len() {
+            triangles.push([prev[i].0, prev[(i + 1) % prev.len()].0, tip]);
+        }
+    }
+    // The ball's vertices inside the feet are left unreferenced: drop them.
+    let wide: Vec<[f64; 3]> = positions.iter().map(|x| x.map(f64::from)).collect();
+    let (kept, triangles, _) = crate::geometry::polygon::drop_unreferenced(&wide, &triangles);
+    TriMesh { positions: kept.iter().map(|x| x.map(|c| c as f32)).collect(), triangles }
+}
+
+/// Triangles joining two closed loops around an axis (each vertex with its share of the way around, from
+/// 0, increasing counter-clockwise seen from the `upper` side's end), advancing on the loop whose next vertex
+/// comes first; outward when `lower` is below `upper`.
+fn zip_loops(lower: &[(u32, f64)], upper: &[(u32, f64)], out: &mut Vec<[u32; 3]>) {
+    let (na, nb) = (lower.len(), upper.len());
+    let share = |l: &[(u32, f64)], i: usize| if i >= l.len() { 1.0 } else { l[i].1 };
+    let (mut i, mut k) = (0, 0);
+    while i < na || k < nb {
+        if k == nb || (i < na && share(lower, i + 1) <= share(upper, k + 1)) {
+            out.push([lower[i].0, lower[(i + 1) % na].0, upper[k % nb].0]);
+            i += 1;
+        } else {
+            out.push([lower[i % na].0, upper[(k + 1) % nb].0, upper[k].0]);
+            k += 1;
+        }
+    }
+}
+
+/// A block 2 × 1 × 1 (from the origin) with its 90° edges and one edge (along x at y = z = 1) cut by a 45°
+/// chamfer of `chamfer` a side, its faces split into triangles of edges about `step` at most: closed, outward,
+/// genus 0, every edge between two faces a crease of 90° or 135°.
+pub fn chamfered_block(chamfer: f64, step: f64) -> TriMesh {
+    let c = 1.0 - chamfer;
+    let mut pts = vec![[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, c], [0.0, c, 1.0]];
+    let far: Vec<[f64; 3]> = pts.iter().map(|q| [2.0, q[1], q[2]]).collect();
+    pts.extend(far);
+    let mut tris = crate::geometry::hull::convex_hull(&pts).expect("a block's corners span space");
+    let mut p = pts;
+    let longest = |p: &[[f64; 3]], t: &[[u32; 3]]| {
+        t.iter()
+            .flat_map(|t| (0..3).map(move |k| norm(sub(p[t[k] as usize], p[t[(k + 1) % 3] as usize]))))
+            .fold(0.0, f64::max)
+    };
+    while longest(&p, &tris) > step {
+        crate::geometry::polygon::subdivide_midpoints(&mut p, &mut tris);
+    }
+    TriMesh { positions: p.iter().map(|x| x.map(|c| c as f32)).collect(), triangles: tris }
 }

@@ -108,6 +108,9 @@ pub fn print_convert(r: &pipeline::ConvertReport) {
         r.fit.final_rms,
         r.total_seconds
     );
+    if let Some(z) = &r.remesh.sizing {
+        print_sizing(z, r.bbox_diagonal);
+    }
     print_net_changes(r);
     let status = match r.status {
         pipeline::Status::Ok => "ok",
@@ -217,6 +220,18 @@ fn print_net_changes(r: &pipeline::ConvertReport) {
 }
 
 /// The far tail of the scan → solid distance: its largest value, where, and how much lies beyond the goal.
+fn print_sizing(z: &scanstation::stages::remesh::SizingSummary, diagonal: f64) {
+    let pct = |x: f64| 100.0 * x / diagonal.max(f64::MIN_POSITIVE);
+    outln!(
+        "  sizing: spacing asked {:.4} % of the diagonal at least, {:.4} % median (uniform {:.4} %); thin {:.1} %, bent {:.1} % of the area",
+        pct(z.min_spacing),
+        pct(z.median_spacing),
+        pct(z.uniform_spacing),
+        100.0 * z.thin_share,
+        100.0 * z.curved_share
+    );
+}
+
 fn print_far_tail(t: &pipeline::far_tail::FarTail) {
     outln!(
         "  far tail: scan -> solid at most {:.4} % of the diagonal, at ({:.4}, {:.4}, {:.4}); {} scan vertices beyond the goal {:.2} % in {} places{}",

@@ -75,6 +75,11 @@ pub fn header(b: &Bundle, thumbnail: Option<&str>) -> String {
         if let Some(t) = c.get("far_tail").filter(|t| t.is_object()) {
             pairs.push(("far tail: scan → solid at most", far_tail(t)));
         }
+        if let (Some(z), Some(d)) =
+            (c.pointer("/remesh/sizing").filter(|z| z.is_object()), get("bbox_diagonal").as_f64())
+        {
+            pairs.push(("sizing field: net spacing asked", sizing(z, d)));
+        }
         pairs.push(("attempts", c.get("attempts").and_then(Value::as_array).map_or(0, Vec::len).to_string()));
         let raises: Vec<String> = c
             .get("attempts")
@@ -105,6 +110,25 @@ pub fn header(b: &Bundle, thumbnail: Option<&str>) -> String {
     }
     s.push_str(&facts(&pairs));
     s
+}
+
+/// The sizing field as a person reads it: the smallest and the median spacing the net was asked for against
+/// the uniform one (three significant digits, % of the diagonal), and the share of the area thin or bent
+/// enough to ask for a finer one.
+fn sizing(z: &Value, diagonal: f64) -> String {
+    let pct = |k: &str| {
+        let x = z.get(k).and_then(Value::as_f64).unwrap_or(f64::NAN);
+        crate::pipeline::pictures::sheet::num(100.0 * x / diagonal)
+    };
+    let share = |k: &str| format!("{:.1}", 100.0 * z.get(k).and_then(Value::as_f64).unwrap_or(f64::NAN));
+    esc(&format!(
+        "{} % of the diagonal at least, {} % median (uniform {} %); thin {} %, bent {} % of the area",
+        pct("min_spacing"),
+        pct("median_spacing"),
+        pct("uniform_spacing"),
+        share("thin_share"),
+        share("curved_share")
+    ))
 }
 
 /// The far tail as a person reads it: the largest scan → solid distance (three significant digits), the

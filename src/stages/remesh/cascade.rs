@@ -10,7 +10,7 @@ use super::field;
 use super::finish::{Candidate, Extraction, Finished, InputSide, candidate};
 use super::report::{Attempt, Mode, Refine, RemeshReport};
 use super::settings::*;
-use super::spacing::{refined_spacing, spacing_field, timed_thickness};
+use super::spacing::{SizeField, refined_spacing, spacing_field, timed_feature_size};
 use super::tries::{self, Tries};
 use super::work::{Work, working_mesh};
 use crate::error::Result;
@@ -114,12 +114,14 @@ pub(super) struct Cascade<'a> {
     modes: Vec<Mode>,
     /// Working vertices the direct result missed (set when the direct route finished).
     missed: Option<Vec<bool>>,
-    /// Local thickness of the split routes' (0) and the direct routes' (1) working mesh (far side of thin
-    /// parts and narrow gaps), for the adaptive routes and the cancellation's thin-part guard: measured once,
+    /// Feature size of the split routes' (0) and the direct routes' (1) working mesh (thin parts, narrow gaps
+    /// and fast bends, [`super::sizing`]), for the adaptive routes and the cancellation's thin-part guard: measured once,
     /// when first needed, only as far as the coarsest spacing tried could need ([`Self::reach`]).
-    thick_by: [Option<Vec<f64>>; 2],
+    thick_by: [Option<SizeField>; 2],
     /// How far the thickness is measured.
     reach: f64,
+    /// The net's spacing √(area / target) and the split routes' lattice step √(4·area / target).
+    spacings: (f64, f64),
     /// Per route: its best attempt with the input's χ (else the best closed manifold one), finished and
     /// measured.
     finished: Vec<Finished>,
@@ -141,6 +143,7 @@ impl<'a> Cascade<'a> {
             missed: None,
             thick_by: [None, None],
             reach,
+            spacings: ((input.area / target).sqrt(), (input.area * 4.0 / target).sqrt()),
             finished: Vec::new(),
             clocks: Clocks::default(),
         }
@@ -261,9 +264,11 @@ impl<'a> Cascade<'a> {
             // runs instead; the uniform split comes after the direct routes if they lose something too.
             let main = &self.work.main;
             let reach = self.reach;
-            let t = self.thick_by[0]
-                .get_or_insert_with(|| timed_thickness(&main.levels[0], &main.p, &main.tris, reach, report));
-            let s_split = (self.input.area * 4.0 / opts.target_vertices as f64).sqrt();
+            let s = self.spacings;
+            let t = &self.thick_by[0]
+                .get_or_insert_with(|| timed_feature_size(&main.levels[0], (&main.p, &main.tris), reach, s, report))
+                .thickness;
+            let s_split = s.1;
             report.thin_share =
                 t.iter().filter(|&&x| x < SKIP_THIN_SPACINGS * s_split).count() as f64 / t.len().max(1) as f64;
             if report.thin_share > SKIP_THIN_SHARE {
@@ -286,27 +291,30 @@ impl<'a> Cascade<'a> {
         // 1. The working mesh: the direct routes work on the finer one where there is one.
         let wi = usize::from(mode.is_direct() && self.work.fine.is_some());
         let w = if wi == 1 { self.work.fine.as_ref().unwrap_or(&self.work.main) } else { &self.work.main };
-        let reach = self.reach;
+        let (reach, spacings) = (self.reach, self.spacings);
         // 2. The thickness this route's spacing needs, and which spacing a refined direct try uses
         // (REFINE_TRIES, in order).
         let thick_all = &mut self.thick_by[wi];
         if mode == Mode::AdaptiveSplit {
-            let t = thick_all.get_or_insert_with(|| timed_thickness(&w.levels[0], &w.p, &w.tris, reach, report));
-            report.thin_vertices = t.iter().filter(|x| x.is_finite()).count();
+            let t = thick_all
+                .get_or_insert_with(|| timed_feature_size(&w.levels[0], (&w.p, &w.tris), reach, spacings, report));
+            report.thin_vertices = t.feature.iter().filter(|x| x.is_finite()).count();
         }
         let refine = (mode == Mode::RefinedDirect)
             .then(|| REFINE_TRIES[self.modes[..mi].iter().filter(|&&m| m == Mode::RefinedDirect).count()]);
         if refine.is_some_and(|r| r != Refine::Missed) {
-            let t = thick_all.get_or_insert_with(|| timed_thickness(&w.levels[0], &w.p, &w.tris, reach, report));
-            report.thin_vertices = t.iter().filter(|x| x.is_finite()).count();
+            let t = thick_all
+                .get_or_insert_with(|| timed_feature_size(&w.levels[0], (&w.p, &w.tris), reach, spacings, report));
+            report.thin_vertices = t.feature.iter().filter(|x| x.is_finite()).count();
         }
         // 3. Steer the vertex count.
         let steered = {
-            let thick = if mode == Mode::AdaptiveSplit { thick_all.as_deref() } else { None };
+            let feature = thick_all.as_ref().map(|f| f.feature.as_slice());
+            let thick = if mode == Mode::AdaptiveSplit { feature } else { None };
             let (miss, thin) = match refine {
-                Some(Refine::Thin) => (None, thick_all.as_deref()),
+                Some(Refine::Thin) => (None, feature),
                 Some(Refine::Missed) => (self.missed.as_deref(), None),
-                Some(Refine::Both) => (self.missed.as_deref(), thick_all.as_deref()),
+                Some(Refine::Both) => (self.missed.as_deref(), feature),
                 None => (None, thick),
             };
             let route = Route { w, mode, refine, thin, miss, target: self.opts.target_vertices as f64 };
@@ -323,7 +331,9 @@ impl<'a> Cascade<'a> {
         let cancel = self.opts.cancel_singularities && !mode.is_direct();
         // The tries need the thickness for their thin-part guard.
         let thick_c: Option<&[f64]> = if cancel {
-            Some(thick_all.get_or_insert_with(|| timed_thickness(&w.levels[0], &w.p, &w.tris, reach, report)))
+            let f = thick_all
+                .get_or_insert_with(|| timed_feature_size(&w.levels[0], (&w.p, &w.tris), reach, spacings, report));
+            Some(f.thickness.as_slice())
         } else {
             None
         };

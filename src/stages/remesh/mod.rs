@@ -68,11 +68,12 @@ mod pick;
 pub mod quadify;
 mod report;
 mod settings;
+mod sizing;
 mod spacing;
 mod tries;
 mod work;
 
-pub use report::{Alternative, Attempt, CancelTrial, Mode, QuadStats, Refine, RemeshReport, quad_stats};
+pub use report::{Alternative, Attempt, CancelTrial, Mode, QuadStats, Refine, RemeshReport, SizingSummary, quad_stats};
 pub use settings::*;
 
 use std::time::Instant;

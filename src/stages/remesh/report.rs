@@ -194,12 +194,14 @@ pub struct RemeshReport {
     pub working_mesh: String,
     /// Levels of the multi-resolution hierarchy.
     pub hierarchy_levels: usize,
-    /// Working vertices within reach of a thin part or a narrow gap (measured only when the adaptive split
-    /// route ran; 0 otherwise).
+    /// Working vertices within reach of a thin part, a narrow gap or a fast bend (a finite feature size;
+    /// measured only when an adaptive route ran; 0 otherwise).
     pub thin_vertices: usize,
     /// Share of the split routes' working vertices thinner than [`SKIP_THIN_SPACINGS`] uniform split
     /// spacings (measured when the adaptive split route is on; 0 otherwise).
     pub thin_share: f64,
+    /// The sizing field of the first working mesh measured (`None`: no adaptive route was on).
+    pub sizing: Option<SizingSummary>,
     /// The uniform split route was not run first: `thin_share` was above [`SKIP_THIN_SHARE`], so it would
     /// have lost thin parts and the adaptive split route runs first. It runs last when no other route gave a
     /// sound result (then `alternatives` or `mode` shows it).
@@ -356,4 +358,22 @@ pub fn quad_stats(mesh: &PolyMesh, input: Option<(&TriMesh, &TriangleBvh)>) -> Q
         st.crossing_pairs = Some(crate::geometry::intersect::self_intersections(&p, &t.triangles).len());
     }
     st
+}
+
+/// What the sizing field asked for (thickness by a cone of rays and curvature on the split routes' working
+/// mesh, `stages/remesh/sizing.rs`), spacings in the input's units.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct SizingSummary {
+    /// The uniform spacing the field was measured against (the split route's lattice step √(4·area / target)).
+    pub uniform_spacing: f64,
+    /// The smallest spacing asked for (the floor: [`super::MIN_SPACING_FACTOR`] of the uniform one at least).
+    pub min_spacing: f64,
+    /// The area-weighted median spacing asked for.
+    pub median_spacing: f64,
+    /// Share of the working area whose thickness asks for a spacing finer than the uniform one.
+    pub thin_share: f64,
+    /// Share of the working area whose curvature (not its thickness) asks for a finer spacing.
+    pub curved_share: f64,
+    /// Wall seconds of the rays and the curvature.
+    pub seconds: f64,
 }

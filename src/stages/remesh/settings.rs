@@ -154,6 +154,22 @@ pub const LINKED_GUARD: bool = true;
 /// Passes of [`WORK_EDGE_SPACINGS`]' edge splitting (each halves the longest edges).
 pub const WORK_SPLIT_PASSES: usize = 4;
 
+/// A decimated working mesh's edges longer than this many √(area / vertices) are split (a uniform mesh's
+/// edges are about 1.5): on a flat face the quadric error of every inner vertex is zero, so decimation keeps
+/// only the face's rim. The oracle block of `tests/oracles.rs` (2 × 1 × 1, chamfered, 524k uniform
+/// triangles' vertices) kept 60,000 working vertices on its edges and none inside its faces: the direct
+/// route's lattice had nothing to stand on and the net had 8 vertices (volume −41.7 %). A scan's noise gives
+/// its flat parts a quadric, so few of its edges are this long.
+pub const DECIMATED_LONG_EDGE: f64 = 4.0;
+
+/// A decimated working mesh is split ([`DECIMATED_LONG_EDGE`]) only when more than this share of its area lies
+/// in such long triangles.
+pub const FLAT_RIM_SHARE: f64 = 0.1;
+
+/// Passes of the splitting of a decimated mesh's long edges (each halves them; a face's edge of 2 units to
+/// 0.05 takes 6).
+pub const DECIMATED_SPLIT_PASSES: usize = 12;
+
 /// The edge splitting stops once the working mesh holds this many times the vertices it was made for.
 pub const WORK_SPLIT_GROWTH: f64 = 4.0;
 

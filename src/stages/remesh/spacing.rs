@@ -1,52 +1,45 @@
-//! The spacing field: the local thickness of the working mesh, and a spacing per working vertex that is finer
-//! on thin parts and narrow gaps ([`THIN_RATIO`]) or where the direct result missed the input
-//! ([`REFINE_FACTOR`]), graded so the lattice bends gently.
+//! The spacing field: a spacing per working vertex that is finer on thin parts, narrow gaps and where the
+//! surface bends fast (the feature size of [`super::sizing`], times [`THIN_RATIO`]) or where the direct result
+//! missed the input ([`REFINE_FACTOR`]), graded so the lattice bends gently.
 
 use std::time::Instant;
-
-use rayon::prelude::*;
 
 use super::hierarchy;
 use super::report::RemeshReport;
 use super::settings::*;
-use crate::geometry::bvh::TriangleBvh;
-use crate::geometry::mesh::TriMesh;
+use super::sizing::Sizing;
 use crate::geometry::vec3::{self, V3, sub};
 
-/// [`thickness`], its time added to the report's `thickness` seconds.
-pub(super) fn timed_thickness(
+/// A working mesh's thickness (the thin-part guard and the routes' `thin_share` go by it) and feature size
+/// (the adaptive routes' spacing follows it: thickness or curvature, [`Sizing::feature_size`]).
+pub(super) struct SizeField {
+    pub thickness: Vec<f64>,
+    pub feature: Vec<f64>,
+}
+
+/// The [`SizeField`] of `level` (the working mesh `p`, `tris`; the feature size at the net's spacing `s_net`),
+/// its time added to the report's `thickness` seconds; the first one measured also fills the report's
+/// `sizing` (its spacing asked at the split routes' spacing `s_split`).
+pub(super) fn timed_feature_size(
     level: &hierarchy::Level,
-    p: &[V3],
-    tris: &[[u32; 3]],
+    (p, tris): (&[V3], &[[u32; 3]]),
     reach: f64,
+    (s_net, s_split): (f64, f64),
     report: &mut RemeshReport,
-) -> Vec<f64> {
+) -> SizeField {
     let t0 = Instant::now();
-    let t = thickness(level, p, tris, reach);
-    *report.seconds.entry("thickness".into()).or_insert(0.0) += t0.elapsed().as_secs_f64();
-    t
+    let sizing = Sizing::measure(level, p, tris, reach);
+    let f = sizing.feature_size(s_net);
+    let seconds = t0.elapsed().as_secs_f64();
+    *report.seconds.entry("thickness".into()).or_insert(0.0) += seconds;
+    if report.sizing.is_none() {
+        let sp = spacing_field(level, &f, s_split);
+        report.sizing = Some(sizing.summary(level, &sp, s_split, seconds));
+    }
+    SizeField { thickness: sizing.thickness, feature: f }
 }
 
-/// Thickness at each vertex of `level` (the working mesh `p`, `tris`): the shorter of the ray along −n to
-/// the far side of the part and the ray along n across a gap to the surface facing back; infinite beyond
-/// `reach`. Cost: two bounded ray casts per vertex.
-pub(super) fn thickness(level: &hierarchy::Level, p: &[V3], tris: &[[u32; 3]], reach: f64) -> Vec<f64> {
-    let positions: Vec<[f32; 3]> = p.iter().map(|x| x.map(|c| c as f32)).collect();
-    let work = TriMesh { positions, triangles: tris.to_vec() };
-    let bvh = TriangleBvh::new(&work);
-    (0..level.len())
-        .into_par_iter()
-        .map(|i| {
-            let (p, n) = (level.p[i], level.n[i]);
-            let eps = 1e-4 * reach;
-            let inside = bvh.ray_hit(p, vec3::scale(n, -1.0), eps, reach, 1.0);
-            let gap = bvh.ray_hit(p, n, eps, reach, -1.0);
-            inside.unwrap_or(f64::INFINITY).min(gap.unwrap_or(f64::INFINITY))
-        })
-        .collect()
-}
-
-/// Spacing per vertex for global spacing `s`: `THIN_RATIO · thickness`, clamped between a floor (the larger
+/// Spacing per vertex for global spacing `s`: `THIN_RATIO · feature size`, clamped between a floor (the larger
 /// of [`MIN_SPACING_FACTOR`]·s and [`SPACING_PER_WORK_EDGE`] mean edges of the working mesh at that vertex)
 /// and s, then limited to grow by at most [`GRADATION`] per unit distance from any vertex (Gauss–Seidel
 /// sweeps of `s_i ≤ s_j + GRADATION·|p_i − p_j|`, alternately forward and backward, until none changes, at most 100).
@@ -111,6 +104,7 @@ pub(super) fn grade(level: &hierarchy::Level, mut sp: Vec<f64>, s: f64) -> Vec<f
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::mesh::TriMesh;
     use crate::geometry::shapes::icosphere;
     use crate::geometry::vec3::wide;
 

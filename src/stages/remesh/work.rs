@@ -9,8 +9,8 @@ use crate::geometry::decimate::{Crossings, decimate};
 use crate::geometry::vec3::{self, V3, cross, dot, sub};
 use crate::geometry::{linalg, polygon};
 
-/// Mesh `p`, `tris` decimated (QEM) or midpoint-subdivided toward `want` vertices, then, when it was not
-/// decimated and has fewer than `want`, its edges longer than `max_edge` split ([`polygon::split_long_edges`], up to
+/// Mesh `p`, `tris` decimated (QEM) or midpoint-subdivided toward `want` vertices, then its edges longer than
+/// `max_edge` split (when it was decimated: longer than [`DECIMATED_LONG_EDGE`]) ([`polygon::split_long_edges`], up to
 /// [`WORK_SPLIT_GROWTH`] × `want` vertices), and how
 /// ("as-is", "decimated" or "subdivided ×k", with "+N split"). Cost: O(F log F) for the decimation.
 pub(super) fn working_mesh(
@@ -34,15 +34,37 @@ pub(super) fn working_mesh(
             label = format!("subdivided ×{k}");
         }
     }
-    // A mesh decimated to `want` has about √(want / target) edges a step; one as it is or subdivided may
-    // keep long triangles (an in-plane cap): it is split (see WORK_EDGE_SPACINGS).
-    let max_edge = if label != "decimated" { max_edge } else { f64::INFINITY };
+    // A mesh decimated to `want` has about √(want / target) edges a step where the surface bends; one as it
+    // is or subdivided may keep long triangles (an in-plane cap): it is split (see WORK_EDGE_SPACINGS). On a
+    // flat face the quadric lets decimation keep only the face's rim: there the edges longer than
+    // DECIMATED_LONG_EDGE (or `max_edge`, where shorter) are split.
+    let (max_edge, passes) = if label != "decimated" {
+        (max_edge, WORK_SPLIT_PASSES)
+    } else {
+        match flat_rims(&p, &tris, want) {
+            Some(long) => (max_edge.min(long), DECIMATED_SPLIT_PASSES),
+            None => (f64::INFINITY, WORK_SPLIT_PASSES),
+        }
+    };
     let cap = ((WORK_SPLIT_GROWTH * want as f64) as usize).max(p.len());
-    let added = polygon::split_long_edges(&mut p, &mut tris, max_edge, WORK_SPLIT_PASSES, cap);
+    let added = polygon::split_long_edges(&mut p, &mut tris, max_edge, passes, cap);
     if added > 0 {
         label = format!("{label}, +{added} split");
     }
     (p, tris, label)
+}
+
+/// When decimation kept only the rims of flat faces (more than [`FLAT_RIM_SHARE`] of the area in triangles
+/// with an edge longer than [`DECIMATED_LONG_EDGE`] × √(area / `want`)), that length; `None` otherwise.
+fn flat_rims(p: &[V3], tris: &[[u32; 3]], want: usize) -> Option<f64> {
+    let area: f64 = tris.iter().map(|&t| vec3::tri_area(p, t)).sum();
+    let long = DECIMATED_LONG_EDGE * (area / want.max(1) as f64).sqrt();
+    let in_long: f64 = tris
+        .iter()
+        .filter(|t| (0..3).any(|k| vec3::norm(sub(p[t[k] as usize], p[t[(k + 1) % 3] as usize])) > long))
+        .map(|&t| vec3::tri_area(p, t))
+        .sum();
+    (in_long > FLAT_RIM_SHARE * area).then_some(long)
 }
 
 /// A working mesh with its hierarchy and orientation field.
