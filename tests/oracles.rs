@@ -68,7 +68,7 @@ fn oracle(name: &str) -> Oracle {
         }
         "creased block" => {
             let first = chamfered_block(0.3, 0.1);
-            (chamfered_block(0.3, spacing_10k(&first) / 1.5), 2)
+            (chamfered_block(0.3, spacing_10k(&first) / 2.0), 2)
         }
         other => panic!("no oracle named {other}"),
     };
