@@ -223,7 +223,7 @@ fn print_net_changes(r: &pipeline::ConvertReport) {
 fn print_sizing(z: &scanstation::stages::remesh::SizingSummary, diagonal: f64) {
     let pct = |x: f64| 100.0 * x / diagonal.max(f64::MIN_POSITIVE);
     outln!(
-        "  sizing: spacing asked {:.4} % of the diagonal at least, {:.4} % median (uniform {:.4} %); thin {:.1} %, bent {:.1} % of the area",
+        "  sizing: lattice step asked {:.4} % of the diagonal at least, {:.4} % median (uniform {:.4} %; the net's spacing about half: each face is split in four); thin {:.1} %, bent {:.1} % of the area",
         pct(z.min_spacing),
         pct(z.median_spacing),
         pct(z.uniform_spacing),

@@ -78,7 +78,7 @@ pub fn header(b: &Bundle, thumbnail: Option<&str>) -> String {
         if let (Some(z), Some(d)) =
             (c.pointer("/remesh/sizing").filter(|z| z.is_object()), get("bbox_diagonal").as_f64())
         {
-            pairs.push(("sizing field: net spacing asked", sizing(z, d)));
+            pairs.push(("sizing field: lattice step asked", sizing(z, d)));
         }
         pairs.push(("attempts", c.get("attempts").and_then(Value::as_array).map_or(0, Vec::len).to_string()));
         let raises: Vec<String> = c
@@ -122,7 +122,7 @@ fn sizing(z: &Value, diagonal: f64) -> String {
     };
     let share = |k: &str| format!("{:.1}", 100.0 * z.get(k).and_then(Value::as_f64).unwrap_or(f64::NAN));
     esc(&format!(
-        "{} % of the diagonal at least, {} % median (uniform {} %); thin {} %, bent {} % of the area",
+        "{} % of the diagonal at least, {} % median (uniform {} %; the net's spacing about half of it); thin {} %, bent {} % of the area",
         pct("min_spacing"),
         pct("median_spacing"),
         pct("uniform_spacing"),

@@ -360,7 +360,7 @@ pub fn quad_stats(mesh: &PolyMesh, input: Option<(&TriMesh, &TriangleBvh)>) -> Q
     st
 }
 
-/// What the sizing field asked for (thickness by a cone of rays and curvature on the split routes' working
+/// What the sizing field asked for (thickness and curvature on the split routes' working
 /// mesh, `stages/remesh/sizing.rs`), spacings in the input's units.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct SizingSummary {

@@ -11,7 +11,7 @@ use super::sizing::Sizing;
 use crate::geometry::vec3::{self, V3, sub};
 
 /// A working mesh's thickness (the thin-part guard and the routes' `thin_share` go by it) and feature size
-/// (the adaptive routes' spacing follows it: thickness or curvature, [`Sizing::feature_size`]).
+/// (the adaptive split route's spacing follows it: thickness or curvature, [`Sizing::feature_size`]).
 pub(super) struct SizeField {
     pub thickness: Vec<f64>,
     pub feature: Vec<f64>,
