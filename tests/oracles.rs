@@ -138,13 +138,21 @@ fn the_oracles_are_closed_outward_surfaces_of_known_genus() {
 /// What one oracle's conversion at the defaults measured.
 fn convert(name: &str) -> (Oracle, ConvertReport) {
     let o = oracle(name);
-    let dir = out_dir();
+    let keep = std::env::var_os("SCANSTATION_ORACLES_OUT").is_some();
+    // A directory of its own, removed afterwards unless kept (the tests run side by side).
+    let dir = if keep {
+        out_dir()
+    } else {
+        std::env::temp_dir().join(format!("scanstation-oracle-{}-{}", name.replace(' ', "-"), std::process::id()))
+    };
     let input = write_input(&o, &dir);
     let output = dir.join(file_name(name, "step"));
     let r = convert_file(&input, &output, &ReadOptions::default(), &ConvertOptions::default(), &NoProgress)
         .unwrap_or_else(|e| panic!("{name}: convert ended in {e}"));
-    if std::env::var_os("SCANSTATION_ORACLES_OUT").is_some() {
+    if keep {
         std::fs::write(dir.join(file_name(name, "json")), serde_json::to_vec_pretty(&r).unwrap()).unwrap();
+    } else {
+        std::fs::remove_dir_all(&dir).ok();
     }
     let gates: Vec<String> = r.gates.iter().map(|g| format!("{} {:.4} ({})", g.name, g.value, g.passed)).collect();
     println!(
