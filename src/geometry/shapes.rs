@@ -408,9 +408,9 @@ pub fn hand(finger_radius: f64, finger_length: f64, level: u32, step: f64) -> Tr
         .collect();
     let foot = 2.5 * finger_radius;
     // 1. Holes: every ball triangle with a corner inside a finger's foot.
-    let inside = |v: usize| dirs.iter().position(|&d| dot(p[v], d) > (1.0 - foot * foot).sqrt());
+    let inside = |v: usize| dirs.iter().any(|&d| dot(p[v], d) > (1.0 - foot * foot).sqrt());
     let mut triangles: Vec<[u32; 3]> =
-        ball.triangles.iter().copied().filter(|t| t.iter().all(|&v| inside(v as usize).is_none())).collect();
+        ball.triangles.iter().copied().filter(|t| !t.iter().any(|&v| inside(v as usize))).collect();
     let mut positions = ball.positions.clone();
     // 2. Each hole's rim, walked along the remaining triangles' edges that have no twin.
     let twins: std::collections::HashSet<(u32, u32)> =

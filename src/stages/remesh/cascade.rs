@@ -298,7 +298,7 @@ impl<'a> Cascade<'a> {
         if mode == Mode::AdaptiveSplit {
             let t = thick_all
                 .get_or_insert_with(|| timed_feature_size(&w.levels[0], (&w.p, &w.tris), reach, spacings, report));
-            report.thin_vertices = t.feature.iter().filter(|x| x.is_finite()).count();
+            report.thin_vertices = t.thickness.iter().filter(|x| x.is_finite()).count();
         }
         let refine = (mode == Mode::RefinedDirect)
             .then(|| REFINE_TRIES[self.modes[..mi].iter().filter(|&&m| m == Mode::RefinedDirect).count()]);

@@ -194,8 +194,8 @@ pub struct RemeshReport {
     pub working_mesh: String,
     /// Levels of the multi-resolution hierarchy.
     pub hierarchy_levels: usize,
-    /// Working vertices within reach of a thin part, a narrow gap or a fast bend (a finite feature size;
-    /// measured only when an adaptive route ran; 0 otherwise).
+    /// Working vertices within reach of a thin part or a narrow gap (a finite thickness; measured only when an
+    /// adaptive route ran; 0 otherwise).
     pub thin_vertices: usize,
     /// Share of the split routes' working vertices thinner than [`SKIP_THIN_SPACINGS`] uniform split
     /// spacings (measured when the adaptive split route is on; 0 otherwise).

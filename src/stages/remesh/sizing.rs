@@ -1,7 +1,7 @@
 //! The sizing field: at each working vertex, the size of the finest feature there — the local thickness of
-//! the part (or the width of a gap) and the curvature radius where a
-//! tip, a rim or a crease bends faster than a net of the route's spacing can follow — from which the
-//! adaptive split route's spacing follows ([`super::spacing::spacing_field`]), graded.
+//! the part (or the width of a gap) and the curvature radius where a tip, a rim or a crease bends faster than
+//! a net of the route's spacing can follow — which the adaptive split route's spacing follows
+//! ([`super::spacing::spacing_field`]), graded.
 //!
 //! **Thickness**: a ray inward along −n to the first wall seen from inside, and one along +n across a gap to
 //! a surface facing back; the shorter.
